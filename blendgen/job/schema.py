@@ -1,0 +1,275 @@
+"""Job schema (`job.yaml`).
+
+Every user mistake becomes a UserError naming the field path and what was expected.
+Relative paths are resolved against the job file's folder; a `twin` may also name a
+built-in twin (`demo_town`, `highway`) from assets_procedural/twins.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import (BaseModel, ConfigDict, Field, ValidationError, field_validator,
+                      model_validator)
+
+from blendgen import CLASSES
+from blendgen.errors import UserError
+
+BUILTIN_TWINS_DIR = Path(__file__).resolve().parents[2] / "assets_procedural" / "twins"
+SCENARIOS = ("jaywalker", "cut_in", "near_collision", "occluded_pedestrian", "cyclist_overtake")
+EXPORT_FORMATS = ("coco", "yolo", "kitti")
+
+PosInt = Annotated[int, Field(gt=0)]
+PosFloat = Annotated[float, Field(gt=0)]
+
+
+class Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class Synthetic(Section):
+    """A recording blendgen makes itself: a drive through the twin, rendered with Cycles,
+    with IMU and GNSS simulated along the same trajectory."""
+
+    duration_s: Annotated[float, Field(gt=0, le=600)] = 4.0
+    fps: Annotated[float, Field(gt=0, le=60)] = 5.0
+    resolution: tuple[PosInt, PosInt] = (480, 270)
+    hfov_deg: Annotated[float, Field(gt=10, lt=170)] = 70.0
+    camera_height_m: Annotated[float, Field(gt=0.2, le=5)] = 1.5
+    speed_mps: Annotated[float, Field(ge=0, le=60)] = 8.0
+    samples: Annotated[int, Field(ge=1, le=4096)] = 8
+    imu_rate_hz: Annotated[float, Field(gt=0, le=2000)] = 200.0
+    gnss_rate_hz: Annotated[float, Field(gt=0, le=100)] = 10.0
+    gnss_noise_m: Annotated[float, Field(ge=0, le=50)] = 1.0
+    start_time_utc: str = "2026-06-21T10:30:00Z"  # sets the sun for the synthetic recording
+
+
+class Sync(Section):
+    lut: Path | None = None  # default: the twin's exported LUT
+    orb_features: Annotated[int, Field(ge=50, le=20000)] = 1500
+    reanchor_every_s: Annotated[float, Field(gt=0)] | None = 5.0  # None disables re-anchoring
+    use_imu: bool = True
+    use_gnss: bool = True
+    use_vo: bool = True
+    gnss_std_m: PosFloat | None = None  # default: gnss.csv h_std_m, else 1.5 m
+
+
+class Inject(Section):
+    objects_per_frame: tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=0)]] = (2, 6)
+    classes: dict[str, Annotated[float, Field(ge=0)]] = Field(
+        default_factory=lambda: {"car": 3.0, "person": 2.0, "bicycle": 1.0})
+    scenarios: list[str] = Field(default_factory=list)
+    distance_m: tuple[PosFloat, PosFloat] = (4.0, 40.0)
+    min_projected_px: Annotated[int, Field(ge=1)] = 24
+    sequences: bool = True  # objects keep identity and move along their path across frames
+
+    @field_validator("classes")
+    @classmethod
+    def _known_classes(cls, v: dict[str, float]) -> dict[str, float]:
+        unknown = [k for k in v if k not in CLASSES]
+        if unknown:
+            raise ValueError(f"unknown class {unknown[0]!r}; expected one of {sorted(CLASSES)}")
+        if v and sum(v.values()) <= 0:
+            raise ValueError("class weights must not all be zero")
+        return v
+
+    @field_validator("scenarios")
+    @classmethod
+    def _known_scenarios(cls, v: list[str]) -> list[str]:
+        for s in v:
+            if s not in SCENARIOS:
+                raise ValueError(f"unknown scenario {s!r}; expected one of {list(SCENARIOS)}")
+        return v
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        lo, hi = self.objects_per_frame
+        if lo > hi:
+            raise ValueError(f"objects_per_frame: min {lo} is greater than max {hi}")
+        if self.distance_m[0] >= self.distance_m[1]:
+            raise ValueError(f"distance_m: near {self.distance_m[0]} must be less than far {self.distance_m[1]}")
+        return self
+
+
+class Render(Section):
+    resolution: tuple[PosInt, PosInt] | None = None  # default: the recording's camera resolution
+    samples: Annotated[int, Field(ge=1, le=4096)] = 64
+    denoise: bool = True
+    adaptive_threshold: Annotated[float, Field(ge=0, le=1)] = 0.02
+    max_bounces: Annotated[int, Field(ge=0, le=64)] = 4
+    region: bool = True  # render only the projected bounds of objects and their shadows
+    motion_blur: Literal["auto", "on", "off"] = "auto"
+    shutter_s: Annotated[float, Field(ge=0, le=1)] = 1.0 / 120
+    device: Literal["CPU", "GPU"] = "CPU"
+    threads: Annotated[int, Field(ge=0)] = 0  # 0: all cores of the worker
+
+
+class Post(Section):
+    illumination: Literal["auto", "off"] = "auto"
+    color_transfer: Literal["reinhard", "mkl", "histogram", "none"] = "reinhard"
+    shadows: bool = True
+    sensor_match: bool = True
+    relight: bool = True  # re-weight the EXR lighting passes toward the estimate
+
+
+class Export(Section):
+    formats: list[Literal["coco", "yolo", "kitti"]] = Field(default_factory=lambda: list(EXPORT_FORMATS))
+    min_visible_px: Annotated[int, Field(ge=0)] = 64
+    small_objects: Literal["drop", "ignore"] = "drop"
+    save_exr: bool = True
+
+
+class Farm(Section):
+    engine: Literal["local", "ray"] = "local"
+    workers: Annotated[int, Field(ge=1, le=256)] = 1
+    chunk: Annotated[int, Field(ge=1)] = 4
+    max_attempts: Annotated[int, Field(ge=1, le=20)] = 3
+    recycle_after_frames: Annotated[int, Field(ge=1)] = 200
+    max_rss_mb: Annotated[int, Field(ge=256)] = 6000
+    address: str | None = None  # Ray: "auto" or HOST:PORT
+
+
+class Frames(Section):
+    start: Annotated[int, Field(ge=0)] = 0
+    stop: Annotated[int, Field(ge=0)] | None = None
+    step: Annotated[int, Field(ge=1)] = 1
+
+
+class GroundPlane(Section):
+    camera_height_m: Annotated[float, Field(gt=0.2, le=5)] = 1.5
+    pitch_deg: Annotated[float, Field(ge=-45, le=45)] = 0.0
+    lane_width_m: Annotated[float, Field(gt=1, le=6)] = 3.5
+
+
+class Job(Section):
+    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")]
+    seed: Annotated[int, Field(ge=0)] = 0
+    recording: Path | None = None
+    synthetic: Synthetic | None = None
+    twin: str | None = None  # built-in twin name or path to a twin YAML
+    ground_plane: GroundPlane | None = None  # for footage without a twin
+    frames: Frames = Field(default_factory=Frames)
+    sync: Sync = Field(default_factory=Sync)
+    inject: Inject = Field(default_factory=Inject)
+    render: Render = Field(default_factory=Render)
+    post: Post = Field(default_factory=Post)
+    export: Export = Field(default_factory=Export)
+    farm: Farm = Field(default_factory=Farm)
+    output: Path
+
+    # Set by load_job, not by the user.
+    job_dir: Path | None = Field(default=None, exclude=True)
+
+    @model_validator(mode="after")
+    def _sources(self):
+        if (self.recording is None) == (self.synthetic is None):
+            raise ValueError("give exactly one of `recording` (a folder) or `synthetic` (a block)")
+        if self.twin is None and self.ground_plane is None:
+            raise ValueError("give a `twin` (built-in name or YAML path) or a `ground_plane` block")
+        if self.synthetic is not None and self.twin is None:
+            raise ValueError("`synthetic` renders a drive through a twin: give `twin` too")
+        if self.frames.stop is not None and self.frames.stop <= self.frames.start:
+            raise ValueError(f"frames.stop ({self.frames.stop}) must be greater than frames.start")
+        return self
+
+    # ---- derived paths
+    def path(self, p: Path | str) -> Path:
+        p = Path(p).expanduser()
+        return p if p.is_absolute() else (self.job_dir or Path.cwd()) / p
+
+    @property
+    def out_dir(self) -> Path:
+        return self.path(self.output)
+
+    @property
+    def recording_dir(self) -> Path:
+        return self.path(self.recording) if self.recording is not None else self.out_dir / "recording"
+
+    @property
+    def twin_path(self) -> Path | None:
+        if self.twin is None:
+            return None
+        builtin = BUILTIN_TWINS_DIR / f"{self.twin}.yaml"
+        return builtin if "/" not in self.twin and not self.twin.endswith((".yaml", ".yml")) else self.path(self.twin)
+
+    def resolved(self) -> dict[str, Any]:
+        """The job with defaults filled in, paths absolute, as plain data."""
+        d = self.model_dump(mode="json")
+        d["output"] = str(self.out_dir)
+        if self.recording is not None:
+            d["recording"] = str(self.recording_dir)
+        if self.twin is not None:
+            d["twin"] = str(self.twin_path)
+        if self.sync.lut is not None:
+            d["sync"]["lut"] = str(self.path(self.sync.lut))
+        return d
+
+    def content_hash(self) -> str:
+        blob = json.dumps(self.resolved(), sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _format_loc(loc: tuple) -> str:
+    parts: list[str] = []
+    for p in loc:
+        if isinstance(p, int):
+            parts.append(f"[{p}]")
+        elif p in ("function-after", "function-before") or str(p).startswith(("function-", "constrained-")):
+            continue
+        else:
+            parts.append(("." if parts else "") + str(p))
+    return "".join(parts) or "(top level)"
+
+
+def _format_error(err: dict) -> str:
+    loc = _format_loc(tuple(p for p in err["loc"] if not str(p).startswith("function")))
+    msg = err["msg"].removeprefix("Value error, ")
+    if err["type"] == "extra_forbidden":
+        return f"{loc}: unknown key (check the spelling; see README 'Job format')"
+    if err["type"] == "missing":
+        return f"{loc}: required field is missing"
+    got = err.get("input")
+    got_s = "" if isinstance(got, dict) or got is None else f" (got {got!r})"
+    return f"{loc}: {msg}{got_s}"
+
+
+def parse_job(data: Any, *, source: str = "job", job_dir: Path | None = None) -> Job:
+    if not isinstance(data, dict):
+        raise UserError(f"expected a mapping of job fields at the top level, got {type(data).__name__}", where=source)
+    try:
+        job = Job.model_validate(data)
+    except ValidationError as e:
+        lines = [_format_error(err) for err in e.errors()]
+        raise UserError("invalid job:\n  " + "\n  ".join(lines), where=source) from None
+    job.job_dir = job_dir
+    _check_files(job, source)
+    return job
+
+
+def _check_files(job: Job, source: str) -> None:
+    if job.recording is not None and not job.recording_dir.is_dir():
+        raise UserError(f"recording: folder {job.recording_dir} does not exist", where=source)
+    tp = job.twin_path
+    if tp is not None and not tp.is_file():
+        names = sorted(p.stem for p in BUILTIN_TWINS_DIR.glob("*.yaml"))
+        raise UserError(f"twin: {job.twin!r} is neither a built-in twin {names} nor an existing YAML file "
+                        f"({tp})", where=source)
+    if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
+        raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)
+
+
+def load_job(path: str | Path) -> Job:
+    path = Path(path)
+    if not path.is_file():
+        raise UserError("job file not found", where=str(path))
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        raise UserError(f"not valid YAML: {getattr(e, 'problem', e)}", where=where) from None
+    return parse_job(data, source=str(path), job_dir=path.resolve().parent)

@@ -1,0 +1,1 @@
+"""Bpy-free scene side: the twin model, placement and per-frame plans."""

@@ -1,0 +1,65 @@
+"""The per-frame scene plan: plain data the render driver realises and labels trust.
+
+Object local frame: x forward, y left, z up, origin at the centre of the bottom face.
+`yaw` turns local x toward world +y. `id` is the track id: it is the object's identity
+across frames, its Blender `pass_index` and its value in the instance-id image (0 is
+background), so it must be 1..65535.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from blendgen import CLASSES
+
+
+@dataclass
+class PlacedObject:
+    id: int
+    cls: str
+    position: tuple[float, float, float]
+    yaw: float
+    dims: tuple[float, float, float]  # length (x), width (y), height (z) in metres
+    variant: dict[str, Any] = field(default_factory=dict)  # builder parameters (shape, colours, seed)
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world m/s, for motion-blur decisions
+    state: str | None = None  # e.g. traffic light "red" | "amber" | "green"
+    scenario: str | None = None
+
+    def __post_init__(self):
+        if self.cls not in CLASSES:
+            raise ValueError(f"unknown class {self.cls!r}; expected one of {sorted(CLASSES)}")
+        if not 1 <= int(self.id) <= 65535:
+            raise ValueError(f"object id {self.id} outside 1..65535")
+
+    def box_corners_world(self) -> np.ndarray:
+        """The 8 corners of the object's 3D box in world coordinates (8x3)."""
+        L, W, H = self.dims
+        xs, ys, zs = np.meshgrid([-L / 2, L / 2], [-W / 2, W / 2], [0.0, H], indexing="ij")
+        local = np.stack([xs.ravel(), ys.ravel(), zs.ravel()], axis=1)
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+        return local @ R.T + np.asarray(self.position, dtype=float)
+
+
+@dataclass
+class FramePlan:
+    frame_id: str
+    t: float
+    T_world_cam: list[list[float]]
+    objects: list[PlacedObject] = field(default_factory=list)
+    lighting: dict[str, Any] | None = None  # sun/sky settings from the post stage's estimate
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["T_world_cam"] = np.asarray(self.T_world_cam, dtype=float).tolist()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FramePlan":
+        objs = [PlacedObject(**{**o, "position": tuple(o["position"]), "dims": tuple(o["dims"]),
+                                "velocity": tuple(o.get("velocity", (0, 0, 0)))})
+                for o in d.get("objects", [])]
+        return cls(d["frame_id"], float(d["t"]), d["T_world_cam"], objs, d.get("lighting"))

@@ -209,7 +209,11 @@ class Job(Section):
         return d
 
     def content_hash(self) -> str:
-        blob = json.dumps(self.resolved(), sort_keys=True).encode()
+        """Hash of everything that changes results; `farm` (how work is spread) is left out
+        so that a resumed run may use other workers."""
+        d = self.resolved()
+        d.pop("farm", None)
+        blob = json.dumps(d, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
 

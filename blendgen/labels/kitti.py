@@ -1,0 +1,70 @@
+"""KITTI object layout: label_2/<frame>.txt, calib/<frame>.txt, image_2/<frame>.png (links).
+
+label_2 line: `type truncated occluded alpha left top right bottom h w l x y z rotation_y`.
+The 2D box uses COCO's pixel-edge convention (right = x + w). The 3D box is exact (from the
+plan): (x, y, z) is the bottom-face centre in camera coordinates. Objects marked ignore are
+written as `DontCare` (KITTI's ignore regions). KITTI has no bus, motorcycle, bicycle or
+traffic light types: those keep descriptive CamelCase names that KITTI readers accept.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from blendgen import atomic
+from blendgen.labels.yolo import link_image
+
+KITTI_TYPE = {"person": "Pedestrian", "bicycle": "Bicycle", "car": "Car", "motorcycle": "Motorcycle",
+              "bus": "Bus", "truck": "Truck", "traffic light": "TrafficLight"}
+
+
+def occluded_state(occlusion: float | None) -> int:
+    """KITTI occluded: 0 fully visible, 1 partly, 2 largely occluded, 3 unknown."""
+    if occlusion is None:
+        return 3
+    return 0 if occlusion <= 0.1 else (1 if occlusion <= 0.5 else 2)
+
+
+def label_line(inst: dict) -> str:
+    x, y, w, h = (float(v) for v in inst["bbox"])
+    box = f"{x:.2f} {y:.2f} {x + w:.2f} {y + h:.2f}"
+    if inst["ignore"]:
+        return f"DontCare -1 -1 -10 {box} -1 -1 -1 -1000 -1000 -1000 -10"
+    b = inst["box3d_cam"]
+    hh, ww, ll = b["dimensions_hwl"]
+    lx, ly, lz = b["location"]
+    return (f"{KITTI_TYPE[inst['cls']]} {float(inst.get('truncation') or 0.0):.2f} "
+            f"{occluded_state(inst.get('occlusion'))} {b['alpha']:.2f} {box} "
+            f"{hh:.2f} {ww:.2f} {ll:.2f} {lx:.2f} {ly:.2f} {lz:.2f} {b['rotation_y']:.2f}")
+
+
+def calib_text(camera: dict) -> str:
+    """KITTI calib file: every projection matrix is the rendered camera (no stereo, no lidar)."""
+    P = np.array([[camera["fx"], 0, camera["cx"], 0], [0, camera["fy"], camera["cy"], 0], [0, 0, 1, 0]])
+    p = " ".join(f"{v:.12e}" for v in P.ravel())
+    eye = " ".join(f"{v:.12e}" for v in np.eye(3).ravel())
+    tr = " ".join(f"{v:.12e}" for v in np.eye(4)[:3].ravel())
+    return (f"P0: {p}\nP1: {p}\nP2: {p}\nP3: {p}\nR0_rect: {eye}\n"
+            f"Tr_velo_to_cam: {tr}\nTr_imu_to_velo: {tr}\n")
+
+
+def parse_label_line(line: str) -> dict:
+    f = line.split()
+    return {"type": f[0], "truncated": float(f[1]), "occluded": int(f[2]), "alpha": float(f[3]),
+            "bbox": [float(v) for v in f[4:8]], "dimensions_hwl": [float(v) for v in f[8:11]],
+            "location": [float(v) for v in f[11:14]], "rotation_y": float(f[14])}
+
+
+def write_kitti(root: Path, frames: list[dict]) -> dict:
+    n_calib = 0
+    for fr in frames:
+        fid = fr["frame_id"]
+        atomic.write_text(root / "label_2" / f"{fid}.txt",
+                          "".join(label_line(i) + "\n" for i in fr["instances"]))
+        link_image(root / "image_2" / (fid + Path(fr["image_path"]).suffix), fr["image_path"])
+        if fr.get("camera"):
+            atomic.write_text(root / "calib" / f"{fid}.txt", calib_text(fr["camera"]))
+            n_calib += 1
+    return {"dir": str(root), "label_files": len(frames), "calib_files": n_calib}

@@ -1,0 +1,96 @@
+"""Ultralytics YOLO datasets: boxes (detect) and polygons (segment).
+
+Ultralytics finds a label file by replacing `/images/` with `/labels/` in the image path,
+and a file holds either boxes or polygons, so there are two datasets side by side:
+
+    labels/yolo/           data.yaml, train.txt, images/<frame>.png (links), labels/<frame>.txt
+    labels/yolo/seg/       data.yaml, train.txt, images/<frame>.png (links), labels/<frame>.txt
+
+Box lines: `cls cx cy w h`; polygon lines: `cls x1 y1 x2 y2 ...`, all normalised to 0..1
+with pixel (u, v) covering [u, u+1) (COCO's convention). Class index = position in
+blendgen.CLASSES. YOLO has no "ignore": objects marked ignore are left out.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blendgen import CLASSES, atomic
+from blendgen.labels.instances import decode_mask
+
+NAMES = list(CLASSES)
+
+
+def box_line(inst: dict, W: int, H: int) -> str:
+    x, y, w, h = inst["bbox"]
+    return f"{NAMES.index(inst['cls'])} {(x + w / 2) / W:.6f} {(y + h / 2) / H:.6f} {w / W:.6f} {h / H:.6f}"
+
+
+def mask_polygon(mask: np.ndarray) -> np.ndarray:
+    """One polygon (Nx2, pixel-centre coordinates) outlining every component of the mask.
+
+    Components are joined by zero-width bridges at their closest points, as Ultralytics'
+    own COCO converter does, because a YOLO segment line holds exactly one polygon.
+    """
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    contours = sorted((c.reshape(-1, 2).astype(float) for c in contours), key=lambda c: c[:, 0].min())
+    if not contours:
+        return np.zeros((0, 2))
+    poly = contours[0]
+    for c in contours[1:]:
+        d = np.linalg.norm(poly[:, None, :] - c[None, :, :], axis=2)
+        i, j = np.unravel_index(np.argmin(d), d.shape)
+        poly = np.concatenate([poly[:i + 1], c[j:], c[:j + 1], poly[i:]])
+    return poly
+
+
+def segment_line(inst: dict, W: int, H: int) -> str:
+    poly = mask_polygon(decode_mask(inst["segmentation"]))
+    if len(poly) < 3:  # a line or a single pixel: outline its box instead
+        x, y, w, h = inst["bbox"]
+        pts = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=float)
+    else:
+        pts = poly + 0.5  # pixel centre -> COCO continuous coordinates
+    pts = np.clip(pts / [W, H], 0.0, 1.0)
+    return f"{NAMES.index(inst['cls'])} " + " ".join(f"{v:.6f}" for v in pts.ravel())
+
+
+def data_yaml(root: Path) -> str:
+    names = "\n".join(f"  {i}: {n}" for i, n in enumerate(NAMES))
+    # val = train: blendgen writes one split; users split by track or sequence themselves.
+    return f"path: {root.resolve()}\ntrain: train.txt\nval: train.txt\nnames:\n{names}\n"
+
+
+def write_yolo(root: Path, frames: list[dict]) -> dict:
+    files = 0
+    for sub, make_line in ((root, box_line), (root / "seg", segment_line)):
+        listing = []
+        for fr in frames:
+            name = fr["frame_id"] + Path(fr["image_path"]).suffix
+            link_image(sub / "images" / name, fr["image_path"])
+            lines = [make_line(i, fr["width"], fr["height"]) for i in fr["instances"] if not i["ignore"]]
+            atomic.write_text(sub / "labels" / f"{fr['frame_id']}.txt", "".join(l + "\n" for l in lines))
+            listing.append(f"./images/{name}")
+            files += 1
+        atomic.write_text(sub / "train.txt", "".join(l + "\n" for l in listing))
+        atomic.write_text(sub / "data.yaml", data_yaml(sub))
+    return {"dir": str(root), "label_files": files}
+
+
+def link_image(link: Path, target: Path) -> None:
+    """A relative symlink to the composite (a copy where links are not allowed), atomically."""
+    link.parent.mkdir(parents=True, exist_ok=True)
+    rel = os.path.relpath(Path(target).resolve(), link.parent.resolve())
+    tmp = link.with_name(f".{link.name}.tmp{os.getpid()}")
+    if tmp.is_symlink() or tmp.exists():
+        tmp.unlink()
+    try:
+        os.symlink(rel, tmp)
+    except OSError:
+        shutil.copyfile(target, tmp)
+    os.replace(tmp, link)

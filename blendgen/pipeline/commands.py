@@ -1,0 +1,70 @@
+"""CLI commands of the whole pipeline: run, validate, status."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from blendgen.errors import UserError
+from blendgen.job.schema import load_job
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run a job: sync -> plan -> render -> post -> labels",
+                       description="Run the whole pipeline of a job. Finished frames are never redone: "
+                                   "running the same job again resumes.")
+    p.add_argument("job", type=Path, help="job YAML")
+    p.add_argument("--engine", choices=["local", "ray"], help="override farm.engine")
+    p.add_argument("--workers", type=int, help="override farm.workers")
+    p.add_argument("--chunk", type=int, help="override farm.chunk (frames per task)")
+    p.add_argument("--address", help="Ray cluster address (auto or HOST:PORT)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a job without doing any work")
+    p.add_argument("job", type=Path)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("status", help="what is done, running, failed and left in a job folder")
+    p.add_argument("out", type=Path, help="the job's output folder")
+    p.set_defaults(func=cmd_status)
+
+
+def cmd_run(args) -> int:
+    from blendgen.pipeline.run import Runner, print_summary
+
+    for name in ("workers", "chunk"):
+        v = getattr(args, name)
+        if v is not None and v < 1:
+            raise UserError(f"--{name} must be at least 1, got {v}")
+    job = load_job(args.job)
+    runner = Runner(job, engine=args.engine, workers=args.workers, chunk=args.chunk,
+                    address=args.address, progress=not args.quiet)
+    summary = runner.run()
+    print_summary(summary)
+    return 1 if summary["frames"]["failed"] else 0
+
+
+def cmd_validate(args) -> int:
+    job = load_job(args.job)
+    src = f"recording {job.recording_dir}" if job.recording is not None else \
+        f"synthetic {job.synthetic.duration_s:g} s at {job.synthetic.fps:g} fps"
+    scene = f"twin {job.twin_path}" if job.twin_path else "ground-plane twin"
+    print(f"{args.job}: valid job {job.name!r} (content hash {job.content_hash()})")
+    print(f"  input:  {src}; {scene}")
+    print(f"  output: {job.out_dir}")
+    return 0
+
+
+def cmd_status(args) -> int:
+    from blendgen.pipeline.outputs import JobFolder
+
+    folder = JobFolder(args.out)
+    if not folder.resolved_job.exists():
+        raise UserError("not a blendgen job folder (no job.resolved.yaml)", where=str(args.out))
+    stages = ["sync", "plan", "export"]
+    print(f"{args.out}: " + ", ".join(f"{s} {'done' if folder.stage_done(s) else 'not done'}" for s in stages))
+    from blendgen.farm.status import status_report
+
+    print(status_report(folder.root))
+    return 0

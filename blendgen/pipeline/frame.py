@@ -1,0 +1,144 @@
+"""Per-frame work inside a farm worker: illumination -> render -> post -> labels.
+
+`FrameProcessor` is instantiated once per worker process (it holds the warm Blender
+session) and then processes many frames. It is the only pipeline code that reaches bpy,
+and only through `blendgen.render.session`, imported lazily.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blendgen import __version__, atomic
+from blendgen.job.schema import parse_job
+from blendgen.pipeline.outputs import JobFolder
+from blendgen.recording.folder import read_frame, read_recording
+from blendgen.scene.plan import FramePlan
+
+
+def frame_seed(job_seed: int, frame_id: str) -> int:
+    """Seed of one frame: independent of which worker runs it."""
+    h = hashlib.sha256(f"{job_seed}:{frame_id}".encode()).digest()
+    return int.from_bytes(h[:4], "little")
+
+
+def render_outputs(job) -> set[str]:
+    """The passes the job's outputs need (simulate only what is needed)."""
+    outputs = {"rgba", "index"}
+    if job.post.shadows:
+        outputs.add("shadow_catcher")
+    if job.post.relight and job.post.illumination == "auto":
+        outputs.add("lighting")
+    return outputs
+
+
+def load_plans(path: Path) -> dict[str, FramePlan]:
+    plans = {}
+    with open(path) as f:
+        for line in f:
+            if line.strip():
+                p = FramePlan.from_dict(json.loads(line))
+                plans[p.frame_id] = p
+    return plans
+
+
+class FrameProcessor:
+    def __init__(self, job: dict, out_dir: str):
+        self.job = parse_job(job, source=str(Path(out_dir) / "job.resolved.yaml"))
+        self.folder = JobFolder(Path(out_dir))
+        self.rec = read_recording(self.job.recording_dir)
+        self.plans = load_plans(self.folder.plan)
+        self.georef = self._georef()
+        w, h = self.job.render.resolution or (self.rec.camera.width, self.rec.camera.height)
+        self.camera = self.rec.camera.scaled(w, h)
+        self.session = None
+
+    def _georef(self):
+        if self.job.twin_path is None:
+            return None
+        from blendgen.scene.twin import load_twin
+
+        return load_twin(self.job.twin_path).georef
+
+    def is_done(self, frame_id: str) -> bool:
+        return self.folder.frame_done(frame_id, self.job.export.save_exr)
+
+    def process(self, frame_id: str) -> dict:
+        from blendgen.labels.frame_labels import write_frame_labels
+        from blendgen.labels.instances import extract_instances
+        from blendgen.post.composite import composite_frame
+        from blendgen.post.illumination import estimate_illumination
+        from blendgen.render.exr import read_passes
+
+        job, plan = self.job, self.plans[frame_id]
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        i = int(frame_id.lstrip("f"))
+        real = read_frame(self.rec, i)
+        if real.shape[:2] != (self.camera.height, self.camera.width):
+            real = cv2.resize(real, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
+        seed = frame_seed(job.seed, frame_id)
+
+        illum = None
+        if job.post.illumination == "auto":
+            illum = estimate_illumination(real, T_world_cam=np.asarray(plan.T_world_cam),
+                                          when_utc=self.rec.utc(plan.t),
+                                          latlon=self.georef[:2] if self.georef else None)
+            plan.lighting = illum.to_lighting()
+        timings["illumination"] = time.perf_counter() - t0
+
+        t1 = time.perf_counter()
+        if self.session is None:
+            from blendgen.render.session import RenderSession
+
+            self.session = RenderSession(job.twin_path, job.ground_plane, job.render, self.camera)
+        fdir = self.folder.frame_dir(frame_id)
+        fdir.mkdir(parents=True, exist_ok=True)
+        exr = fdir / "render.exr"
+        info = self.session.render_frame(plan, exr, render_outputs(job))
+        passes = read_passes(exr)
+        timings["render"] = time.perf_counter() - t1
+
+        t2 = time.perf_counter()
+        composite, post_info = composite_frame(real, passes, settings=job.post, illumination=illum, seed=seed)
+        timings["post"] = time.perf_counter() - t2
+
+        t3 = time.perf_counter()
+        index = passes["index"]
+        instances = extract_instances(index, plan, self.camera, amodal_px=info.get("amodal_px"),
+                                      min_visible_px=job.export.min_visible_px,
+                                      small_objects=job.export.small_objects)
+        atomic.write_image(fdir / "instances.png", np.clip(index, 0, 65535).astype(np.uint16))
+        atomic.write_image(fdir / "composite.png", composite)
+        # labels.json last: its presence (with the others) marks the frame finished.
+        write_frame_labels(fdir / "labels.json", frame_id, f"frames/{frame_id}/composite.png",
+                           self.camera.width, self.camera.height, instances)
+        if not job.export.save_exr:
+            exr.unlink(missing_ok=True)
+        timings["labels"] = time.perf_counter() - t3
+        timings["total"] = time.perf_counter() - t0
+
+        return {
+            "stage": "frames", "frame_id": frame_id, "t": plan.t, "seed": seed,
+            "versions": {"blendgen": __version__},
+            "objects": {o.cls: sum(1 for q in plan.objects if q.cls == o.cls) for o in plan.objects},
+            "labels": len([x for x in instances if not x.get("ignore")]),
+            "hashes": {n: _sha(fdir / n) for n in ("composite.png", "instances.png", "labels.json")},
+            "timings": {k: round(v, 4) for k, v in timings.items()},
+            "render": {k: v for k, v in info.items() if k != "amodal_px"},
+            "post": post_info,
+        }
+
+    def close(self):
+        if self.session is not None:
+            self.session.close()
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]

@@ -1,0 +1,239 @@
+"""`blendgen run`: record (synthetic only) -> sync -> plan -> frames -> export -> report.
+
+This process is the supervisor: it never imports bpy. Blender work (the synthetic
+recording's frames, the per-frame renders) runs in farm workers. Every stage leaves its
+outputs atomically and a marker; running the same job again skips what is finished.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from blendgen import atomic
+from blendgen.errors import StageError, UserError
+from blendgen.geometry import pose_from_xyz_quat
+from blendgen.job.schema import Job
+from blendgen.pipeline.outputs import JobFolder
+from blendgen.recording.folder import read_recording
+
+STAGES = ("record", "sync", "plan", "frames", "export", "report")
+
+
+class Runner:
+    def __init__(self, job: Job, *, engine: str | None = None, workers: int | None = None,
+                 chunk: int | None = None, address: str | None = None, progress: bool = True):
+        self.job = job
+        self.folder = JobFolder(job.out_dir)
+        farm = job.farm
+        self.farm = dict(engine=engine or farm.engine, workers=workers or farm.workers, chunk=chunk or farm.chunk,
+                         max_attempts=farm.max_attempts, recycle_after=farm.recycle_after_frames,
+                         max_rss_mb=farm.max_rss_mb, address=address or farm.address)
+        self.progress = progress
+        self.times: dict[str, float] = {}
+        self.skipped: list[str] = []
+
+    def _say(self, k: int, stage: str, what: str) -> None:
+        if self.progress:
+            print(f"[{k}/{len(STAGES)}] {stage}: {what}", flush=True)
+
+    def _twin(self):
+        if self.job.twin_path is not None:
+            from blendgen.scene.twin import load_twin
+
+            return load_twin(self.job.twin_path)
+        from blendgen.scene.ground_plane import GroundPlaneTwin
+
+        gp = self.job.ground_plane
+        return GroundPlaneTwin(camera_height_m=gp.camera_height_m, pitch_deg=gp.pitch_deg,
+                               lane_width_m=gp.lane_width_m)
+
+    # ------------------------------------------------------------------ stages
+    def record(self) -> None:
+        job = self.job
+        if job.synthetic is None:
+            self.skipped.append("record")
+            self._say(1, "record", f"using recording {job.recording_dir}")
+            return
+        root = job.recording_dir
+        if (root / "frames.csv").exists():
+            self.skipped.append("record")
+            self._say(1, "record", f"synthetic recording already made ({root})")
+            return
+        from blendgen.recording.folder import write_frames_csv
+        from blendgen.recording.synthetic import write_sensor_data
+        from blendgen.post.illumination import sun_lighting
+
+        twin = self._twin()
+        s = job.synthetic
+        self._say(1, "record", f"synthetic drive {s.duration_s:g} s at {s.fps:g} fps, "
+                               f"{s.resolution[0]}x{s.resolution[1]}, Cycles {s.samples} spp -> {root}")
+        camera, poses, frame_t = write_sensor_data(root, twin, s, job.seed)
+        rec = read_recording(root)
+        lighting = sun_lighting(twin.georef, rec.utc(0.0))
+        ids = [rec.frame_id(i) for i in range(len(frame_t))]
+        render = job.render.model_dump()
+        render["resolution"] = None
+        summary = self._farm("record", ids, "blendgen.recording.synthetic:BackgroundRenderer",
+                             {"recording_dir": str(root), "twin_path": str(job.twin_path), "render": render,
+                              "samples": s.samples, "lighting": lighting})
+        if summary.failed:
+            raise StageError(f"record: {len(summary.failed)} background frame(s) failed; see `blendgen status "
+                             f"{self.folder.root}`")
+        write_frames_csv(root, frame_t, [f"frames/{i}.png" for i in ids])
+
+    def sync(self, rec) -> list[tuple[str, float, np.ndarray]]:
+        from blendgen.sync.pipeline import read_poses, run_sync
+
+        job = self.job
+        if self.folder.stage_done("sync"):
+            self.skipped.append("sync")
+            self._say(2, "sync", f"poses exist ({self.folder.poses_csv})")
+            return read_poses(self.folder.poses_csv, rec)
+        lut = job.path(job.sync.lut) if job.sync.lut else self._default_lut()
+        self._say(2, "sync", f"{rec.n_frames} frames, {len(rec.imu)} IMU, {len(rec.gnss)} GNSS samples"
+                             f"{', LUT ' + str(lut) if lut else ''}")
+        twin = self._twin() if job.twin_path else None
+        result = run_sync(rec, job.sync, self.folder.root, lut_path=lut,
+                          georef=twin.georef if twin is not None else None, progress=self.progress)
+        self.folder.mark_stage("sync", {"frames": len(result.poses)})
+        return result.poses
+
+    def _default_lut(self) -> Path | None:
+        tp = self.job.twin_path
+        if tp is None:
+            return None
+        lut = tp.with_name(f"{tp.stem}_lut.csv")
+        if lut.exists():
+            return lut
+        lut = self.folder.state / "lut.csv"
+        if not lut.exists():
+            self._twin().export_lut(lut, 5.0)
+        return lut
+
+    def plan(self, rec, poses) -> list[str]:
+        from blendgen.scene.planner import plan_sequence
+
+        job = self.job
+        sel = poses[job.frames.start:job.frames.stop:job.frames.step]
+        if not sel:
+            raise UserError(f"frames: start {job.frames.start}, stop {job.frames.stop} select no frame of the "
+                            f"recording's {len(poses)}", where="job")
+        ids = [fid for fid, _, _ in sel]
+        if self.folder.stage_done("plan"):
+            self.skipped.append("plan")
+            self._say(3, "plan", f"plan exists ({self.folder.plan})")
+            return ids
+        w, h = job.render.resolution or (rec.camera.width, rec.camera.height)
+        camera = rec.camera.scaled(w, h)
+        plans = plan_sequence(self._twin(), camera, sel, job.inject, job.seed)
+        n_obj = sum(len(p.objects) for p in plans)
+        self._say(3, "plan", f"{len(plans)} frames, {n_obj} objects")
+        atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))
+        self.folder.mark_stage("plan", {"frames": len(plans), "objects": n_obj})
+        return ids
+
+    def frames(self, ids: list[str]):
+        left = [i for i in ids if not self.folder.frame_done(i, self.job.export.save_exr)]
+        self._say(4, "frames", f"{len(ids) - len(left)} of {len(ids)} done; rendering {len(left)} "
+                               f"on {self.farm['workers']} {self.farm['engine']} worker(s)")
+        if not left:
+            self.skipped.append("frames")
+            return None
+        return self._farm("frames", ids, "blendgen.pipeline.frame:FrameProcessor",
+                          {"job": self.job.resolved(), "out_dir": str(self.folder.root)})
+
+    def export(self, ids: list[str]) -> dict:
+        from blendgen.labels.export import export_labels
+
+        done = [self.folder.frame_dir(i) / "labels.json" for i in ids
+                if self.folder.frame_done(i, self.job.export.save_exr)]
+        key = {"frames": [p.parent.name for p in done], "formats": self.job.export.formats}
+        if self.folder.stage_done("export") and self.folder.stage_info("export").get("key") == key:
+            self.skipped.append("export")
+            self._say(5, "export", f"labels up to date ({self.folder.labels})")
+            return self.folder.stage_info("export").get("result", {})
+        self._say(5, "export", f"{len(done)} frames -> {', '.join(self.job.export.formats)}")
+        result = export_labels(self.folder.root, done, self.job.export.formats)
+        self.folder.mark_stage("export", {"key": key, "result": result})
+        return result
+
+    def report(self) -> Path:
+        from blendgen.report import build_report
+
+        marker = self.folder.root / "report" / "index.md"
+        if "export" in self.skipped and marker.exists():
+            self.skipped.append("report")
+            self._say(6, "report", f"up to date ({marker})")
+            return marker
+        self._say(6, "report", f"-> {self.folder.root / 'report'}")
+        return build_report(self.folder.root)
+
+    def _farm(self, stage: str, items: list[str], processor: str, args: dict):
+        from blendgen.farm import run_tasks
+
+        return run_tasks(self.folder.root, stage, items, processor, args, progress=self.progress,
+                         seed=self.job.seed, **self.farm)
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> dict:
+        self.folder.claim(self.job)
+        t_all = time.perf_counter()
+
+        def timed(name, fn, *a):
+            t = time.perf_counter()
+            out = fn(*a)
+            self.times[name] = round(time.perf_counter() - t, 3)
+            return out
+
+        timed("record", self.record)
+        rec = read_recording(self.job.recording_dir, require_frames=True)
+        poses = timed("sync", self.sync, rec)
+        ids = timed("plan", self.plan, rec, poses)
+        farm_summary = timed("frames", self.frames, ids)
+        export = timed("export", self.export, ids)
+        report = timed("report", self.report)
+        self.times["total"] = round(time.perf_counter() - t_all, 3)
+        return self._summary(ids, farm_summary, export, report)
+
+    def _summary(self, ids, farm_summary, export, report) -> dict:
+        from blendgen.labels.frame_labels import read_frame_labels
+
+        done = [i for i in ids if self.folder.frame_done(i, self.job.export.save_exr)]
+        per_class: Counter = Counter()
+        for i in done:
+            for inst in read_frame_labels(self.folder.frame_dir(i) / "labels.json")["instances"]:
+                if not inst.get("ignore"):
+                    per_class[inst["cls"]] += 1
+        failed = list(getattr(farm_summary, "failed", []) or [])
+        summary = {
+            "job": self.job.name, "output": str(self.folder.root),
+            "frames": {"total": len(ids), "done": len(done), "failed": len(failed)},
+            "labels_per_class": dict(sorted(per_class.items())),
+            "seconds_per_stage": self.times, "skipped_stages": self.skipped,
+            "outputs": {"labels": str(self.folder.labels), "report": str(report),
+                        "manifest": str(self.folder.manifest), "frames": str(self.folder.root / "frames")},
+            "export": export,
+        }
+        atomic.write_json(self.folder.summary, summary, indent=2)
+        return summary
+
+
+def print_summary(s: dict) -> None:
+    f = s["frames"]
+    print()
+    print(f"blendgen: job {s['job']!r} — {f['done']}/{f['total']} frames done"
+          + (f", {f['failed']} FAILED" if f["failed"] else ""))
+    if s["labels_per_class"]:
+        print("  labels:  " + ", ".join(f"{k} {v}" for k, v in s["labels_per_class"].items()))
+    else:
+        print("  labels:  none")
+    times = s["seconds_per_stage"]
+    print("  time:    " + ", ".join(f"{k} {v:.1f}s" for k, v in times.items())
+          + (f"  (skipped, already done: {', '.join(s['skipped_stages'])})" if s["skipped_stages"] else ""))
+    o = s["outputs"]
+    print(f"  outputs: {o['frames']}/<frame>/composite.png, {o['labels']}/, {o['report']}")

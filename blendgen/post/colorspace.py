@@ -1,0 +1,38 @@
+"""sRGB <-> linear Rec.709 conversions and luminance, shared by the post modules.
+
+Real frames are 8-bit sRGB-encoded BGR (OpenCV order); renders are linear RGB(A).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Rec.709 luminance weights in BGR order (OpenCV images are BGR).
+LUMA_BGR = np.array([0.0722, 0.7152, 0.2126], dtype=np.float32)
+
+# 8-bit sRGB -> linear lookup table: a table is ~10x faster than the pow per pixel.
+_U8 = np.arange(256, dtype=np.float64) / 255.0
+SRGB_U8_TO_LINEAR = np.where(_U8 <= 0.04045, _U8 / 12.92, ((_U8 + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def srgb_u8_to_linear(img_u8: np.ndarray) -> np.ndarray:
+    return SRGB_U8_TO_LINEAR[img_u8]
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """Linear -> sRGB in [0, 1]; values above 1 (HDR) clip, NaN becomes 0."""
+    x = np.clip(np.nan_to_num(np.asarray(x, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
+
+
+def to_u8(x_01: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(np.asarray(x_01, dtype=np.float32) * 255.0), 0, 255).astype(np.uint8)
+
+
+def luminance_bgr(img: np.ndarray) -> np.ndarray:
+    return img[..., :3].astype(np.float32, copy=False) @ LUMA_BGR

@@ -1,0 +1,292 @@
+"""Only the effects a scene calls for: pure, bpy-free decisions from the plan, the camera
+and the job, each with the reason that goes to the manifest.
+
+All pixel quantities here are in the pinhole canvas Blender renders (projection.Canvas).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from blendgen.geometry import Camera, invert_pose
+from blendgen.scene.plan import FramePlan, PlacedObject
+
+OUTPUTS = ("rgba", "index", "depth", "shadow_catcher", "lighting")
+LIGHTING_PASSES = ("diffuse_direct", "diffuse_indirect", "diffuse_color",
+                   "glossy_direct", "glossy_indirect", "glossy_color")
+NEAR_M = 0.05
+MAX_SHADOW_M = 60.0       # a sun near the horizon casts shadows longer than any useful region
+MIN_SUN_ELEVATION = 0.02  # sin(elevation): below this the sun casts no shadow we render
+BLUR_PX = 0.5
+REGION_MARGIN_PX = 4      # pixel filter (1.5 px) and rounding
+FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth the border logic
+
+
+@dataclass
+class Decision:
+    value: Any
+    reason: str
+
+
+@dataclass
+class FrameEffects:
+    passes: Decision
+    objects: Decision            # ids kept (list); culled ids and why in the reason
+    motion_blur: Decision        # bool; per-object displacement in the reason
+    shadow_catcher: Decision     # bool
+    region: Decision             # (x0, y0, x1, y1) canvas pixels, exclusive end, or None = full
+    sampling: Decision           # dict of Cycles settings
+    skip_render: Decision        # bool: nothing visible, Blender is not called
+    blur_px: dict[int, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = {k: asdict(v) for k, v in self.__dict__.items() if isinstance(v, Decision)}
+        return d
+
+
+# ---------------------------------------------------------------- passes
+def decide_passes(outputs: set[str]) -> Decision:
+    unknown = set(outputs) - set(OUTPUTS)
+    if unknown:
+        raise ValueError(f"unknown render outputs {sorted(unknown)}; expected a subset of {list(OUTPUTS)}")
+    keys = [k for k in ("rgba", "index", "depth", "shadow_catcher") if k in outputs]
+    if "lighting" in outputs:
+        keys += list(LIGHTING_PASSES)
+    dropped = [k for k in OUTPUTS if k not in outputs]
+    reason = f"outputs {sorted(outputs)} ask for these passes" + (f"; not rendered: {dropped}" if dropped else "")
+    return Decision(keys, reason)
+
+
+# ---------------------------------------------------------------- geometry helpers
+def sun_direction(lighting: dict | None) -> np.ndarray | None:
+    """Unit vector toward the sun when it casts shadows, else None."""
+    if not lighting or not lighting.get("sun_visible", False) or float(lighting.get("sun_strength", 0)) <= 0:
+        return None
+    d = np.asarray(lighting.get("sun_direction", (0, 0, 1)), dtype=float)
+    n = np.linalg.norm(d)
+    if not np.isfinite(n) or n < 1e-9:
+        return None
+    d = d / n
+    return d if d[2] > MIN_SUN_ELEVATION else None
+
+
+def shadow_points(corners: np.ndarray, sun_dir: np.ndarray | None, ground_z: float) -> np.ndarray:
+    """Where the box corners' shadows fall on the ground plane z = ground_z (along -sun_dir)."""
+    if sun_dir is None:
+        return np.zeros((0, 3))
+    h = corners[:, 2] - ground_z
+    length = np.minimum(h / sun_dir[2], MAX_SHADOW_M / max(np.linalg.norm(sun_dir[:2]), 1e-6))
+    pts = corners - sun_dir[None, :] * length[:, None]
+    pts[:, 2] = ground_z
+    return pts
+
+
+def object_points(obj: PlacedObject, sun_dir: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(box corners 8x3, shadow points Nx3) in the world frame."""
+    corners = obj.box_corners_world()
+    return corners, shadow_points(corners, sun_dir, float(obj.position[2]))
+
+
+def _to_cam(T_world_cam, X) -> np.ndarray:
+    T = invert_pose(np.asarray(T_world_cam, dtype=float))
+    return np.asarray(X, dtype=float) @ T[:3, :3].T + T[:3, 3]
+
+
+def _frustum_planes(cam: Camera, margin_px: float) -> list[np.ndarray]:
+    """Inward normals (camera frame, through the origin) of the 4 side planes, plus margin."""
+    x0 = (-0.5 - margin_px - cam.cx) / cam.fx
+    x1 = (cam.width - 0.5 + margin_px - cam.cx) / cam.fx
+    y0 = (-0.5 - margin_px - cam.cy) / cam.fy
+    y1 = (cam.height - 0.5 + margin_px - cam.cy) / cam.fy
+    return [np.array([1.0, 0, -x0]), np.array([-1.0, 0, x1]), np.array([0, 1.0, -y0]), np.array([0, -1.0, y1])]
+
+
+def outside_frustum(cam: Camera, Xc: np.ndarray, margin_px: float = REGION_MARGIN_PX) -> str | None:
+    """Why a convex point set (camera frame) cannot be seen, or None if it may be."""
+    if len(Xc) == 0:
+        return "no points"
+    if np.all(Xc[:, 2] < NEAR_M):
+        return "behind the camera"
+    names = ("left of", "right of", "above", "below")
+    for name, n in zip(names, _frustum_planes(cam, margin_px)):
+        if np.all(Xc @ n < 0):
+            return f"{name} the frame"
+    return None
+
+
+def _project_box(cam: Camera, Xc: np.ndarray) -> tuple[float, float, float, float] | None:
+    """Pixel bounds of a convex point set, clipped at the near plane; None if all behind."""
+    front = Xc[Xc[:, 2] >= NEAR_M]
+    behind = Xc[Xc[:, 2] < NEAR_M]
+    if len(front) == 0:
+        return None
+    pts = [front]
+    if len(behind):
+        # Points where segments (front, behind) cross the near plane bound the clipped hull.
+        a = front[:, None, :]
+        b = behind[None, :, :]
+        s = (a[..., 2] - NEAR_M) / (a[..., 2] - b[..., 2])
+        pts.append((a + s[..., None] * (b - a)).reshape(-1, 3))
+    P = np.concatenate(pts)
+    u = cam.fx * P[:, 0] / P[:, 2] + cam.cx
+    v = cam.fy * P[:, 1] / P[:, 2] + cam.cy
+    return float(u.min()), float(v.min()), float(u.max()), float(v.max())
+
+
+# ---------------------------------------------------------------- culling
+def cull_objects(plan: FramePlan, cam: Camera, sun_dir: np.ndarray | None) -> tuple[list[PlacedObject], dict[int, str]]:
+    """Objects whose box or shadow may be seen; the others with why they were dropped."""
+    kept, culled = [], {}
+    for obj in plan.objects:
+        corners, shadow = object_points(obj, sun_dir)
+        why_obj = outside_frustum(cam, _to_cam(plan.T_world_cam, corners))
+        why_sh = outside_frustum(cam, _to_cam(plan.T_world_cam, shadow)) if len(shadow) else "no sun shadow"
+        if why_obj is None or why_sh is None:
+            kept.append(obj)
+        else:
+            culled[int(obj.id)] = f"box {why_obj}; shadow: {why_sh}"
+    return kept, culled
+
+
+# ---------------------------------------------------------------- motion blur
+def blur_px(obj: PlacedObject, cam: Camera, T_world_cam, shutter_s: float) -> float:
+    """Largest image displacement (px) of the box corners during the exposure."""
+    v = np.asarray(obj.velocity, dtype=float)
+    if shutter_s <= 0 or not np.any(v):
+        return 0.0
+    corners = obj.box_corners_world()
+    a = _to_cam(T_world_cam, corners - v * shutter_s / 2)
+    b = _to_cam(T_world_cam, corners + v * shutter_s / 2)
+    ok = (a[:, 2] > NEAR_M) & (b[:, 2] > NEAR_M)
+    if not np.any(ok):
+        return 0.0
+    a, b = a[ok], b[ok]
+    du = cam.fx * (a[:, 0] / a[:, 2] - b[:, 0] / b[:, 2])
+    dv = cam.fy * (a[:, 1] / a[:, 2] - b[:, 1] / b[:, 2])
+    return float(np.max(np.hypot(du, dv)))
+
+
+def decide_motion_blur(objects, cam: Camera, T_world_cam, shutter_s: float, mode: str) -> tuple[Decision, dict[int, float]]:
+    px = {int(o.id): round(blur_px(o, cam, T_world_cam, shutter_s), 3) for o in objects}
+    worst = max(px.values(), default=0.0)
+    if mode == "off":
+        return Decision(False, "render.motion_blur is off"), px
+    if mode == "on":
+        on = worst > 0
+        return Decision(on, "render.motion_blur is on" + ("" if on else ", but nothing moves")), px
+    if worst > BLUR_PX:
+        movers = {i: p for i, p in px.items() if p > BLUR_PX}
+        return Decision(True, f"objects {sorted(movers)} move up to {worst:.2f} px > {BLUR_PX} px "
+                              f"during the {shutter_s * 1000:.1f} ms shutter"), px
+    return Decision(False, f"largest motion during the shutter is {worst:.2f} px <= {BLUR_PX} px"), px
+
+
+# ---------------------------------------------------------------- shadow catcher
+def decide_shadow_catcher(lighting: dict | None, outputs: set[str]) -> Decision:
+    if "shadow_catcher" not in outputs:
+        return Decision(False, "shadow_catcher not among the outputs")
+    if not lighting:
+        return Decision(False, "no lighting estimate for this frame: no sun, no cast shadows")
+    if not lighting.get("sun_visible", False) or float(lighting.get("sun_strength", 0)) <= 0:
+        return Decision(False, "the sun is not visible (overcast or shade): no cast shadows to catch")
+    if sun_direction(lighting) is None:
+        return Decision(False, "the sun is at or below the horizon")
+    return Decision(True, "the sun is visible: ground catches the objects' shadows")
+
+
+# ---------------------------------------------------------------- region
+def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | None,
+                  enabled: bool, extra_margin_px: float = 0.0) -> Decision:
+    """Border render box from the projected boxes and shadows of the kept objects."""
+    W, H = cam.width, cam.height
+    if not enabled:
+        return Decision(None, "render.region is off: full frame")
+    if not objects:
+        return Decision(None, "no objects")
+    boxes = []
+    for obj in objects:
+        corners, shadow = object_points(obj, sun_dir)
+        for pts in (corners, shadow):
+            if len(pts) == 0:
+                continue
+            Xc = _to_cam(plan.T_world_cam, pts)
+            if outside_frustum(cam, Xc) is not None:
+                continue
+            b = _project_box(cam, Xc)
+            if b is not None:
+                boxes.append(b)
+    if not boxes:
+        return Decision(None, "no object or shadow projects into the frame")
+    B = np.array(boxes)
+    m = REGION_MARGIN_PX + extra_margin_px
+    x0 = int(np.clip(np.floor(B[:, 0].min() - m), 0, W))
+    y0 = int(np.clip(np.floor(B[:, 1].min() - m), 0, H))
+    x1 = int(np.clip(np.ceil(B[:, 2].max() + m + 1), 0, W))
+    y1 = int(np.clip(np.ceil(B[:, 3].max() + m + 1), 0, H))
+    if x1 <= x0 or y1 <= y0:
+        return Decision(None, "projected bounds fall outside the frame")
+    frac = (x1 - x0) * (y1 - y0) / float(W * H)
+    what = "objects and their shadows" if sun_dir is not None else "objects (no sun shadow)"
+    if frac >= FULL_FRAME_FRACTION:
+        return Decision(None, f"{what} cover {frac:.0%} of the frame: full frame")
+    return Decision((x0, y0, x1, y1), f"{what} project into {frac:.1%} of the frame")
+
+
+def border_fractions(region, width: int, height: int) -> tuple[float, float, float, float]:
+    """Pixel box (top-left origin) -> Blender border min_x, max_x, min_y, max_y (bottom-left)."""
+    x0, y0, x1, y1 = region
+    return x0 / width, x1 / width, 1.0 - y1 / height, 1.0 - y0 / height
+
+
+# ---------------------------------------------------------------- sampling
+def decide_sampling(render, passes: list[str]) -> Decision:
+    """Cycles sampling and light paths from the job's quality settings."""
+    mb = int(render.max_bounces)
+    s = {
+        "samples": int(render.samples),
+        "adaptive": render.adaptive_threshold > 0 and render.samples >= 16,
+        "adaptive_threshold": float(render.adaptive_threshold),
+        "denoise": bool(render.denoise) and "rgba" in passes,
+        "max_bounces": mb,
+        # Diffuse light beyond 2-3 bounces is invisible on vehicles outdoors; glass needs transmission.
+        "diffuse_bounces": min(mb, 2),
+        "glossy_bounces": min(mb, 2),
+        "transmission_bounces": min(mb, 4),
+        "transparent_bounces": min(max(mb, 2), 8),
+        "volume_bounces": 0,
+        "caustics": False,
+        "clamp_indirect": 10.0,
+    }
+    why = [f"{s['samples']} samples from render.samples",
+           f"adaptive sampling {'on (threshold %g)' % s['adaptive_threshold'] if s['adaptive'] else 'off'}",
+           f"denoise {'on' if s['denoise'] else 'off'}" + ("" if "rgba" in passes or not render.denoise
+                                                          else " (no rgba output to denoise)"),
+           f"bounces: total {mb}, diffuse {s['diffuse_bounces']}, glossy {s['glossy_bounces']}, "
+           f"transmission {s['transmission_bounces']}, no volumes or caustics"]
+    return Decision(s, "; ".join(why))
+
+
+# ---------------------------------------------------------------- everything
+def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str]) -> FrameEffects:
+    """All per-frame decisions. `cam` is the pinhole canvas that Blender renders."""
+    passes = decide_passes(set(outputs))
+    catcher = decide_shadow_catcher(plan.lighting, set(outputs))
+    # Shadows matter for culling/region only when they are rendered.
+    sun = sun_direction(plan.lighting) if catcher.value or "rgba" in outputs else None
+    kept, culled = cull_objects(plan, cam, sun)
+    reason = f"{len(kept)} of {len(plan.objects)} objects may be seen"
+    if culled:
+        reason += "; culled: " + "; ".join(f"{i}: {w}" for i, w in culled.items())
+    objects = Decision([int(o.id) for o in kept], reason)
+    blur, px = decide_motion_blur(kept, cam, plan.T_world_cam, float(render.shutter_s), render.motion_blur)
+    margin = max(px.values(), default=0.0) if blur.value else 0.0
+    region = decide_region(plan, kept, cam, sun, bool(render.region), extra_margin_px=margin)
+    sampling = decide_sampling(render, passes.value)
+    if not kept:
+        skip = Decision(True, "no object or shadow in the view: empty passes written without Blender")
+    else:
+        skip = Decision(False, f"{len(kept)} objects to render")
+    return FrameEffects(passes, objects, blur, catcher, region, sampling, skip, px)

@@ -1,0 +1,122 @@
+"""From an OpenCV camera to what Blender can render, bpy-free.
+
+Blender renders ideal pinhole images only. For a camera with lens distortion we render a
+slightly wider pinhole "canvas" and remap it to the distorted image with OpenCV; the
+render, its masks and every pass go through the same maps, so labels stay exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from blendgen.geometry import Camera, CV_TO_BLENDER
+
+SENSOR_WIDTH_MM = 36.0
+
+
+def blender_intrinsics(cam: Camera) -> dict:
+    """Pinhole fx, fy, cx, cy (pixel centres at integers) -> Blender camera/render settings.
+
+    Horizontal sensor fit: fx = lens / sensor_width * W. Shift is in units of the larger
+    image side; Blender's principal point with zero shift is the image centre, which is
+    pixel coordinate (W-1)/2. fy != fx is expressed through the pixel aspect ratio.
+    """
+    W, H = int(cam.width), int(cam.height)
+    big = float(max(W, H))
+    # Blender scales the vertical axis by aspect_y / aspect_x: fy = fx * aspect_x / aspect_y.
+    aspect_x, aspect_y = (1.0, cam.fx / cam.fy) if cam.fx >= cam.fy else (cam.fy / cam.fx, 1.0)
+    # With non-square pixels Blender fits the sensor to the larger *displayed* side.
+    disp_w, disp_h = W * aspect_x, H * aspect_y
+    if disp_w >= disp_h:
+        fit, lens = "HORIZONTAL", cam.fx * SENSOR_WIDTH_MM / W
+        shift_x = ((W - 1) / 2 - cam.cx) / W
+        shift_y = (cam.cy - (H - 1) / 2) / W * (aspect_y / aspect_x)
+    else:
+        fit, lens = "VERTICAL", cam.fy * SENSOR_WIDTH_MM / H
+        shift_x = ((W - 1) / 2 - cam.cx) / H * (aspect_x / aspect_y)
+        shift_y = (cam.cy - (H - 1) / 2) / H
+    del big
+    return {"resolution": (W, H), "sensor_fit": fit, "sensor_width": SENSOR_WIDTH_MM,
+            "sensor_height": SENSOR_WIDTH_MM, "lens": float(lens), "shift_x": float(shift_x),
+            "shift_y": float(shift_y), "pixel_aspect": (float(aspect_x), float(aspect_y))}
+
+
+def blender_matrix_world(T_world_cam) -> np.ndarray:
+    """OpenCV pose (x right, y down, z forward) -> Blender camera matrix_world (looks down -z)."""
+    T = np.array(T_world_cam, dtype=float)
+    M = np.eye(4)
+    M[:3, :3] = T[:3, :3] @ CV_TO_BLENDER
+    M[:3, 3] = T[:3, 3]
+    return M
+
+
+@dataclass
+class Canvas:
+    """The pinhole image Blender renders, and how it maps onto the output camera's pixels."""
+
+    output: Camera
+    pinhole: Camera
+    map_x: np.ndarray | None = field(default=None, repr=False)  # output pixel -> canvas x (float32)
+    map_y: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def remapped(self) -> bool:
+        return self.map_x is not None
+
+    def to_output(self, img: np.ndarray, *, nearest: bool = False, border: float = 0.0) -> np.ndarray:
+        """Canvas image -> output image (identity for an undistorted camera)."""
+        if not self.remapped:
+            return img
+        import cv2
+
+        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        src = img
+        if img.ndim == 3 and img.shape[2] > 4:  # cv2.remap handles at most 4 channels at once
+            return np.stack([self.to_output(img[..., c], nearest=nearest, border=border)
+                             for c in range(img.shape[2])], axis=2)
+        return cv2.remap(src, self.map_x, self.map_y, interp, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=border)
+
+    def region_to_output(self, region):
+        """A canvas pixel box (x0, y0, x1, y1) -> the output box that samples from it."""
+        if region is None or not self.remapped:
+            return region
+        x0, y0, x1, y1 = region
+        inside = (self.map_x >= x0 - 1) & (self.map_x <= x1) & (self.map_y >= y0 - 1) & (self.map_y <= y1)
+        ys, xs = np.nonzero(inside)
+        if len(xs) == 0:
+            return None
+        return (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+
+
+def make_canvas(cam: Camera, *, pad_px: int = 2, max_growth: float = 1.6) -> Canvas:
+    """The canvas for `cam`: itself when undistorted, else a wider pinhole covering its view.
+
+    The canvas keeps the output's focal length (same detail at the centre) unless covering
+    the distorted field of view would need more than `max_growth` times the output size per
+    side; then the focal length shrinks to fit.
+    """
+    if not cam.distorted:
+        return Canvas(cam, Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
+    import cv2
+
+    W, H = int(cam.width), int(cam.height)
+    us, vs = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+    xn = cv2.undistortPointsIter(pts, cam.K, cam.D, None, None, crit).reshape(H, W, 2)
+    # Extent of the view from the image border (the interior lies inside for sane lenses).
+    border = np.concatenate([xn[0], xn[-1], xn[:, 0], xn[:, -1]])
+    xmin, ymin = border.min(axis=0)
+    xmax, ymax = border.max(axis=0)
+    scale = min(1.0, max_growth * W / (cam.fx * (xmax - xmin)), max_growth * H / (cam.fy * (ymax - ymin)))
+    fx, fy = cam.fx * scale, cam.fy * scale
+    cw = int(np.ceil(fx * (xmax - xmin))) + 2 * pad_px + 1
+    ch = int(np.ceil(fy * (ymax - ymin))) + 2 * pad_px + 1
+    cx, cy = pad_px - fx * xmin, pad_px - fy * ymin
+    pin = Camera(cw, ch, fx, fy, cx, cy)
+    map_x = (fx * xn[..., 0] + cx).astype(np.float32)
+    map_y = (fy * xn[..., 1] + cy).astype(np.float32)
+    return Canvas(cam, pin, map_x, map_y)

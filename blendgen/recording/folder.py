@@ -299,6 +299,12 @@ def write_frames_csv(root: Path, t, files: list[str]) -> None:
     atomic.write_text(root / "frames.csv", "\n".join(lines) + "\n")
 
 
+def write_frames_index_csv(root: Path, t, index) -> None:
+    """frames.csv as `t,index` for a recording whose frames live in one video file."""
+    lines = ["t,index"] + [f"{float(ti):.9f},{int(k)}" for ti, k in zip(t, index)]
+    atomic.write_text(root / "frames.csv", "\n".join(lines) + "\n")
+
+
 def write_imu(root: Path, imu) -> None:
     write_csv(root / "imu.csv", IMU_COLUMNS, imu)
 

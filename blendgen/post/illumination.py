@@ -1,0 +1,290 @@
+"""Illumination estimation from one real frame (bpy-free).
+
+What is measured, and how:
+- illuminant colour: shades-of-grey (Finlayson & Trezzi 2004, Minkowski p=6) on linear,
+  non-sky, unsaturated pixels;
+- exposure: median and log-average linear luminance of the non-sky pixels;
+- sky colour and brightness: the bright, smooth region connected to the top border;
+- sun direction: solar azimuth/elevation (pvlib's SPA) from position + UTC time, turned
+  into the world ENU frame (x east, y north, z up);
+- sun visibility: lit vs shadowed road (two-class Otsu split of the road's log luminance,
+  lane markings removed by a top-hat), with a clear-blue-sky cue when the road shows no
+  shadow.
+
+`Illumination.to_lighting()` turns the estimate into the lighting dict of
+docs/architecture.md, in units that make a Cycles render (Standard view transform, film
+exposure 0) land at the real camera's exposure: a grey ground of albedo GROUND_ALBEDO lit
+by the returned sun + sky renders at the measured ground value. (Cycles: a uniform world of
+strength L gives a white diffuse surface radiance L; a sun of strength S gives S*cos/pi.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+
+import cv2
+import numpy as np
+
+from blendgen.errors import UserError
+from blendgen.post.colorspace import LUMA_BGR, srgb_u8_to_linear
+
+GROUND_ALBEDO = 0.18  # the exposure-metering assumption: the road is mid-grey on average
+SHADES_OF_GREY_P = 6.0
+CLEAR_SKY_SUN_FRACTION = 0.7  # sun share of the ground irradiance under a clear sky (no shadow seen)
+MIN_SHADOW_RATIO = 1.8  # lit/shadow road luminance ratio above which the sun is called visible
+DEFAULT_SUN_ELEVATION_DEG = 45.0
+WORK_WIDTH = 192  # statistics run on a downsampled copy: they are global, this keeps them ~2 ms
+
+
+@dataclass
+class Illumination:
+    """An estimate of the light in one real frame. Colours are linear Rec.709 RGB."""
+
+    illuminant_rgb: tuple[float, float, float]  # chroma, luminance 1
+    exposure: float  # median linear luminance of non-sky pixels
+    log_average_luminance: float
+    ground_luminance: float  # median linear luminance of the road region
+    sky_rgb: tuple[float, float, float] | None  # mean linear sky colour (None: no sky found)
+    sky_luminance: float
+    sky_fraction: float
+    sky_saturated: float  # share of sky pixels clipped in the 8-bit frame
+    sun_direction: tuple[float, float, float]  # world frame, toward the sun
+    sun_elevation_deg: float
+    sun_azimuth_deg: float  # clockwise from north
+    sun_direction_source: str  # "ephemeris" | "default"
+    sun_visible: bool
+    sun_fraction: float  # share of the ground irradiance that comes from the sun
+    shadow_ratio: float  # lit / shadowed road luminance (1: no shadow measured)
+    visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "below_horizon"
+    horizon_row: float  # in pixels of the input frame
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def to_lighting(self) -> dict:
+        """The lighting dict (architecture.md) for the render driver."""
+        total = max(self.ground_luminance, 1e-4) / GROUND_ALBEDO  # upward irradiance / pi, in pixel units
+        f = self.sun_fraction if self.sun_visible else 0.0
+        ill = np.asarray(self.illuminant_rgb, dtype=float)
+        sky_c = _unit_luma(np.asarray(self.sky_rgb, float)) if self.sky_rgb is not None else ill
+        # Sky light reaching the ground is bluer than the average illuminant, but a camera's
+        # sky pixels overstate that (and saturate): pull the sky chroma halfway to the illuminant.
+        sky_c = _unit_luma(0.5 * sky_c + 0.5 * ill)
+        if f > 0.05:
+            sun_c = (ill - (1 - f) * sky_c) / f  # total light = f * sun + (1 - f) * sky
+            sun_c = _unit_luma(np.clip(sun_c, 0.05 * ill.max(), None))
+        else:
+            sun_c = ill
+        sin_el = max(math.sin(math.radians(self.sun_elevation_deg)), 0.08)
+        sun_strength = math.pi * f * total / sin_el if f > 0 else 0.0
+        return {
+            "sun_direction": [float(v) for v in self.sun_direction],
+            "sun_strength": float(sun_strength),
+            "sun_color": [float(v) for v in sun_c],
+            "sun_angle_deg": 0.53 if self.shadow_ratio >= 3.0 or self.visibility_cue == "clear_sky" else 2.0,
+            "sky_color": [float(v) for v in sky_c],
+            "sky_strength": float((1.0 - f) * total),
+            "sun_visible": bool(self.sun_visible and f > 0),
+        }
+
+
+def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: datetime | None = None,
+                          latlon: tuple[float, float] | None = None) -> Illumination:
+    """Estimate the light of a real 8-bit BGR frame (see the module docstring)."""
+    if not isinstance(real_bgr, np.ndarray) or real_bgr.ndim != 3 or real_bgr.shape[2] != 3 \
+            or real_bgr.dtype != np.uint8 or min(real_bgr.shape[:2]) < 2:
+        raise UserError(f"expected an HxWx3 uint8 BGR frame, got {getattr(real_bgr, 'dtype', None)} "
+                        f"{getattr(real_bgr, 'shape', None)}", where="estimate_illumination real_bgr")
+    H, W = real_bgr.shape[:2]
+    scale = min(1.0, WORK_WIDTH / W)
+    small = cv2.resize(real_bgr, (max(2, round(W * scale)), max(2, round(H * scale))),
+                       interpolation=cv2.INTER_AREA) if scale < 1 else real_bgr
+    h, w = small.shape[:2]
+    lin = srgb_u8_to_linear(small)
+    Y = lin @ LUMA_BGR
+    notes: list[str] = []
+
+    pitch = _camera_pitch(T_world_cam)
+    sky = _sky_mask(small)
+    sky_frac = float(sky.mean())
+    if sky_frac > 0.01:
+        rows = np.where(sky.any(axis=1))[0]
+        col_bottom = np.array([np.max(np.nonzero(sky[:, c])[0]) if sky[:, c].any() else -1 for c in range(w)])
+        horizon = float(np.median(col_bottom[col_bottom >= 0])) if rows.size else 0.45 * h
+    elif pitch is not None:
+        # No sky seen: place the horizon from the camera pitch (assumed 60 deg horizontal FOV).
+        f_px = 0.5 * w / math.tan(math.radians(30))
+        horizon = float(np.clip(0.5 * h - f_px * math.tan(pitch), 0, h - 1))
+        notes.append("no sky region found: horizon from the camera pitch")
+    else:
+        horizon = 0.45 * h
+        notes.append("no sky region found: horizon assumed at 45% of the height")
+
+    valid = (small.max(axis=2) < 250) & (small.max(axis=2) > 5)  # unsaturated, not black
+    scene = valid & ~sky
+    if scene.sum() < 16:
+        scene = ~sky if (~sky).sum() >= 16 else np.ones_like(sky)
+        notes.append("few unsaturated pixels: statistics include clipped ones")
+
+    # Shades of grey on linear values (BGR); normalised to unit luminance.
+    pix = lin[scene].astype(np.float64)
+    e = np.power(np.mean(np.power(pix, SHADES_OF_GREY_P), axis=0), 1.0 / SHADES_OF_GREY_P)
+    ill_bgr = _unit_luma_bgr(e)
+    Ys = Y[scene]
+    exposure = float(np.median(Ys))
+    log_avg = float(np.exp(np.mean(np.log(Ys + 1e-4))))
+
+    # Sky colour and brightness.
+    if sky_frac > 0.01:
+        sky_bgr = lin[sky].mean(axis=0)
+        sky_rgb = tuple(float(v) for v in sky_bgr[::-1])
+        sky_lum = float(sky_bgr @ LUMA_BGR)
+        sky_sat = float((small[sky].max(axis=1) >= 250).mean())
+    else:
+        sky_bgr, sky_rgb, sky_lum, sky_sat = None, None, 0.0, 0.0
+
+    # Road: below the horizon, greyish, not sky.
+    ground = np.zeros((h, w), bool)
+    g0 = int(min(h - 1, max(0, horizon + 0.05 * h)))
+    ground[g0:] = True
+    hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
+    ground &= (hsv[..., 1] < 90) & ~sky
+    if ground.sum() < 16:
+        ground[g0:] = True
+        notes.append("no grey road region: ground statistics over the lower frame")
+    ground_lum = float(np.median(Y[ground])) if ground.any() else exposure
+
+    ratio, shadow_share = _shadow_ratio(small, Y, ground)
+
+    # Sun direction.
+    if when_utc is not None and latlon is not None:
+        el, az = sun_position(when_utc, latlon[0], latlon[1])
+        source = "ephemeris"
+    else:
+        el, az = DEFAULT_SUN_ELEVATION_DEG, _default_azimuth(T_world_cam)
+        source = "default"
+        notes.append("no time/position: sun direction is a default (behind-left of the camera)")
+    sun_dir = enu_from_az_el(az, el)
+
+    # Sun visibility.
+    if el <= 0:
+        visible, f, cue = False, 0.0, "below_horizon"
+    elif ratio >= MIN_SHADOW_RATIO:
+        visible, f, cue = True, float(np.clip(1.0 - 1.0 / ratio, 0.0, 0.95)), "shadows"
+    elif sky_bgr is not None and _clear_blue(sky_bgr, sky_lum, ground_lum):
+        visible, f, cue = True, CLEAR_SKY_SUN_FRACTION, "clear_sky"
+    else:
+        visible, f, cue = False, 0.0, "overcast"
+
+    return Illumination(
+        illuminant_rgb=tuple(float(v) for v in ill_bgr[::-1]),
+        exposure=exposure, log_average_luminance=log_avg, ground_luminance=ground_lum,
+        sky_rgb=sky_rgb, sky_luminance=sky_lum, sky_fraction=sky_frac, sky_saturated=sky_sat,
+        sun_direction=tuple(float(v) for v in sun_dir), sun_elevation_deg=float(el), sun_azimuth_deg=float(az),
+        sun_direction_source=source, sun_visible=visible, sun_fraction=f, shadow_ratio=float(ratio),
+        visibility_cue=cue, horizon_row=float(horizon / scale if scale < 1 else horizon), notes=notes)
+
+
+# ---- sun position
+
+def sun_position(when_utc: datetime, lat: float, lon: float) -> tuple[float, float]:
+    """(apparent elevation, azimuth clockwise from north), degrees, from pvlib's SPA."""
+    import pandas as pd
+    import pvlib
+
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise UserError(f"latitude/longitude ({lat}, {lon}) out of range", where="estimate_illumination latlon")
+    if when_utc.tzinfo is None:
+        when_utc = when_utc.replace(tzinfo=timezone.utc)
+    sp = pvlib.solarposition.get_solarposition(pd.DatetimeIndex([when_utc]), lat, lon)
+    return float(sp["apparent_elevation"].iloc[0]), float(sp["azimuth"].iloc[0])
+
+
+def enu_from_az_el(az_deg: float, el_deg: float) -> np.ndarray:
+    """Unit vector toward the sun in ENU (x east, y north, z up)."""
+    az, el = math.radians(az_deg), math.radians(el_deg)
+    return np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+
+
+def _default_azimuth(T_world_cam) -> float:
+    """Azimuth behind-left of the camera (objects front-lit), or south-east without a pose."""
+    if T_world_cam is None:
+        return 135.0
+    z = np.asarray(T_world_cam, float)[:3, 2]  # optical axis in the world
+    heading = math.degrees(math.atan2(z[0], z[1]))  # clockwise from north (+y)
+    return (heading + 180.0 - 40.0) % 360.0
+
+
+def _camera_pitch(T_world_cam) -> float | None:
+    if T_world_cam is None:
+        return None
+    T = np.asarray(T_world_cam, float)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise UserError(f"T_world_cam must be a finite 4x4 matrix, got shape {T.shape}",
+                        where="estimate_illumination T_world_cam")
+    z = T[:3, 2]
+    return math.asin(float(np.clip(z[2] / max(np.linalg.norm(z), 1e-9), -1, 1)))
+
+
+# ---- image measurements
+
+def _sky_mask(small: np.ndarray) -> np.ndarray:
+    """Bright, smooth pixels in the upper 60% connected to the top border."""
+    h, w = small.shape[:2]
+    gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    grad = cv2.blur(np.sqrt(gx * gx + gy * gy), (3, 3))
+    bright = gray > max(np.percentile(gray, 55), 60)
+    cand = bright & (grad < 40)
+    cand[int(0.6 * h):] = False
+    n, labels = cv2.connectedComponents(cand.astype(np.uint8), connectivity=4)
+    top = np.unique(labels[0][cand[0]])
+    top = top[top > 0]
+    if top.size == 0:
+        return np.zeros((h, w), bool)
+    return np.isin(labels, top)
+
+
+def _shadow_ratio(small: np.ndarray, Y: np.ndarray, ground: np.ndarray) -> tuple[float, float]:
+    """Lit/shadow luminance ratio of the road, 1.0 when the road is not bimodal."""
+    gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
+    # Lane markings are thin bright lines, not sunlit road: remove them with a white top-hat.
+    k = max(3, (small.shape[1] // 40) | 1)
+    tophat = cv2.morphologyEx(gray, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    road = ground & (tophat < 25)
+    y = Y[road]
+    if y.size < 64:
+        return 1.0, 0.0
+    ly = np.log(y + 1e-4)
+    lo, hi = np.percentile(ly, [1, 99])
+    if hi - lo < 1e-3:
+        return 1.0, 0.0
+    q = np.clip((ly - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
+    t, _ = cv2.threshold(q.reshape(-1, 1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    dark, bright = y[q <= t], y[q > t]
+    share = dark.size / y.size
+    if dark.size < 16 or bright.size < 16 or not 0.03 <= share <= 0.85:
+        return 1.0, share
+    # Bimodality: the two classes must explain most of the variance (not a smooth gradient).
+    between = share * (1 - share) * (ly[q > t].mean() - ly[q <= t].mean()) ** 2
+    if between / max(ly.var(), 1e-12) < 0.6:
+        return 1.0, share
+    return float(np.median(bright) / max(np.median(dark), 1e-4)), share
+
+
+def _clear_blue(sky_bgr: np.ndarray, sky_lum: float, ground_lum: float) -> bool:
+    b, g, r = (float(v) for v in sky_bgr)
+    return b > 1.15 * r and sky_lum > 1.5 * max(ground_lum, 1e-4)
+
+
+def _unit_luma_bgr(c_bgr: np.ndarray) -> np.ndarray:
+    c = np.maximum(np.nan_to_num(np.asarray(c_bgr, float)), 1e-6)
+    return c / max(float(c @ LUMA_BGR), 1e-6)
+
+
+def _unit_luma(c_rgb: np.ndarray) -> np.ndarray:
+    return _unit_luma_bgr(np.asarray(c_rgb, float)[::-1])[::-1]

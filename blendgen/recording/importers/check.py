@@ -1,0 +1,158 @@
+"""`blendgen import --check`: what a recording folder lacks or what looks odd in it.
+
+Every finding is one line a person can act on. Levels: "error" (the folder does not read),
+"warn" (usable, but a stage will be weaker or must assume something), "info" (facts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from blendgen.errors import UserError
+
+G = 9.80665
+
+
+@dataclass
+class Finding:
+    level: str  # error | warn | info
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.level.upper():5s} {self.message}"
+
+
+def check_recording(root: str | Path) -> list[Finding]:
+    from blendgen.recording.folder import read_recording
+
+    root = Path(root)
+    try:
+        rec = read_recording(root)
+    except UserError as e:
+        return [Finding("error", str(e))]
+    out: list[Finding] = []
+    meta = rec.extra.get("import") or {}
+    if meta:
+        out.append(Finding("info", f"imported from {meta.get('format')} ({meta.get('source')})"))
+
+    # camera
+    cam_src = str(meta.get("camera_calibration", "calib.yaml"))
+    if rec.camera is None:
+        out.append(Finding("warn", "no camera calibration (calib.yaml has no camera: section)"))
+    elif cam_src.startswith("assumed"):
+        out.append(Finding("warn", f"camera intrinsics are not calibrated: {cam_src}; calibrate the camera "
+                                   "(e.g. Kalibr/OpenCV) and edit calib.yaml for metric accuracy"))
+    else:
+        c = rec.camera
+        out.append(Finding("info", f"camera {c.width}x{c.height}, fx {c.fx:.1f} fy {c.fy:.1f} ({cam_src})"))
+    if str(meta.get("T_cam_imu", "")).startswith("assumed"):
+        out.append(Finding("warn", f"camera-IMU extrinsics not calibrated: {meta['T_cam_imu']}"))
+
+    # frames
+    if rec.n_frames == 0:
+        out.append(Finding("warn", "no camera frames: sync can use IMU/GNSS only (no visual odometry), "
+                                   "and nothing can be composited over real images"))
+    else:
+        out.extend(_stream_timing("frames", rec.frames_t, gap_factor=1.8))
+        if rec.video:
+            out.extend(_video_consistency(rec))
+
+    # IMU
+    if len(rec.imu) == 0:
+        out.append(Finding("warn", "no IMU (imu.csv): orientation comes from vision/GNSS only"))
+    else:
+        out.extend(_stream_timing("IMU", rec.imu[:, 0], gap_factor=5.0))
+        acc = np.linalg.norm(rec.imu[:, 4:7], axis=1)
+        gyr = np.linalg.norm(rec.imu[:, 1:4], axis=1)
+        med_a = float(np.median(acc))
+        if abs(med_a - G) > 2.5:
+            hint = " (looks like units of g: multiply by 9.80665)" if 0.6 < med_a < 1.5 else ""
+            out.append(Finding("warn", f"IMU: median |accel| is {med_a:.2f} m/s^2, expected about {G:.2f} "
+                                       f"(specific force including gravity){hint}"))
+        if float(np.median(gyr)) > 1.0:
+            out.append(Finding("warn", f"IMU: median |gyro| is {np.median(gyr):.2f} rad/s; deg/s by mistake?"))
+
+    # GNSS
+    if len(rec.gnss) == 0:
+        out.append(Finding("warn", "no GNSS (gnss.csv): no global anchoring; poses stay in a local frame"))
+    else:
+        t = rec.gnss[:, 0]
+        out.extend(_stream_timing("GNSS", t, gap_factor=3.0, min_gap_s=1.0))
+        if len(t) > 1:
+            from pymap3d import geodetic2enu
+
+            e, n, u = geodetic2enu(rec.gnss[:, 1], rec.gnss[:, 2], rec.gnss[:, 3],
+                                   rec.gnss[0, 1], rec.gnss[0, 2], rec.gnss[0, 3])
+            speed = np.hypot(np.diff(e), np.diff(n)) / np.diff(t)
+            jumps = np.flatnonzero(speed > 100.0)
+            if jumps.size:
+                out.append(Finding("warn", f"GNSS: {jumps.size} jump(s) faster than 100 m/s, first at "
+                                           f"t={t[jumps[0]]:.3f} ({speed[jumps[0]]:.0f} m/s)"))
+            out.append(Finding("info", f"GNSS track {np.sum(np.hypot(np.diff(e), np.diff(n))):.0f} m long"))
+        if "h_std_m" not in rec.gnss_columns:
+            out.append(Finding("info", "GNSS has no h_std_m column: sync uses its default GNSS noise"))
+
+    # ground truth and time overlap
+    if rec.groundtruth is None:
+        out.append(Finding("info", "no ground truth (groundtruth.csv): accuracy cannot be measured"))
+    else:
+        out.append(Finding("info", f"ground truth: {len(rec.groundtruth)} poses"))
+    spans = {k: (v[0], v[-1]) for k, v in (("frames", rec.frames_t), ("IMU", rec.imu[:, 0]),
+                                           ("GNSS", rec.gnss[:, 0])) if len(v)}
+    if len(spans) > 1:
+        lo = max(s[0] for s in spans.values())
+        hi = min(s[1] for s in spans.values())
+        if hi <= lo:
+            out.append(Finding("warn", f"streams do not overlap in time: {_fmt_spans(spans)}; "
+                                       "wrong clock or time offset?"))
+        elif "frames" in spans and "IMU" in spans and (spans["IMU"][0] > spans["frames"][0] + 0.5
+                                                        or spans["IMU"][1] < spans["frames"][1] - 0.5):
+            out.append(Finding("warn", f"IMU does not cover all frames: {_fmt_spans(spans)}"))
+    for issue in rec.issues:
+        out.append(Finding("warn", issue))
+    for note in meta.get("notes", []) or []:
+        out.append(Finding("info", str(note)))
+    return out
+
+
+def _stream_timing(name: str, t: np.ndarray, gap_factor: float, min_gap_s: float = 0.0) -> list[Finding]:
+    if len(t) < 2:
+        return [Finding("warn", f"{name}: only {len(t)} sample(s)")]
+    d = np.diff(t)
+    med = float(np.median(d))
+    out = [Finding("info", f"{name}: {len(t)} samples, {1 / med:.1f} Hz, {t[-1] - t[0]:.2f} s")]
+    gaps = np.flatnonzero(d > max(gap_factor * med, min_gap_s))
+    if gaps.size and name != "IMU":  # IMU gaps are already reported by the reader
+        j = gaps[np.argmax(d[gaps])]
+        out.append(Finding("warn", f"{name}: {gaps.size} gap(s), longest {d[j]:.2f} s after t={t[j]:.3f} "
+                                   f"(median step {med:.3f} s)"))
+    return out
+
+
+def _video_consistency(rec) -> list[Finding]:
+    import cv2
+
+    cap = cv2.VideoCapture(str(rec.root / rec.video))
+    if not cap.isOpened():
+        return [Finding("error", f"video {rec.video} cannot be opened by OpenCV")]
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    cap.release()
+    out = []
+    if n > 0 and int(rec.frame_index.max()) >= n:
+        out.append(Finding("error", f"frames.csv refers to video frame {int(rec.frame_index.max())} but "
+                                    f"{rec.video} has {n} frames"))
+    if rec.camera is not None and (w, h) != (rec.camera.width, rec.camera.height):
+        out.append(Finding("error", f"video is {w}x{h} but calib.yaml says {rec.camera.width}x{rec.camera.height}"))
+    return out
+
+
+def _fmt_spans(spans: dict) -> str:
+    return ", ".join(f"{k} {a:.3f}..{b:.3f}" for k, (a, b) in spans.items())
+
+
+def format_findings(findings: list[Finding]) -> str:
+    return "\n".join(str(f) for f in findings)

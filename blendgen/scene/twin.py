@@ -1,0 +1,443 @@
+"""The twin (virtual place) without Blender: loads the twin YAML and answers placement
+questions (which lane and its direction, sidewalk, crosswalk, free space, ground height),
+plans an ego route along a lane and exports the LUT for the sync stage.
+
+Frame: ENU about the twin's georeference (x east, y north, z up), metres. Right-hand
+traffic: a road's `lanes_forward` run along its centre-line on the right of it,
+`lanes_backward` against it on the left. Roads are flat at z = 0; sidewalks sit at
+curb height.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+
+from blendgen import atomic
+from blendgen.errors import UserError
+from blendgen.scene.geom2d import Polyline, convex_overlap, point_in_convex, rect
+from blendgen.scene.twin_schema import Road, TwinSpec
+
+STEP_M = 1.0  # centre-line sampling
+
+
+@dataclass(frozen=True)
+class Georef:
+    lat0: float
+    lon0: float
+    alt0: float
+
+    def to_geodetic(self, x, y, z):
+        import pymap3d
+
+        return pymap3d.enu2geodetic(x, y, z, self.lat0, self.lon0, self.alt0)
+
+    def to_enu(self, lat, lon, alt):
+        import pymap3d
+
+        return pymap3d.geodetic2enu(lat, lon, alt, self.lat0, self.lon0, self.alt0)
+
+
+@dataclass(frozen=True)
+class Lane:
+    """A lane at a query point. `yaw` is the travel direction (rad, CCW from +x)."""
+
+    road: str
+    index: int        # 0 = next to the centre-line / median, increasing outward
+    direction: int    # +1 along the road's centre-line, -1 against it
+    yaw: float
+    width: float
+    s: float          # arc length of the query point along the road centre-line
+    d: float          # lateral offset of the query point from the centre-line (left > 0)
+    center_d: float   # lateral offset of the lane centre
+    outermost: bool   # the lane next to the curb / shoulder
+    in_junction: bool
+    speed_mps: float
+
+    @property
+    def heading(self) -> np.ndarray:
+        return np.array([math.cos(self.yaw), math.sin(self.yaw)])
+
+    @property
+    def lateral(self) -> float:
+        """Offset of the query point from the lane centre, positive to the left of travel."""
+        return (self.d - self.center_d) * self.direction
+
+
+class RoadGeom:
+    """One road: its centre-line and its cross-section."""
+
+    def __init__(self, spec: Road):
+        self.spec = spec
+        self.id = spec.id
+        self.line = Polyline(_centerline(spec))
+        self.length = self.line.length
+        w, m, sh = spec.lane_width_m, spec.median_m, spec.shoulder_m
+        self.hw_right = m / 2 + spec.lanes_forward * w + sh   # carriageway extent, d < 0
+        self.hw_left = m / 2 + spec.lanes_backward * w + sh   # d > 0
+        self.half_width = max(self.hw_right, self.hw_left)
+        # (index, direction, centre d)
+        self.lanes = [(i, +1, -(m / 2 + (i + 0.5) * w)) for i in range(spec.lanes_forward)]
+        self.lanes += [(i, -1, m / 2 + (i + 0.5) * w) for i in range(spec.lanes_backward)]
+
+    def carriageway(self, s, d):
+        return (s >= 0) & (s <= self.length) & (d >= -self.hw_right) & (d <= self.hw_left)
+
+    def sidewalk_band(self, s, d):
+        sw = self.spec.sidewalk_m
+        inside = (s >= 0) & (s <= self.length)
+        return inside & (((d < -self.hw_right) & (d >= -self.hw_right - sw))
+                         | ((d > self.hw_left) & (d <= self.hw_left + sw)))
+
+    def lane_index_at(self, d: float):
+        """(index, direction, centre d) of the lane containing lateral offset d, else None."""
+        w, m = self.spec.lane_width_m, self.spec.median_m
+        if d < -m / 2:
+            i = int((-d - m / 2) // w)
+            if i < self.spec.lanes_forward:
+                return i, +1, -(m / 2 + (i + 0.5) * w)
+        elif d > m / 2:
+            i = int((d - m / 2) // w)
+            if i < self.spec.lanes_backward:
+                return i, -1, m / 2 + (i + 0.5) * w
+        return None
+
+    def tangent_yaw(self, s: float) -> float:
+        _, t = self.line.at(s)
+        return float(math.atan2(t[0, 1], t[0, 0]))
+
+
+def _centerline(spec: Road) -> np.ndarray:
+    if spec.points is not None:
+        pts = np.asarray(spec.points, dtype=float)
+        out = [pts[0]]
+        for a, b in zip(pts[:-1], pts[1:]):
+            n = max(1, int(math.ceil(np.linalg.norm(b - a) / STEP_M)))
+            out.extend(a + (b - a) * (k / n) for k in range(1, n + 1))
+        return np.array(out)
+    p = np.asarray(spec.start, dtype=float)
+    yaw = math.radians(spec.heading_deg)
+    out = [p.copy()]
+    for seg in spec.segments:
+        if seg.straight is not None:
+            n = max(1, int(math.ceil(seg.straight / STEP_M)))
+            d = np.array([math.cos(yaw), math.sin(yaw)])
+            out.extend(p + d * seg.straight * k / n for k in range(1, n + 1))
+            p = p + d * seg.straight
+        else:
+            r, ang = seg.arc.radius_m, math.radians(seg.arc.angle_deg)
+            sign = 1.0 if ang >= 0 else -1.0
+            # centre of the turning circle, left of the heading for a left turn
+            c = p + sign * r * np.array([-math.sin(yaw), math.cos(yaw)])
+            n = max(2, int(math.ceil(abs(ang) * r / STEP_M)))
+            a0 = math.atan2(p[1] - c[1], p[0] - c[0])
+            for k in range(1, n + 1):
+                a = a0 + ang * k / n
+                out.append(c + r * np.array([math.cos(a), math.sin(a)]))
+            p = out[-1].copy()
+            yaw += ang
+    return np.array(out)
+
+
+@dataclass(frozen=True)
+class Structure:
+    kind: str           # building | pole | sign | traffic_light | barrier | tree | median_barrier
+    polygon: np.ndarray  # convex footprint (Nx2)
+    height: float
+
+
+@dataclass(frozen=True)
+class SignalSlot:
+    """Where a traffic light may stand at an intersection approach."""
+
+    x: float
+    y: float
+    yaw: float          # direction the lamps face (toward the approaching traffic)
+    intersection: str
+    road: str
+
+
+@dataclass(frozen=True)
+class StopLine:
+    road: str
+    s: float
+    d0: float
+    d1: float
+
+
+class Twin:
+    """Placement queries over a twin YAML (see module docstring for the frame)."""
+
+    def __init__(self, spec: TwinSpec, path: Path | None = None):
+        self.spec = spec
+        self.path = path
+        self.name = spec.name
+        g = spec.georef
+        self.georef = Georef(g.lat0, g.lon0, g.alt0)
+        self.roads = {r.id: RoadGeom(r) for r in spec.roads}
+        self.crosswalks: list[np.ndarray] = []   # convex polygons
+        self.crosswalk_info: list[tuple[str, float, float]] = []  # (road, s0, s1)
+        self.stop_lines: list[StopLine] = []
+        self.signal_slots: list[SignalSlot] = []
+        self._junctions: list[tuple[str, np.ndarray, float]] = []
+        self._build_intersections()
+        for i, c in enumerate(spec.crosswalks):
+            rg = self.roads[c.road]
+            if c.s_m > rg.length:
+                raise UserError(f"crosswalks[{i}].s_m: {c.s_m} is beyond the end of road {c.road!r} "
+                                f"({rg.length:.1f} m)", where=str(path or spec.name))
+            self._add_crosswalk(rg, c.s_m - c.width_m / 2, c.s_m + c.width_m / 2)
+        self.structures = self._structures()
+        if self.structures:
+            polys = [s.polygon for s in self.structures]
+            self._st_center = np.array([p.mean(0) for p in polys])
+            self._st_radius = np.array([np.linalg.norm(p - p.mean(0), axis=1).max() for p in polys])
+        else:
+            self._st_center, self._st_radius = np.zeros((0, 2)), np.zeros(0)
+
+    # ---------------------------------------------------------------- construction
+    def _build_intersections(self):
+        for k, inter in enumerate(self.spec.intersections):
+            c = np.asarray(inter.center, dtype=float)
+            members = []
+            for rg in self.roads.values():
+                s, d, _ = rg.line.project(c)
+                if abs(d[0]) < 1.0 and -1.0 <= s[0] <= rg.length + 1.0:
+                    members.append((rg, float(np.clip(s[0], 0, rg.length))))
+            if len(members) < 2:
+                raise UserError(f"intersections[{k}].center: {list(inter.center)} lies on "
+                                f"{len(members)} road centre-line(s); an intersection needs two or more",
+                                where=str(self.path or self.spec.name))
+            self._junctions.append((inter.id, c, max(rg.half_width for rg, _ in members)))
+            for rg, s0 in members:
+                others = [o for o, _ in members if o is not rg]
+                hw_o = max(o.half_width for o in others)
+                sw_o = max(o.spec.sidewalk_m for o in others)
+                cw = float(np.clip(sw_o, 2.5, 4.0))
+                for side in (-1, +1):  # the arm before (-1) and after (+1) the junction
+                    s_in, s_out = s0 + side * (hw_o + 0.3), s0 + side * (hw_o + 0.3 + cw)
+                    if not (0 <= s_out <= rg.length):
+                        continue
+                    if inter.crosswalks:
+                        self._add_crosswalk(rg, min(s_in, s_out), max(s_in, s_out))
+                    s_stop = s0 + side * (hw_o + 0.3 + cw + 0.8)
+                    # traffic approaching on this arm: forward lanes on arm -1, backward on +1
+                    direction = +1 if side < 0 else -1
+                    n_in = rg.spec.lanes_forward if direction > 0 else rg.spec.lanes_backward
+                    if n_in == 0:
+                        continue
+                    m, sh = rg.spec.median_m, rg.spec.shoulder_m
+                    if inter.stop_lines and 0 <= s_stop <= rg.length:
+                        d_lo, d_hi = ((-rg.hw_right + sh, -m / 2) if direction > 0
+                                      else (m / 2, rg.hw_left - sh))
+                        self.stop_lines.append(StopLine(rg.id, s_stop, d_lo, d_hi))
+                    if inter.signals:
+                        yaw_t = rg.tangent_yaw(s0)
+                        face = yaw_t + math.pi if direction > 0 else yaw_t
+                        d_side = -(rg.hw_right + 0.7) if direction > 0 else rg.hw_left + 0.7
+                        for s_sig in (s_stop, s0 - side * (hw_o + 0.7)):  # near and far side
+                            if 0 <= s_sig <= rg.length:
+                                p = rg.line.offset_point(s_sig, d_side)[0]
+                                self.signal_slots.append(SignalSlot(
+                                    float(p[0]), float(p[1]), float(math.atan2(math.sin(face), math.cos(face))),
+                                    inter.id, rg.id))
+
+    def _add_crosswalk(self, rg: RoadGeom, s0: float, s1: float):
+        pts = np.vstack([rg.line.offset_point(s0, -rg.hw_right), rg.line.offset_point(s1, -rg.hw_right),
+                         rg.line.offset_point(s1, rg.hw_left), rg.line.offset_point(s0, rg.hw_left)])
+        self.crosswalks.append(pts)
+        self.crosswalk_info.append((rg.id, s0, s1))
+
+    def _structures(self) -> list[Structure]:
+        sp = self.spec
+        out = [Structure("building", rect(b.center, b.size[0], b.size[1], math.radians(b.yaw_deg)), b.height_m)
+               for b in sp.buildings]
+        out += [Structure("pole", rect(p.position, 0.35, 0.35, 0.0), p.height_m) for p in sp.poles]
+        out += [Structure("sign", rect(s.position, 0.3, 0.3, 0.0), s.height_m) for s in sp.signs]
+        out += [Structure("traffic_light", rect(t.position, 0.5, 0.5, 0.0), t.mount_height_m + 1.0)
+                for t in sp.traffic_lights]
+        for b in sp.barriers:
+            a, e = np.asarray(b.start, float), np.asarray(b.end, float)
+            length = float(np.linalg.norm(e - a))
+            w = 0.6 if b.kind == "jersey" else 0.4
+            out.append(Structure("barrier", rect((a + e) / 2, max(length, 0.1), w,
+                                                 math.atan2(*(e - a)[::-1])), b.height_m))
+        out += [Structure("tree", rect(t.position, 0.6, 0.6, 0.0), t.height_m) for t in sp.trees]
+        for rg in self.roads.values():
+            if rg.spec.median_barrier and rg.spec.median_m > 0:
+                for s0 in np.arange(0.0, rg.length, 8.0):
+                    s1 = min(s0 + 8.0, rg.length)
+                    p = rg.line.offset_point([s0, s1], [0.0, 0.0])
+                    yaw = math.atan2(*(p[1] - p[0])[::-1])
+                    out.append(Structure("median_barrier", rect(p.mean(0), s1 - s0, 0.6, yaw), 0.8))
+        return out
+
+    # ---------------------------------------------------------------- queries
+    def _roads_containing(self, x: float, y: float):
+        hits = []
+        for rg in self.roads.values():
+            s, d, _ = rg.line.project((x, y))
+            hits.append((rg, float(s[0]), float(d[0])))
+        return hits
+
+    def lane_at(self, x: float, y: float, heading: float | None = None) -> Lane | None:
+        """The lane at (x, y), or None off the lanes (sidewalk, shoulder, median, off-road).
+
+        In a junction the point lies on several roads' lanes; `heading` (rad) picks the
+        lane whose direction is closest to it (default: the first road listed)."""
+        cands = []
+        n_carriage = 0
+        for rg, s, d in self._roads_containing(x, y):
+            if not rg.carriageway(s, d):
+                continue
+            n_carriage += 1
+            li = rg.lane_index_at(d)
+            if li is None:
+                continue
+            i, direction, cd = li
+            yaw = rg.tangent_yaw(s) + (0.0 if direction > 0 else math.pi)
+            yaw = math.atan2(math.sin(yaw), math.cos(yaw))
+            n = rg.spec.lanes_forward if direction > 0 else rg.spec.lanes_backward
+            cands.append(Lane(rg.id, i, direction, yaw, rg.spec.lane_width_m, s, d, cd, i == n - 1,
+                              False, rg.spec.speed_mps))
+        if not cands:
+            return None
+        if heading is not None:
+            cands.sort(key=lambda L: abs(math.remainder(L.yaw - heading, 2 * math.pi)))
+        lane = cands[0]
+        if n_carriage > 1:
+            lane = Lane(**{**lane.__dict__, "in_junction": True})
+        return lane
+
+    def in_junction(self, x: float, y: float) -> bool:
+        return sum(bool(rg.carriageway(s, d)) for rg, s, d in self._roads_containing(x, y)) > 1
+
+    def on_road(self, x: float, y: float) -> bool:
+        return any(bool(rg.carriageway(s, d)) for rg, s, d in self._roads_containing(x, y))
+
+    def on_sidewalk(self, x: float, y: float) -> bool:
+        hits = self._roads_containing(x, y)
+        if any(rg.carriageway(s, d) for rg, s, d in hits):
+            return False
+        return any(bool(rg.sidewalk_band(s, d)) for rg, s, d in hits)
+
+    def on_crosswalk(self, x: float, y: float) -> bool:
+        p = np.array([[x, y]])
+        return any(bool(point_in_convex(p, cw)[0]) for cw in self.crosswalks)
+
+    def is_free(self, polygon, margin: float = 0.0) -> bool:
+        """True when the convex footprint (Nx2) overlaps no structure (building, pole, ...)."""
+        poly = np.asarray(polygon, dtype=float)[:, :2]
+        if not len(self.structures):
+            return True
+        c = poly.mean(0)
+        r = np.linalg.norm(poly - c, axis=1).max()
+        near = np.nonzero(np.linalg.norm(self._st_center - c, axis=1) < self._st_radius + r + margin)[0]
+        return not any(convex_overlap(poly, self.structures[i].polygon, margin) for i in near)
+
+    def ground_height(self, x: float, y: float) -> float:
+        if self.on_sidewalk(x, y):
+            hits = [rg for rg, s, d in self._roads_containing(x, y) if rg.sidewalk_band(s, d)]
+            return float(max(rg.spec.curb_height_m for rg in hits))
+        return 0.0
+
+    # ---------------------------------------------------------------- routes and LUT
+    def lane_polyline(self, road: str, index: int, direction: int, s0: float, s1: float,
+                      step: float = 1.0) -> np.ndarray:
+        """Points along a lane centre from s0 to s1 (road arc length; s1 < s0 for backward)."""
+        rg = self.roads[road]
+        cd = next(c for i, dr, c in rg.lanes if i == index and dr == direction)
+        n = max(2, int(math.ceil(abs(s1 - s0) / step)) + 1)
+        s = np.linspace(s0, s1, n)
+        return rg.line.offset_point(s, np.full(n, cd))
+
+    def ego_route(self, length_m: float, seed: int) -> np.ndarray:
+        """An (N,2) polyline of `length_m` along the centre of one lane, in its direction,
+        starting and ending at least 5 m from the road ends (deterministic per seed)."""
+        if length_m <= 0:
+            raise UserError(f"ego_route: length_m must be > 0 (got {length_m})")
+        rng = np.random.default_rng(seed)
+        options = [(rg, i, dr) for rg in self.roads.values() for i, dr, _ in rg.lanes
+                   if rg.length >= length_m + 10.0]
+        if not options:
+            longest = max(rg.length for rg in self.roads.values())
+            raise UserError(f"ego_route: no road of twin {self.name!r} is long enough for a "
+                            f"{length_m:.0f} m route (longest {longest:.0f} m)")
+        rg, i, dr = options[rng.integers(len(options))]
+        a = float(rng.uniform(5.0, rg.length - 5.0 - length_m))
+        s0, s1 = (a, a + length_m) if dr > 0 else (rg.length - a, rg.length - a - length_m)
+        return self.lane_polyline(rg.id, i, dr, s0, s1, step=1.0)
+
+    def lut_rows(self, spacing_m: float) -> list[tuple]:
+        rows = []
+        for rg in self.roads.values():
+            s = np.arange(0.0, rg.length + 1e-9, spacing_m)
+            for i, dr, cd in rg.lanes:
+                p = rg.line.offset_point(s, np.full(len(s), cd))
+                for (x, y), si in zip(p, s):
+                    yaw = rg.tangent_yaw(si) + (0.0 if dr > 0 else math.pi)
+                    yaw_deg = math.degrees(math.atan2(math.sin(yaw), math.cos(yaw)))
+                    heading = (90.0 - yaw_deg) % 360.0
+                    lat, lon, alt = self.georef.to_geodetic(x, y, 0.0)
+                    rows.append((lat, lon, alt, heading, x, y, 0.0, yaw_deg))
+        return rows
+
+    def export_lut(self, path, spacing_m: float = 2.0) -> int:
+        """Write the survey LUT (lane centres every `spacing_m`, travel direction) as CSV
+        `lat,lon,alt,heading_deg,x,y,z,yaw_deg`; returns the number of rows."""
+        if spacing_m <= 0:
+            raise UserError(f"export_lut: spacing_m must be > 0 (got {spacing_m})")
+        rows = self.lut_rows(spacing_m)
+        lines = ["lat,lon,alt,heading_deg,x,y,z,yaw_deg"]
+        lines += [f"{a:.9f},{b:.9f},{c:.3f},{h:.3f},{x:.3f},{y:.3f},{z:.3f},{w:.3f}"
+                  for a, b, c, h, x, y, z, w in rows]
+        atomic.write_text(path, "\n".join(lines) + "\n")
+        return len(rows)
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        pts = np.vstack([rg.line.pts for rg in self.roads.values()])
+        return (*pts.min(0), *pts.max(0))
+
+
+def _format_loc(loc) -> str:
+    out = ""
+    for p in loc:
+        out += f"[{p}]" if isinstance(p, int) else (("." if out else "") + str(p))
+    return out or "(top level)"
+
+
+def load_twin(path) -> Twin:
+    """Load and validate a twin YAML; bad input raises UserError naming the field."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError("twin file not found", where=str(path))
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        raise UserError(f"not valid YAML: {getattr(e, 'problem', e)}",
+                        where=f"{path}:{mark.line + 1}" if mark else str(path)) from None
+    if not isinstance(data, dict):
+        raise UserError("expected a mapping of twin fields at the top level", where=str(path))
+    try:
+        spec = TwinSpec.model_validate(data)
+    except ValidationError as e:
+        msgs = []
+        for err in e.errors():
+            loc = _format_loc([p for p in err["loc"] if not str(p).startswith("function")])
+            if err["type"] == "extra_forbidden":
+                msgs.append(f"{loc}: unknown key")
+            elif err["type"] == "missing":
+                msgs.append(f"{loc}: required field is missing")
+            else:
+                got = err.get("input")
+                got_s = "" if isinstance(got, dict) or got is None else f" (got {got!r})"
+                msgs.append(f"{loc}: {err['msg'].removeprefix('Value error, ')}{got_s}")
+        raise UserError("invalid twin:\n  " + "\n  ".join(msgs), where=str(path)) from None
+    return Twin(spec, path)

@@ -1,0 +1,228 @@
+"""Labels: instances from the id image, the per-frame file, and COCO / YOLO / KITTI round-trips."""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from pycocotools import mask as mask_utils
+from pycocotools.coco import COCO
+
+from blendgen import CLASSES
+from blendgen.errors import UserError
+from blendgen.labels.export import export_labels, find_frame_labels
+from blendgen.labels.frame_labels import read_frame_labels, write_frame_labels
+from blendgen.labels.instances import decode_mask, extract_instances
+from blendgen.labels.kitti import parse_label_line
+from blendgen.labels.yolo import NAMES
+
+from labels_fixtures import CAMERA, H, W, hull_mask, make_frame, synthetic_instances
+
+
+@pytest.fixture(scope="module")
+def frame():
+    index, plan, amodal = make_frame()
+    inst = extract_instances(index, plan, CAMERA, amodal_px=amodal, min_visible_px=1, small_objects="drop")
+    return index, plan, amodal, {i["id"]: i for i in inst}
+
+
+def test_boxes_tight_to_masks_and_masks_exact(frame):
+    index, _, _, inst = frame
+    assert set(inst) == {1, 2, 3, 4}  # id 5 is planned but outside the view
+    for oid, i in inst.items():
+        m = decode_mask(i["segmentation"])
+        assert np.array_equal(m.astype(bool), index == oid)
+        ys, xs = np.nonzero(m)
+        assert i["bbox"] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+        assert mask_utils.toBbox({**i["segmentation"], "counts": i["segmentation"]["counts"].encode()}).tolist() == i["bbox"]
+        assert i["area"] == int(m.sum()) == i["visible_px"]
+        assert i["category_id"] == CLASSES[i["cls"]]
+        assert i["track_id"] == oid
+    assert inst[4]["bbox"] == [150, 5, 1, 1] and inst[4]["area"] == 1
+
+
+def test_occlusion_matches_hidden_pixels(frame):
+    index, plan, amodal, inst = frame
+    car, person = plan.objects[0], plan.objects[1]
+    hidden = int((hull_mask(person) & hull_mask(car)).sum())
+    assert hidden > 0, "fixture: the person must be partly behind the car"
+    expected = hidden / hull_mask(person).sum()
+    assert inst[2]["occlusion"] == pytest.approx(expected, abs=1e-12)
+    assert inst[1]["occlusion"] == pytest.approx(0.0, abs=1e-12)
+    assert 0.0 < inst[2]["occlusion"] < 1.0
+
+
+def test_truncation_at_image_border(frame):
+    _, plan, _, inst = frame
+    truck = plan.objects[2]
+    pad = 400
+    full = hull_mask(truck, pad=pad)
+    inside = full[pad:pad + H, pad:pad + W].sum()
+    expected = 1.0 - inside / full.sum()
+    assert 0.2 < expected < 0.95, "fixture: the truck must be cut by the left border"
+    assert inst[3]["truncation"] == pytest.approx(expected, abs=0.02)
+    assert inst[1]["truncation"] == pytest.approx(0.0, abs=1e-6)
+    assert inst[3]["bbox"][0] == 0  # touches the border
+
+
+def test_box3d_in_camera_frame(frame):
+    _, plan, _, inst = frame
+    car = inst[1]["box3d_cam"]
+    # World (12, 0.5, 0) seen from (0, 0, 1.5) looking along +x: cam x = -0.5, y = 1.5, z = 12.
+    assert np.allclose(car["location"], [-0.5, 1.5, 12.0], atol=1e-9)
+    assert car["dimensions_hwl"] == [1.5, 1.8, 4.5]
+    # Object yaw 0.3 (toward world +y = camera -x): forward = (-sin .3, 0, cos .3) -> ry = -(pi/2 - .3)
+    assert car["rotation_y"] == pytest.approx(-(np.pi / 2 - 0.3), abs=1e-9)
+    corners = np.asarray(car["corners"])
+    assert corners.shape == (8, 3)
+    assert inst[1]["distance_m"] == pytest.approx(np.linalg.norm(corners.mean(0)))
+    assert np.isfinite(corners).all()
+
+
+def test_small_objects_drop_or_ignore():
+    index, plan, amodal = make_frame()
+    dropped = extract_instances(index, plan, CAMERA, amodal_px=amodal, min_visible_px=2, small_objects="drop")
+    assert 4 not in {i["id"] for i in dropped}
+    kept = extract_instances(index, plan, CAMERA, amodal_px=amodal, min_visible_px=2, small_objects="ignore")
+    flags = {i["id"]: i["ignore"] for i in kept}
+    assert flags[4] is True and flags[1] is False
+    none = extract_instances(np.zeros((H, W), np.int32), plan, CAMERA, amodal_px=None, min_visible_px=0,
+                             small_objects="drop")
+    assert none == []
+
+
+def test_object_behind_camera_is_stable():
+    index, plan, _ = make_frame()
+    from blendgen.scene.plan import PlacedObject
+
+    # A long bus reaching from behind the camera into view on the right.
+    plan.objects.append(PlacedObject(6, "bus", (0.0, -3.0, 0.0), 0.0, (14.0, 2.5, 3.2)))
+    index = index.copy()
+    index[40:90, 140:160] = 6
+    inst = {i["id"]: i for i in extract_instances(index, plan, CAMERA, amodal_px=None, min_visible_px=1,
+                                                  small_objects="drop")}
+    t = inst[6]["truncation"]
+    assert np.isfinite(t) and 0.5 < t <= 1.0
+    assert inst[6]["occlusion"] is None
+
+
+def test_bad_inputs_name_the_problem(tmp_path):
+    index, plan, amodal = make_frame()
+    with pytest.raises(UserError, match="f000001.*integer"):
+        extract_instances(index.astype(float), plan, CAMERA, amodal_px=amodal, min_visible_px=1,
+                          small_objects="drop")
+    with pytest.raises(UserError, match="aspect"):
+        extract_instances(np.zeros((90, 90), np.int32), plan, CAMERA, amodal_px=None, min_visible_px=1,
+                          small_objects="drop")
+    p = tmp_path / "labels.json"
+    p.write_text('{"format": "blendgen-frame-labels", "version": 1, "frame_id": "a", "image": "x.png", '
+                 '"width": 10, "height": 10, "instances": [{"id": 1}]}')
+    with pytest.raises(UserError, match=r"labels.json: instances\[0\].*cls"):
+        read_frame_labels(p)
+    p.write_text("{broken")
+    with pytest.raises(UserError, match="labels.json.*JSON"):
+        read_frame_labels(p)
+
+
+def _write_out(tmp_path, n_frames=3, seed=0):
+    rng = np.random.default_rng(seed)
+    out = tmp_path / "out"
+    index, plan, amodal = make_frame()
+    for k in range(n_frames):
+        fid = f"f{k:06d}"
+        d = out / "frames" / fid
+        d.mkdir(parents=True)
+        cv2.imwrite(str(d / "composite.png"), np.full((H, W, 3), 40 * k, np.uint8))
+        if k == 0:
+            inst = extract_instances(index, plan, CAMERA, amodal_px=amodal, min_visible_px=2,
+                                     small_objects="ignore")
+        else:
+            inst = synthetic_instances(rng, 5)
+        write_frame_labels(d / "labels.json", fid, "composite.png", W, H, inst, camera=CAMERA)
+    return out
+
+
+def test_frame_labels_round_trip(tmp_path):
+    out = _write_out(tmp_path, 1)
+    doc = read_frame_labels(out / "frames/f000000/labels.json")
+    assert doc["frame_id"] == "f000000" and doc["width"] == W and doc["height"] == H
+    assert doc["image_path"] == (out / "frames/f000000/composite.png").resolve()
+    assert {i["id"] for i in doc["instances"]} == {1, 2, 3, 4}
+
+
+def test_export_round_trips(tmp_path):
+    out = _write_out(tmp_path, 3)
+    paths = find_frame_labels(out)
+    summary = export_labels(out, paths, ["coco", "yolo", "kitti"])
+    frames = [read_frame_labels(p) for p in paths]
+    n_inst = sum(len(f["instances"]) for f in frames)
+    assert summary["frames"] == 3 and summary["instances"] == n_inst
+
+    # COCO: pycocotools loads it; every box equals the box of its decoded mask.
+    coco = COCO(str(out / "labels/coco.json"))
+    assert sorted(coco.getCatIds()) == sorted(CLASSES.values())
+    assert len(coco.getAnnIds()) == n_inst
+    for ann in coco.loadAnns(coco.getAnnIds()):
+        m = coco.annToMask(ann)
+        assert m.sum() == ann["area"]
+        assert mask_utils.toBbox(mask_utils.encode(np.asfortranarray(m))).tolist() == ann["bbox"]
+        img = coco.loadImgs(ann["image_id"])[0]
+        assert (out / img["file_name"]).exists()
+    assert any(a["iscrowd"] for a in coco.loadAnns(coco.getAnnIds()))  # the ignored 1-pixel object
+
+    # YOLO: boxes and polygons normalised, class index in NAMES, images resolvable.
+    y = out / "labels/yolo"
+    assert "names:" in (y / "data.yaml").read_text() and (y / "seg/data.yaml").exists()
+    for fr in frames:
+        keep = [i for i in fr["instances"] if not i["ignore"]]
+        rows = [l.split() for l in (y / "labels" / f"{fr['frame_id']}.txt").read_text().splitlines()]
+        assert len(rows) == len(keep)
+        for r, i in zip(rows, keep):
+            c, cx, cy, w, h = int(r[0]), *map(float, r[1:])
+            x0, y0, bw, bh = i["bbox"]
+            assert NAMES[c] == i["cls"]
+            assert (cx - w / 2) * W == pytest.approx(x0, abs=1e-3) and (cy - h / 2) * H == pytest.approx(y0, abs=1e-3)
+            assert w * W == pytest.approx(bw, abs=1e-3) and h * H == pytest.approx(bh, abs=1e-3)
+        segs = [l.split() for l in (y / "seg/labels" / f"{fr['frame_id']}.txt").read_text().splitlines()]
+        for s, i in zip(segs, keep):
+            pts = np.array(s[1:], float).reshape(-1, 2) * [W, H]
+            assert len(pts) >= 3 and (pts >= 0).all()
+            x0, y0, bw, bh = i["bbox"]
+            # The polygon through pixel centres lies inside the box and reaches within 1 px of each side.
+            assert pts[:, 0].min() == pytest.approx(x0 + 0.5, abs=0.51) and pts[:, 0].max() <= x0 + bw + 1e-3
+            assert pts[:, 1].min() == pytest.approx(y0 + 0.5, abs=0.51) and pts[:, 1].max() <= y0 + bh + 1e-3
+        assert (y / "images" / f"{fr['frame_id']}.png").exists()
+        assert cv2.imread(str(y / "images" / f"{fr['frame_id']}.png")) is not None
+    assert len((y / "train.txt").read_text().splitlines()) == 3
+
+    # KITTI: one line per instance, ignored as DontCare, box and 3D box as in the labels.
+    for fr in frames:
+        lines = (out / "labels/kitti/label_2" / f"{fr['frame_id']}.txt").read_text().splitlines()
+        assert len(lines) == len(fr["instances"])
+        for line, i in zip(lines, fr["instances"]):
+            k = parse_label_line(line)
+            x0, y0, bw, bh = i["bbox"]
+            assert k["bbox"] == pytest.approx([x0, y0, x0 + bw, y0 + bh], abs=0.006)
+            if i["ignore"]:
+                assert k["type"] == "DontCare"
+            else:
+                assert k["location"] == pytest.approx(i["box3d_cam"]["location"], abs=0.006)
+                assert k["dimensions_hwl"] == pytest.approx(i["box3d_cam"]["dimensions_hwl"], abs=0.006)
+        calib = (out / "labels/kitti/calib" / f"{fr['frame_id']}.txt").read_text()
+        P2 = np.array(calib.splitlines()[2].split()[1:], float).reshape(3, 4)
+        assert np.allclose(P2[:, :3], CAMERA.K)
+
+    # Re-export is identical (deterministic order).
+    before = (out / "labels/coco.json").read_bytes()
+    export_labels(out, list(reversed(paths)), ["coco"])
+    assert (out / "labels/coco.json").read_bytes() == before
+
+
+def test_export_rejects_unknown_format_and_missing_image(tmp_path):
+    out = _write_out(tmp_path, 1)
+    with pytest.raises(UserError, match="export.formats.*pascal"):
+        export_labels(out, find_frame_labels(out), ["pascal"])
+    (out / "frames/f000000/composite.png").unlink()
+    with pytest.raises(UserError, match="labels.json.*composite.png"):
+        export_labels(out, find_frame_labels(out), ["coco"])

@@ -72,8 +72,9 @@ def test_box3d_in_camera_frame(frame):
     # World (12, 0.5, 0) seen from (0, 0, 1.5) looking along +x: cam x = -0.5, y = 1.5, z = 12.
     assert np.allclose(car["location"], [-0.5, 1.5, 12.0], atol=1e-9)
     assert car["dimensions_hwl"] == [1.5, 1.8, 4.5]
-    # Object yaw 0.3 (toward world +y = camera -x): forward = (-sin .3, 0, cos .3) -> ry = -(pi/2 - .3)
-    assert car["rotation_y"] == pytest.approx(-(np.pi / 2 - 0.3), abs=1e-9)
+    # Driving away from the camera is ry = -pi/2 in KITTI; yaw 0.3 turns forward toward world +y
+    # = camera -x: forward = (-sin .3, 0, cos .3) -> ry = atan2(-cos .3, -sin .3) = -(pi/2 + .3).
+    assert car["rotation_y"] == pytest.approx(-(np.pi / 2 + 0.3), abs=1e-9)
     corners = np.asarray(car["corners"])
     assert corners.shape == (8, 3)
     assert inst[1]["distance_m"] == pytest.approx(np.linalg.norm(corners.mean(0)))

@@ -16,16 +16,11 @@ import cv2
 import numpy as np
 
 from blendgen import __version__, atomic
+from blendgen.farm.seeds import frame_seed
 from blendgen.job.schema import parse_job
 from blendgen.pipeline.outputs import JobFolder
 from blendgen.recording.folder import read_frame, read_recording
 from blendgen.scene.plan import FramePlan
-
-
-def frame_seed(job_seed: int, frame_id: str) -> int:
-    """Seed of one frame: independent of which worker runs it."""
-    h = hashlib.sha256(f"{job_seed}:{frame_id}".encode()).digest()
-    return int.from_bytes(h[:4], "little")
 
 
 def render_outputs(job) -> set[str]:

@@ -148,10 +148,10 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
 
     # Road: below the horizon, greyish, not sky.
     ground = np.zeros((h, w), bool)
-    g0 = int(min(h - 1, max(0, horizon + 0.05 * h)))
+    g0 = int(min(h - 1, max(0, horizon + 0.12 * h)))
     ground[g0:] = True
     hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
-    ground &= (hsv[..., 1] < 90) & ~sky
+    ground &= (hsv[..., 1] < 50) & ~sky  # asphalt/concrete are grey; verges and grass are not
     if ground.sum() < 16:
         ground[g0:] = True
         notes.append("no grey road region: ground statistics over the lower frame")
@@ -238,8 +238,11 @@ def _sky_mask(small: np.ndarray) -> np.ndarray:
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
     grad = cv2.blur(np.sqrt(gx * gx + gy * gy), (3, 3))
-    bright = gray > max(np.percentile(gray, 55), 60)
-    cand = bright & (grad < 40)
+    b, r = small[..., 0].astype(np.int16), small[..., 2].astype(np.int16)
+    # Sky: smooth and either bluish or bright and neutral (overcast); not brightness alone,
+    # since sunlit dry grass or concrete is often brighter than a blue sky.
+    skyish = (gray > 60) & ((b >= r + 8) | ((gray > 170) & (np.abs(b - r) < 25)))
+    cand = skyish & (grad < 30)
     cand[int(0.6 * h):] = False
     n, labels = cv2.connectedComponents(cand.astype(np.uint8), connectivity=4)
     top = np.unique(labels[0][cand[0]])

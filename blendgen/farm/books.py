@@ -1,0 +1,232 @@
+"""The supervisor's bookkeeping, shared by every engine: the ledger, the manifest, the
+progress bar, per-attempt log paths and the final summary. Single writer by construction:
+a lock file keeps a second supervisor off the same output folder."""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .. import atomic
+from ..errors import UserError
+from .ledger import LEDGER_DIR, Ledger
+from .seeds import frame_seed
+
+MANIFEST = "manifest.jsonl"
+LEASE_S = 60.0  # a running task's lease; renewed by every supervisor heartbeat
+_STAGE = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+@dataclass
+class FarmSummary:
+    """What `run_tasks` returns. `ok` is False when any task failed for good."""
+
+    stage: str
+    engine: str
+    run_id: int
+    total: int                 # items asked for
+    done: int                  # items done after this run (including earlier runs)
+    already_done: int          # items done before this run started (not dispatched)
+    processed: int             # items this run processed
+    skipped: int               # items a worker found already complete (is_done)
+    failed: list[dict] = field(default_factory=list)  # {task, items, attempts, error, log}
+    elapsed_s: float = 0.0
+    workers_started: int = 0
+    worker_deaths: int = 0     # unexpected worker exits (crash, kill, OOM)
+    recycled: int = 0          # planned restarts (recycle_after / max_rss_mb)
+    retired: list[str] = field(default_factory=list)  # workers/nodes that kept failing
+    ledger: str = ""
+    manifest: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed and self.done == self.total
+
+    @property
+    def rate(self) -> float:
+        return (self.processed + self.skipped) / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+    def text(self) -> str:
+        lines = [f"{self.stage}: {self.done}/{self.total} done ({self.already_done} before this "
+                 f"run, {self.processed} processed, {self.skipped} found complete) in "
+                 f"{self.elapsed_s:.1f} s on {self.engine}; {self.workers_started} worker "
+                 f"start(s), {self.worker_deaths} death(s), {self.recycled} recycle(s)"]
+        if self.retired:
+            lines.append(f"  retired for repeated failures: {', '.join(self.retired)}")
+        for f in self.failed:
+            items = ", ".join(f["items"][:5]) + (" ..." if len(f["items"]) > 5 else "")
+            lines.append(f"  FAILED task {f['task']} [{items}] after {f['attempts']} attempt(s):"
+                         f" {f['error']}\n    log: {f['log']}")
+        return "\n".join(lines)
+
+
+def read_manifest_items(path: Path, stage: str) -> set[str]:
+    """Items of `stage` with a record in the manifest (a torn last line is skipped)."""
+    done: set[str] = set()
+    if not path.exists():
+        return done
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(rec, dict) and rec.get("stage") == stage and "item" in rec:
+                done.add(str(rec["item"]))
+    return done
+
+
+class Books:
+    def __init__(self, out_dir: Path, stage: str, items: list[str], *, chunk: int, engine: str,
+                 workers: int, seed: int, max_attempts: int, progress: bool):
+        if not isinstance(stage, str) or not _STAGE.match(stage):
+            raise UserError(f"stage must match [A-Za-z0-9_-]+, got {stage!r}", where="farm")
+        seen: set[str] = set()
+        for it in items:
+            if not isinstance(it, str) or not it:
+                raise UserError(f"items must be non-empty strings (frame ids), got {it!r}",
+                                where=f"farm stage {stage}")
+            if it in seen:
+                raise UserError(f"frame id {it!r} appears twice", where=f"farm stage {stage}")
+            seen.add(it)
+        self.out_dir = Path(out_dir)
+        self.stage, self.seed, self.max_attempts = stage, seed, max_attempts
+        self.meta_dir = self.out_dir / LEDGER_DIR
+        self.log_dir = self.meta_dir / "logs" / stage
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self._lock = self._take_lock()
+        self.manifest = self.out_dir / MANIFEST
+        self.in_manifest = read_manifest_items(self.manifest, stage)
+        self.ledger = Ledger(self.out_dir)
+        self.run_id, self.task_ids = self.ledger.begin_run(
+            stage, items, chunk, engine, workers, self.in_manifest & seen)
+        counts = self.ledger.count_items(stage, self.run_id)
+        self.summary = FarmSummary(stage=stage, engine=engine, run_id=self.run_id,
+                                   total=len(items), done=counts.get("done", 0),
+                                   already_done=counts.get("done", 0), processed=0, skipped=0,
+                                   ledger=str(self.ledger.path), manifest=str(self.manifest))
+        self._lines: list[str] = []
+        self._t0 = time.perf_counter()
+        self._last_beat = 0.0
+        self.bar = None
+        if progress and items:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=len(items), initial=self.summary.done, unit="frame",
+                            desc=stage, dynamic_ncols=True, smoothing=0.1)
+
+    def _take_lock(self):
+        path = self.meta_dir / "supervisor.lock"
+        f = open(path, "a+")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            holder = f.read().strip()
+            f.close()
+            raise UserError(f"another blendgen supervisor is running on this folder "
+                            f"({holder or 'unknown pid'}); wait for it or stop it first",
+                            where=str(self.out_dir)) from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()} stage {self.stage}\n")
+        f.flush()
+        return f
+
+    # -- per attempt -----------------------------------------------------------------------
+    def log_path(self, task_id: int, attempt: int) -> str:
+        return str(self.log_dir / f"task-{task_id:06d}-a{attempt}.log")
+
+    def worker_log(self, name: str) -> str:
+        return str(self.log_dir / f"worker-{name}.log")
+
+    def claim(self, task_id: int, worker: str) -> tuple[int, list[str], str]:
+        items = self.ledger.remaining_items(task_id)
+        attempt = self.ledger.task(task_id)["attempts"] + 1
+        log = self.log_path(task_id, attempt)
+        self.ledger.claim(task_id, worker, log, LEASE_S)
+        return attempt, items, log
+
+    def on_item(self, task_id: int, attempt: int, worker: str, ev: dict) -> None:
+        item = ev["item"]
+        farm = {"task": task_id, "attempt": attempt, "worker": worker,
+                "is_done_s": round(ev.get("is_done_s", 0.0), 6),
+                "process_s": round(ev.get("process_s", 0.0), 6),
+                "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        if ev.get("skipped"):
+            self.summary.skipped += 1
+            if item not in self.in_manifest:
+                # Outputs exist but the record was lost (supervisor died between the worker
+                # finishing and the manifest append): note it so every frame has a line.
+                rec = {"stage": self.stage, "item": item, "seed": frame_seed(self.seed, item),
+                       "skipped": "outputs already complete", "farm": farm}
+                self._lines.append(json.dumps(rec, default=atomic._json_default))
+        else:
+            self.summary.processed += 1
+            rec = dict(ev.get("record") or {})
+            rec.setdefault("stage", self.stage)
+            rec.setdefault("item", item)
+            rec.setdefault("seed", frame_seed(self.seed, item))
+            rec["farm"] = farm
+            self._lines.append(json.dumps(rec, default=atomic._json_default))
+        self.in_manifest.add(item)
+        self.ledger.item_done(self.stage, item, worker)
+        self.summary.done += 1
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def on_task_done(self, task_id: int) -> None:
+        self.ledger.task_done(task_id)
+
+    def on_task_failed(self, task_id: int, worker: str, error: str) -> bool:
+        final = self.ledger.task_failed(task_id, worker, error, self.max_attempts)
+        log = self.ledger.task(task_id)["log_path"]
+        if log:
+            with contextlib.suppress(OSError), open(log, "a", encoding="utf-8") as f:
+                f.write(f"\n[blendgen.farm supervisor] attempt failed on {worker}: {error}"
+                        f"{' (giving up)' if final else ' (re-queued)'}\n")
+        if final and self.bar is not None:
+            self.bar.set_postfix_str(f"failed tasks: {len(self.ledger.failed_tasks(self.run_id))}")
+        return final
+
+    def release(self, task_id: int) -> None:
+        self.ledger.release(task_id)
+
+    # -- commits ---------------------------------------------------------------------------
+    def flush(self) -> None:
+        """Manifest first, then the ledger: if we die in between, the next run finds the
+        record in the manifest and marks the item done without redoing it."""
+        if self._lines:
+            atomic.append_line(self.manifest, "\n".join(self._lines))
+            self._lines.clear()
+        now = time.monotonic()
+        if now - self._last_beat > 2.0:
+            self.ledger.heartbeat(self.run_id, LEASE_S)
+            self._last_beat = now
+        self.ledger.commit()
+
+    def finish(self, state: str | None = None) -> FarmSummary:
+        self.flush()
+        self.summary.failed = self.ledger.failed_tasks(self.run_id)
+        self.summary.elapsed_s = time.perf_counter() - self._t0
+        if state is None:
+            state = "done" if self.summary.ok else "failed"
+        self.ledger.end_run(self.run_id, state)
+        self.close()
+        return self.summary
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+        with contextlib.suppress(Exception):
+            self.ledger.close()
+        if self._lock is not None:
+            self._lock.close()  # closing the file releases the flock
+            self._lock = None

@@ -116,6 +116,9 @@ def test_bad_inputs_name_the_problem(tmp_path):
     with pytest.raises(UserError, match="aspect"):
         extract_instances(np.zeros((90, 90), np.int32), plan, CAMERA, amodal_px=None, min_visible_px=1,
                           small_objects="drop")
+    plan.objects[0].position = (float("nan"), 0.0, 0.0)
+    with pytest.raises(UserError, match="f000001: object 1 .*non-finite"):
+        extract_instances(index, plan, CAMERA, amodal_px=amodal, min_visible_px=1, small_objects="drop")
     p = tmp_path / "labels.json"
     p.write_text('{"format": "blendgen-frame-labels", "version": 1, "frame_id": "a", "image": "x.png", '
                  '"width": 10, "height": 10, "instances": [{"id": 1}]}')

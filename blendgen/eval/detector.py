@@ -29,6 +29,7 @@ class YoloxDetector:
         import onnxruntime as ort
 
         model = Path(model)
+        self.model_path = model
         if not model.is_file():
             raise UserError("detector model not found", where=str(model))
         opts = ort.SessionOptions()
@@ -84,7 +85,13 @@ class YoloxDetector:
         raw = self.session.run(None, {self.input_name: x})[0][0]
         if not np.isfinite(raw).all():
             raw = np.nan_to_num(raw, nan=-1e9, posinf=1e9, neginf=-1e9)
-        return self.decode(raw.astype(np.float64), r)
+        dets = self.decode(raw.astype(np.float64), r)
+        H, W = bgr.shape[:2]
+        for d in dets:  # clip to the image, as labels never leave it
+            x, y, w, h = d["bbox"]
+            x0, y0, x1, y1 = max(x, 0.0), max(y, 0.0), min(x + w, W), min(y + h, H)
+            d["bbox"] = [x0, y0, max(x1 - x0, 0.0), max(y1 - y0, 0.0)]
+        return [d for d in dets if d["bbox"][2] > 0 and d["bbox"][3] > 0]
 
 
 def _grids(size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,6 @@ import socket
 import sqlite3
 import time
 from pathlib import Path
-from typing import Iterable
 
 from ..errors import UserError
 
@@ -174,6 +173,12 @@ class Ledger:
                   "VALUES(?,?,?,?,?)", (task_id, row["attempts"], worker, now, log_path))
         return int(row["attempts"])
 
+    def set_attempt_worker(self, task_id: int, attempt: int, worker: str) -> None:
+        """Ray places tasks itself: the worker is known only when the result comes back."""
+        self.conn.execute("UPDATE tasks SET worker=? WHERE task_id=?", (worker, task_id))
+        self.conn.execute("UPDATE attempts SET worker=? WHERE task_id=? AND attempt=?",
+                          (worker, task_id, attempt))
+
     def item_done(self, stage: str, item: str, worker: str, in_manifest: bool = True) -> None:
         self.conn.execute("UPDATE items SET state='done', worker=?, finished=?, in_manifest=? "
                           "WHERE stage=? AND item=?",
@@ -252,7 +257,3 @@ class Ledger:
         finally:
             self.conn.close()
 
-
-def chunks(seq: Iterable[str], n: int) -> list[list[str]]:
-    seq = list(seq)
-    return [seq[k:k + n] for k in range(0, len(seq), n)]

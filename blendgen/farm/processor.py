@@ -114,13 +114,14 @@ def run_items(proc: Any, items: list[str], emit: Callable[[dict], None]) -> bool
     return True
 
 
-def clean_stale_temps(folder: str | os.PathLike) -> int:
+def clean_stale_temps(folder: str | os.PathLike, stem: str = "*") -> int:
     """Remove temp files that `blendgen.atomic` left in `folder` when a worker was killed
-    mid-write (`.<stem>.<random>.tmp<ext>`). Processors call this before writing an item."""
+    mid-write (`.<stem>.<random>.tmp<ext>`). Processors call this before writing an item,
+    for that item's own folder or file stem only: other workers may be writing beside it."""
     n = 0
     folder = Path(folder)
     if folder.is_dir():
-        for p in folder.glob(".*.tmp*"):
+        for p in folder.glob(f".{stem}.*tmp*"):
             with contextlib.suppress(FileNotFoundError):
                 p.unlink()
                 n += 1

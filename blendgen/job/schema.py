@@ -56,6 +56,9 @@ class Sync(Section):
     use_gnss: bool = True
     use_vo: bool = True
     gnss_std_m: PosFloat | None = None  # default: gnss.csv h_std_m, else 1.5 m
+    smooth: bool = True  # Rauch-Tung-Striebel pass after the filter (uses later data for earlier poses)
+    pose_rate_hz: Annotated[float, Field(gt=0, le=200)] = 10.0  # output rate when the recording has no frames
+    vo_speed_mps: Annotated[float, Field(gt=0)] = 10.0  # assumed speed for the scale of VO-only runs (no IMU, no GNSS)
 
 
 class Inject(Section):

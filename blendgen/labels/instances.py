@@ -30,7 +30,8 @@ _BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).co
 
 def encode_mask(mask: np.ndarray) -> dict:
     """Binary HxW mask -> COCO compressed RLE with `counts` as str (JSON-able)."""
-    rle = mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
+    m = mask.view(np.uint8) if mask.dtype == bool else mask.astype(np.uint8)
+    rle = mask_utils.encode(np.asfortranarray(m))
     return {"size": [int(rle["size"][0]), int(rle["size"][1])], "counts": rle["counts"].decode("ascii")}
 
 
@@ -136,19 +137,23 @@ def extract_instances(index: np.ndarray, plan: FramePlan, camera: Camera, *,
         camera = camera.scaled(W, H)  # rendered at another resolution than the recording
     amodal_px = {int(k): int(v) for k, v in (amodal_px or {}).items()}
 
-    present, counts = np.unique(index, return_counts=True)
-    visible = dict(zip(present.tolist(), counts.tolist()))
+    # Pixel counts per id in one pass (ids are 0..65535; negative values are not objects).
+    visible = np.bincount(np.clip(index, 0, None).ravel())
+    index_f = np.asfortranarray(index)  # masks come out Fortran-ordered, as pycocotools wants
     out = []
     for obj in plan.objects:
-        n = int(visible.get(int(obj.id), 0))
+        n = int(visible[obj.id]) if obj.id < len(visible) else 0
         if n == 0:
             continue  # not visible at all: no mask, no box
         ignore = n < min_visible_px
         if ignore and small_objects == "drop":
             continue
-        mask = index == obj.id
+        mask = index_f == obj.id
         b3 = box3d_cam(obj, plan.T_world_cam)
         corners = np.asarray(b3["corners"])
+        if not np.isfinite(corners).all():
+            raise UserError(f"object {obj.id} ({obj.cls}) has a non-finite pose or size "
+                            f"(position {obj.position}, dims {obj.dims}, yaw {obj.yaw})", where=where)
         centre = corners.mean(axis=0)
         amodal = amodal_px.get(int(obj.id))
         occlusion = None

@@ -50,9 +50,10 @@ def mask_polygon(mask: np.ndarray) -> np.ndarray:
 
 
 def segment_line(inst: dict, W: int, H: int) -> str:
-    poly = mask_polygon(decode_mask(inst["segmentation"]))
+    x, y, w, h = (int(v) for v in inst["bbox"])
+    # Contours on the box crop only (the box is tight), shifted back to image coordinates.
+    poly = mask_polygon(decode_mask(inst["segmentation"])[y:y + h, x:x + w]) + [x, y]
     if len(poly) < 3:  # a line or a single pixel: outline its box instead
-        x, y, w, h = inst["bbox"]
         pts = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=float)
     else:
         pts = poly + 0.5  # pixel centre -> COCO continuous coordinates

@@ -65,8 +65,7 @@ class Runner:
             self._say(1, "record", f"synthetic recording already made ({root})")
             return
         from blendgen.recording.folder import write_frames_csv
-        from blendgen.recording.synthetic import write_sensor_data
-        from blendgen.post.illumination import sun_lighting
+        from blendgen.recording.synthetic import clear_sky_lighting, write_sensor_data
 
         twin = self._twin()
         s = job.synthetic
@@ -74,7 +73,7 @@ class Runner:
                                f"{s.resolution[0]}x{s.resolution[1]}, Cycles {s.samples} spp -> {root}")
         camera, poses, frame_t = write_sensor_data(root, twin, s, job.seed)
         rec = read_recording(root)
-        lighting = sun_lighting(twin.georef, rec.utc(0.0))
+        lighting = clear_sky_lighting(twin.georef, rec.utc(0.0))
         ids = [rec.frame_id(i) for i in range(len(frame_t))]
         render = job.render.model_dump()
         render["resolution"] = None

@@ -166,7 +166,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     else:
         el, az = DEFAULT_SUN_ELEVATION_DEG, _default_azimuth(T_world_cam)
         source = "default"
-        notes.append("no time/position: sun direction is a default (behind-left of the camera)")
+        notes.append("no time/position: sun direction is a default (behind the camera, 40 deg to its right)")
     sun_dir = enu_from_az_el(az, el)
 
     # Sun visibility.
@@ -210,7 +210,7 @@ def enu_from_az_el(az_deg: float, el_deg: float) -> np.ndarray:
 
 
 def _default_azimuth(T_world_cam) -> float:
-    """Azimuth behind-left of the camera (objects front-lit), or south-east without a pose."""
+    """Azimuth behind the camera, 40 deg to its right (objects front-lit), or south-east without a pose."""
     if T_world_cam is None:
         return 135.0
     z = np.asarray(T_world_cam, float)[:3, 2]  # optical axis in the world

@@ -175,15 +175,27 @@ def read_frame(rec: Recording, i: int) -> np.ndarray:
     return img
 
 
-def iter_frames(rec: Recording):
-    """Yield (i, BGR frame) in order, decoding a video sequentially (much faster than seeking)."""
+def iter_frames(rec: Recording, *, skip_bad: bool = False):
+    """Yield (i, BGR frame) in order, decoding a video sequentially (much faster than seeking).
+
+    With skip_bad, a frame that does not decode yields (i, None) and is reported in
+    `rec.issues` instead of raising, so a long recording survives one corrupt frame.
+    """
     import cv2
 
     if rec.frame_files is not None:
         for i in range(rec.n_frames):
-            yield i, read_frame(rec, i)
+            try:
+                yield i, read_frame(rec, i)
+            except UserError as e:
+                if not skip_bad:
+                    raise
+                rec.issues.append(str(e))
+                yield i, None
         return
     cap = cv2.VideoCapture(str(rec.root / rec.video))
+    if not cap.isOpened():
+        raise UserError("video cannot be opened", where=str(rec.root / rec.video))
     pos = 0
     for i, idx in enumerate(rec.frame_index):
         if idx != pos:
@@ -191,8 +203,13 @@ def iter_frames(rec: Recording):
             pos = int(idx)
         ok, img = cap.read()
         pos += 1
-        if not ok:
-            raise UserError(f"frame {i} (video index {idx}) could not be decoded", where=str(rec.root / rec.video))
+        if not ok or img is None:
+            msg = f"frame {i} (video index {idx}) could not be decoded"
+            if not skip_bad:
+                raise UserError(msg, where=str(rec.root / rec.video))
+            rec.issues.append(f"{rec.root / rec.video}: {msg}")
+            yield i, None
+            continue
         yield i, img
 
 

@@ -142,6 +142,18 @@ def camera_poses(traj: Trajectory, frame_times: np.ndarray) -> list[np.ndarray]:
     return poses
 
 
+def clear_sky_lighting(georef, when_utc) -> dict:
+    """Sun and sky of a clear day at the twin's place and time, for the synthetic frames
+    (the lighting dict of docs/architecture.md)."""
+    from blendgen.post.illumination import enu_from_az_el, sun_position
+
+    el, az = sun_position(when_utc, georef[0], georef[1])
+    up = el > 0
+    return {"sun_direction": enu_from_az_el(az, el).tolist(), "sun_strength": 4.0 if up else 0.0,
+            "sun_color": [1.0, 0.93, 0.84], "sun_angle_deg": 0.53, "sky_color": [0.55, 0.7, 1.0],
+            "sky_strength": 1.0 if up else 0.05, "sun_visible": bool(up)}
+
+
 def write_sensor_data(root: Path, twin, settings, seed: int) -> tuple[Camera, list[np.ndarray], np.ndarray]:
     """Write calib.yaml, imu.csv, gnss.csv, groundtruth.csv of a synthetic drive through `twin`.
 

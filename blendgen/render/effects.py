@@ -23,6 +23,11 @@ MIN_SUN_ELEVATION = 0.02  # sin(elevation): below this the sun casts no shadow w
 BLUR_PX = 0.5
 REGION_MARGIN_PX = 4      # pixel filter (1.5 px) and rounding
 FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth the border logic
+# Used when a plan carries no lighting estimate: a clear-sky late morning.
+DEFAULT_LIGHTING = {
+    "sun_direction": [0.35, 0.25, 0.90], "sun_strength": 3.0, "sun_color": [1.0, 0.97, 0.92],
+    "sun_angle_deg": 0.53, "sky_color": [0.55, 0.65, 0.85], "sky_strength": 1.0, "sun_visible": True,
+}
 
 
 @dataclass
@@ -195,6 +200,30 @@ def decide_shadow_catcher(lighting: dict | None, outputs: set[str]) -> Decision:
     if sun_direction(lighting) is None:
         return Decision(False, "the sun is at or below the horizon")
     return Decision(True, "the sun is visible: ground catches the objects' shadows")
+
+
+def catcher_patches(objects, sun_dir: np.ndarray | None, margin_m: float = 0.4) -> list[np.ndarray]:
+    """Ground polygons (each Kx3, counter-clockwise, at the object's base height) that can
+    receive an object's shadow: the convex hull of its footprint and its shadow, grown by
+    `margin_m` (contact shadows, soft penumbra). Catching shadows only there keeps the
+    expensive shadow-catcher pixels to the few that can hold a shadow."""
+    import cv2
+
+    out = []
+    ring = margin_m * np.stack([np.cos(np.linspace(0, 2 * np.pi, 8, endpoint=False)),
+                                np.sin(np.linspace(0, 2 * np.pi, 8, endpoint=False))], axis=1)
+    for obj in objects:
+        corners, shadow = object_points(obj, sun_dir)
+        pts = np.concatenate([corners[:, :2], shadow[:, :2]]) if len(shadow) else corners[:, :2]
+        # Penumbra grows with distance from the caster: widen the margin with the height.
+        grown = (pts[:, None, :] + ring[None] * (1.0 + 0.1 * float(obj.dims[2]))).reshape(-1, 2)
+        hull = cv2.convexHull(grown.astype(np.float32)).reshape(-1, 2).astype(float)
+        if len(hull) >= 3:
+            area = 0.5 * np.sum(hull[:, 0] * np.roll(hull[:, 1], -1) - np.roll(hull[:, 0], -1) * hull[:, 1])
+            if area < 0:
+                hull = hull[::-1]
+            out.append(np.c_[hull, np.full(len(hull), float(obj.position[2]))])
+    return out
 
 
 # ---------------------------------------------------------------- region

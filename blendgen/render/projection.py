@@ -92,31 +92,37 @@ class Canvas:
 
 
 def make_canvas(cam: Camera, *, pad_px: int = 2, max_growth: float = 1.6) -> Canvas:
-    """The canvas for `cam`: itself when undistorted, else a wider pinhole covering its view.
+    """The canvas for `cam`: itself for an undistorted square-pixel camera, else a square-pixel
+    pinhole covering its view (Blender 5 cannot write multilayer EXRs with a pixel aspect
+    other than 1, so fx != fy is resampled like distortion).
 
-    The canvas keeps the output's focal length (same detail at the centre) unless covering
-    the distorted field of view would need more than `max_growth` times the output size per
-    side; then the focal length shrinks to fit.
+    The canvas keeps the output's larger focal length (same detail at the centre) unless
+    covering the distorted field of view would need more than `max_growth` times the output
+    size per side; then the focal length shrinks to fit.
     """
-    if not cam.distorted:
+    square = abs(cam.fx - cam.fy) <= 1e-9 * max(cam.fx, cam.fy)
+    if not cam.distorted and square:
         return Canvas(cam, Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
     import cv2
 
     W, H = int(cam.width), int(cam.height)
     us, vs = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
-    pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
-    xn = cv2.undistortPointsIter(pts, cam.K, cam.D, None, None, crit).reshape(H, W, 2)
+    if cam.distorted:
+        pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+        xn = cv2.undistortPointsIter(pts, cam.K, cam.D, None, None, crit).reshape(H, W, 2)
+    else:
+        xn = np.stack([(us - cam.cx) / cam.fx, (vs - cam.cy) / cam.fy], axis=2)
     # Extent of the view from the image border (the interior lies inside for sane lenses).
     border = np.concatenate([xn[0], xn[-1], xn[:, 0], xn[:, -1]])
     xmin, ymin = border.min(axis=0)
     xmax, ymax = border.max(axis=0)
-    scale = min(1.0, max_growth * W / (cam.fx * (xmax - xmin)), max_growth * H / (cam.fy * (ymax - ymin)))
-    fx, fy = cam.fx * scale, cam.fy * scale
-    cw = int(np.ceil(fx * (xmax - xmin))) + 2 * pad_px + 1
-    ch = int(np.ceil(fy * (ymax - ymin))) + 2 * pad_px + 1
-    cx, cy = pad_px - fx * xmin, pad_px - fy * ymin
-    pin = Camera(cw, ch, fx, fy, cx, cy)
-    map_x = (fx * xn[..., 0] + cx).astype(np.float32)
-    map_y = (fy * xn[..., 1] + cy).astype(np.float32)
+    f = max(cam.fx, cam.fy)
+    f *= min(1.0, max_growth * W / (f * (xmax - xmin)), max_growth * H / (f * (ymax - ymin)))
+    cw = int(np.ceil(f * (xmax - xmin))) + 2 * pad_px + 1
+    ch = int(np.ceil(f * (ymax - ymin))) + 2 * pad_px + 1
+    cx, cy = pad_px - f * xmin, pad_px - f * ymin
+    pin = Camera(cw, ch, f, f, cx, cy)
+    map_x = (f * xn[..., 0] + cx).astype(np.float32)
+    map_y = (f * xn[..., 1] + cy).astype(np.float32)
     return Canvas(cam, pin, map_x, map_y)

@@ -21,7 +21,7 @@ def convex_overlap(a: np.ndarray, b: np.ndarray, margin: float = 0.0) -> bool:
     """Separating-axis test for two convex polygons (Nx2). `margin` > 0 demands that much
     clearance (the polygons count as overlapping when closer than `margin`)."""
     for poly in (a, b):
-        edges = np.roll(poly, -1, axis=0) - poly
+        edges = np.concatenate([poly[1:], poly[:1]]) - poly
         normals = np.stack([-edges[:, 1], edges[:, 0]], axis=1)
         norms = np.linalg.norm(normals, axis=1)
         keep = norms > 1e-12
@@ -56,22 +56,31 @@ class Polyline:
         self.s = np.concatenate([[0.0], np.cumsum(self.seglen)])
         self.tan = self.seg / self.seglen[:, None]
         self.length = float(self.s[-1])
+        from scipy.spatial import cKDTree
+
+        self._tree = cKDTree(self.pts)
 
     def project(self, xy) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(s, d, segment index) of the nearest point on the line for each query point.
         Beyond the ends s runs outside [0, length] along the end tangents."""
         q = np.atleast_2d(np.asarray(xy, dtype=float))
-        rel = q[:, None, :] - self.pts[None, :-1, :]
-        u = np.einsum("mkj,kj->mk", rel, self.tan)
-        uc = np.clip(u, 0.0, self.seglen[None, :])
-        # open ends: let the first/last segment extend so ends project cleanly
-        uc[:, 0] = np.minimum(u[:, 0], self.seglen[0])
-        uc[:, -1] = np.maximum(u[:, -1], 0.0) if len(self.seglen) > 1 else u[:, -1]
-        foot = self.pts[None, :-1, :] + uc[..., None] * self.tan[None]
+        # candidate segments: the two beside the nearest vertex (KD-tree), plus both ends
+        nseg = len(self.seglen)
+        _, v = self._tree.query(q)
+        cand = np.stack([v - 2, v - 1, v, v + 1, np.zeros_like(v), np.full_like(v, nseg - 1)], axis=1)
+        cand = np.clip(cand, 0, nseg - 1)
+        rel = q[:, None, :] - self.pts[cand]
+        tan = self.tan[cand]
+        u = np.einsum("mkj,mkj->mk", rel, tan)
+        lo = np.where(cand == 0, -np.inf, 0.0)  # open ends: the end segments extend outward
+        hi = np.where(cand == nseg - 1, np.inf, self.seglen[cand])
+        uc = np.clip(u, lo, hi)
+        foot = self.pts[cand] + uc[..., None] * tan
         dist = np.linalg.norm(q[:, None, :] - foot, axis=2)
-        k = np.argmin(dist, axis=1)
+        j = np.argmin(dist, axis=1)
         idx = np.arange(len(q))
-        s = self.s[k] + uc[idx, k]
+        k = cand[idx, j]
+        s = self.s[k] + uc[idx, j]
         t = self.tan[k]
         r = q - self.pts[k]
         d = t[:, 0] * r[:, 1] - t[:, 1] * r[:, 0]

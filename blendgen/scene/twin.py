@@ -326,6 +326,49 @@ class Twin:
             return False
         return any(bool(rg.sidewalk_band(s, d)) for rg, s, d in hits)
 
+    # vectorised forms for the planner (M points at once)
+    def carriageway_count(self, pts) -> np.ndarray:
+        pts = np.atleast_2d(np.asarray(pts, dtype=float))
+        n = np.zeros(len(pts), dtype=int)
+        for rg in self.roads.values():
+            s, d, _ = rg.line.project(pts)
+            n += rg.carriageway(s, d)
+        return n
+
+    def sidewalk_mask(self, pts) -> np.ndarray:
+        pts = np.atleast_2d(np.asarray(pts, dtype=float))
+        band = np.zeros(len(pts), dtype=bool)
+        road = np.zeros(len(pts), dtype=bool)
+        for rg in self.roads.values():
+            s, d, _ = rg.line.project(pts)
+            band |= rg.sidewalk_band(s, d)
+            road |= rg.carriageway(s, d)
+        return band & ~road
+
+    def ground_heights(self, pts) -> np.ndarray:
+        """Vectorised ground_height: curb height on sidewalks, 0 elsewhere."""
+        pts = np.atleast_2d(np.asarray(pts, dtype=float))
+        z = np.zeros(len(pts))
+        road = np.zeros(len(pts), dtype=bool)
+        for rg in self.roads.values():
+            s, d, _ = rg.line.project(pts)
+            road |= rg.carriageway(s, d)
+            z = np.where(rg.sidewalk_band(s, d), np.maximum(z, rg.spec.curb_height_m), z)
+        return np.where(road, 0.0, z)
+
+    def crosswalk_mask(self, pts) -> np.ndarray:
+        pts = np.atleast_2d(np.asarray(pts, dtype=float))
+        m = np.zeros(len(pts), dtype=bool)
+        for cw in self.crosswalks:
+            m |= point_in_convex(pts, cw)
+        return m
+
+    def structures_near(self, center, radius: float) -> list[int]:
+        if not len(self.structures):
+            return []
+        dist = np.linalg.norm(self._st_center - np.asarray(center, float)[:2], axis=1)
+        return list(np.nonzero(dist < self._st_radius + radius)[0])
+
     def on_crosswalk(self, x: float, y: float) -> bool:
         p = np.array([[x, y]])
         return any(bool(point_in_convex(p, cw)[0]) for cw in self.crosswalks)

@@ -76,6 +76,8 @@ class ErrorStateEkf:
         self.R_c = self.R.copy()
         self.has_clone = False
         self.stats = EkfStats()
+        self.history: list | None = None  # set to [] to record what the RTS smoother needs
+        self._acc = None
         self._rejects: dict[str, int] = {}
         self._last_imu = None  # last valid (w, a) for saturated samples
         k = cfg.noise_inflation
@@ -109,6 +111,7 @@ class ErrorStateEkf:
         else:
             self._last_imu = (w_m, a_m)
         self.stats.imu_steps += 1
+        self._snap()
         w = w_m - self.bg
         a = a_m - self.ba
         R = self.R
@@ -148,6 +151,7 @@ class ErrorStateEkf:
         self._propagate_free(dt, self.cfg.gap_acc_std, self.cfg.gap_gyro_std)
 
     def _propagate_free(self, dt: float, acc_std: float, rot_std: float) -> None:
+        self._snap()
         self.p = self.p + self.v * dt
         F = np.eye(15)
         F[IP, IV] = np.eye(3) * dt
@@ -161,6 +165,28 @@ class ErrorStateEkf:
         self._apply_F(F, q)
 
     def _apply_F(self, F: np.ndarray, q: np.ndarray) -> None:
+        if self.history is not None:
+            # consecutive predictions with no update between them collapse into one
+            # transition: RTS needs the state only where information entered or is asked for
+            if self._acc is None:
+                self._acc = [self._post_nominal, self.P[:15, :15].copy(), F]
+            else:
+                self._acc[2] = F @ self._acc[2]
+        self._predict_cov(F, q)
+
+    def _flush(self) -> None:
+        if self.history is not None and self._acc is not None:
+            self.history.append([*self._acc, self._nominal(), self.P[:15, :15].copy()])
+            self._acc = None
+
+    def _snap(self) -> None:
+        if self.history is not None and self._acc is None:
+            self._post_nominal = self._nominal()
+
+    def _nominal(self):
+        return (self.p.copy(), self.v.copy(), self.R.copy(), self.bg.copy(), self.ba.copy())
+
+    def _predict_cov(self, F: np.ndarray, q: np.ndarray) -> None:
         P = self.P
         A = P[:15, :15]
         P[:15, :15] = F @ A @ F.T + np.diag(q)
@@ -185,6 +211,7 @@ class ErrorStateEkf:
 
     # ------------------------------------------------------------------ updates
     def _update(self, kind: str, r: np.ndarray, H: np.ndarray, Rm: np.ndarray, gate: bool = True) -> bool:
+        self._flush()
         P = self.P
         PHt = P @ H.T
         S = H @ PHt + Rm
@@ -309,6 +336,42 @@ class ErrorStateEkf:
         r = np.concatenate(rows_r)
         H = np.vstack(rows_H)
         return self._update("vo", r, H, np.diag(np.concatenate(rows_R)))
+
+    # ------------------------------------------------------------------ smoothing
+    def mark(self) -> int:
+        """Index of the current state in the history (for `smooth`)."""
+        self._flush()
+        return len(self.history) if self.history is not None else -1
+
+    def smooth(self, marks: list[int]):
+        """Rauch-Tung-Striebel pass over the recorded predictions (15 core states).
+
+        Returns, for each mark, the smoothed (p, v, R, bg, ba) and the diagonal of its covariance.
+        A mark m is the filtered state after m predictions (and the updates that followed).
+        Clone correlations are not carried backwards: with VO this is an approximation.
+        """
+        self._flush()
+        H = self.history
+        n = len(H)
+        xs = self._nominal()
+        Ps = self.P[:15, :15].copy()
+        out: dict[int, tuple] = {}
+        want = set(marks)
+        if n in want:
+            out[n] = (xs, np.diag(Ps).copy())
+        for j in range(n - 1, -1, -1):
+            post, P_post, F, pred, P_pred = H[j]
+            d = np.concatenate([xs[0] - pred[0], xs[1] - pred[1], so3.log(pred[2].T @ xs[2]),
+                                xs[3] - pred[3], xs[4] - pred[4]])
+            C = np.linalg.solve(P_pred.T, (P_post @ F.T).T).T  # P_post F^T P_pred^-1
+            dx = C @ d
+            xs = (post[0] + dx[0:3], post[1] + dx[3:6], so3.orthonormalize(post[2] @ so3.exp(dx[6:9])),
+                  post[3] + dx[9:12], post[4] + dx[12:15])
+            Ps = P_post + C @ (Ps - P_pred) @ C.T
+            Ps = 0.5 * (Ps + Ps.T)
+            if j in want:
+                out[j] = (xs, np.diag(Ps).copy())
+        return [out[m] for m in marks]
 
     # ------------------------------------------------------------------ access
     def cov_diag(self) -> np.ndarray:

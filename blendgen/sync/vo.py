@@ -113,18 +113,19 @@ class OrbVo:
         return np.hstack([n, np.ones((len(n), 1))])
 
     def _match(self, d1, d2) -> np.ndarray:
+        """Ratio test 1->2, then a cross check 2->1 (only for the survivors: cheaper)."""
         knn = self.matcher.knnMatch(d1, d2, k=2)
-        back = self.matcher.match(d2, d1)
+        cand = [(m[0].queryIdx, m[0].trainIdx) for m in knn
+                if len(m) == 1 or (len(m) == 2 and m[0].distance < self.cfg.ratio * m[1].distance)]
+        if not cand:
+            return np.zeros((0, 2), int)
+        cand = np.array(cand, dtype=int)
+        targets = np.unique(cand[:, 1])
+        back = self.matcher.match(d2[targets], d1)
         best_back = np.full(len(d2), -1)
         for m in back:
-            best_back[m.queryIdx] = m.trainIdx
-        pairs = []
-        for m in knn:
-            if len(m) == 2 and m[0].distance < self.cfg.ratio * m[1].distance and best_back[m[0].trainIdx] == m[0].queryIdx:
-                pairs.append((m[0].queryIdx, m[0].trainIdx))
-            elif len(m) == 1 and best_back[m[0].trainIdx] == m[0].queryIdx:
-                pairs.append((m[0].queryIdx, m[0].trainIdx))
-        return np.array(pairs, dtype=int).reshape(-1, 2)
+            best_back[targets[m.queryIdx]] = m.trainIdx
+        return cand[best_back[cand[:, 1]] == cand[:, 0]]
 
     def track(self, image: np.ndarray) -> VoResult:
         """Relative motion from the previous image to this one (first call: status 'first')."""

@@ -67,7 +67,7 @@ def import_euroc(src, dst, *, cam: str = "cam0", force: bool = False, show_progr
     camera = _camera(cam_yaml, cam_dir / "sensor.yaml")
     T_B_C = _T_BS(cam_yaml, cam_dir / "sensor.yaml")
 
-    rows = common.read_table(cam_dir / "data.csv", {"t": ["timestamp"], "file": ["filename"]},
+    rows = common.read_table(cam_dir / "data.csv", {"t": ["timestamp"]},
                              required=["t"], what="camera index")
     # filenames are text: read them separately (read_table is numeric)
     lines = [ln for ln in (cam_dir / "data.csv").read_text().splitlines()[1:] if ln.strip()]

@@ -119,18 +119,20 @@ def streams(payload_tree: list[Klv], keys: set[str]) -> list[StreamSamples]:
             if strm.key != "STRM":
                 continue
             sticky: dict[str, Klv] = {}
-            for k in strm.children:
+            for j, k in enumerate(strm.children):
                 if k.key in keys:
-                    out.append(_scaled(k, sticky))
+                    # SCAL belongs to the stream's data (its last key); descriptors such as GPSP, GPSF
+                    # or GPSU that sit in the same stream are returned unscaled
+                    out.append(_scaled(k, sticky, scale=j == len(strm.children) - 1))
                 else:
                     sticky[k.key] = k
     return out
 
 
-def _scaled(k: Klv, sticky: dict[str, Klv]) -> StreamSamples:
+def _scaled(k: Klv, sticky: dict[str, Klv], scale: bool = True) -> StreamSamples:
     type_override = sticky["TYPE"].value("c") if k.type == "?" and "TYPE" in sticky else None
     vals = np.asarray(k.value(type_override), dtype=float)
-    if "SCAL" in sticky:
+    if scale and "SCAL" in sticky:
         scal = np.asarray(sticky["SCAL"].value(), dtype=float).ravel()
         if np.any(scal == 0):
             raise GpmfError(f"{k.key}: SCAL contains 0")

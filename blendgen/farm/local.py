@@ -1,0 +1,329 @@
+"""The local engine: this process supervises N worker subprocesses on this machine.
+
+Workers are fresh `python -m blendgen.farm.worker` interpreters (never forks of this
+process), so bpy's sys.path pollution cannot reach them. One event loop over the workers'
+pipes: dispatch a task to each idle worker, record items as they finish, re-queue at once
+the task of a worker that failed or died, recycle workers after `recycle_after` items or
+above `max_rss_mb`, retire a worker slot that keeps failing.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import blendgen
+
+from ..errors import StageError
+from .books import Books
+
+SLOT_MAX_FAILURES_IN_ROW = 3  # a slot failing this many times in a row gets no more tasks
+STOP_GRACE_S = 10.0           # time a stopping worker gets to close() its processor
+
+
+def worker_env() -> dict[str, str]:
+    """Environment for a worker: blendgen importable, no bpy-internal module paths."""
+    env = os.environ.copy()
+    root = str(Path(blendgen.__file__).resolve().parents[1])
+    parts = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and not _bpy_path(p)]
+    env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in parts if p != root])
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def _bpy_path(p: str) -> bool:
+    # bpy's own scripts/modules folder holds a pure-Python `bpy` package that shadows the
+    # real module in a child interpreter (`No module named '_bpy'`).
+    norm = p.replace("\\", "/")
+    return "/bpy/" in norm and "/scripts/" in norm
+
+
+def describe_exit(rc: int | None) -> str:
+    if rc is None:
+        return "still running"
+    if rc < 0:
+        try:
+            return f"killed by {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"killed by signal {-rc}"
+    return f"exit code {rc}"
+
+
+@dataclass
+class _Worker:
+    slot: int
+    name: str
+    proc: subprocess.Popen
+    rfd: int
+    wfd: int
+    log: str
+    state: str = "starting"  # starting, idle, busy, stopping
+    task: int | None = None
+    attempt: int = 0
+    items_left: list[str] = field(default_factory=list)
+    error: str | None = None
+    processed: int = 0
+    rss_mb: float = 0.0
+    buf: bytes = b""
+    eof: bool = False
+
+
+class LocalEngine:
+    def __init__(self, books: Books, processor: str, processor_args: dict, *, workers: int,
+                 recycle_after: int, max_rss_mb: int):
+        self.books = books
+        self.processor, self.processor_args = processor, processor_args
+        self.n_slots = workers
+        self.recycle_after, self.max_rss_mb = recycle_after, max_rss_mb
+        self.sel = selectors.DefaultSelector()
+        self.workers: dict[int, _Worker] = {}  # slot -> live worker
+        self.generation = collections.Counter()
+        self.fails_in_row = collections.Counter()
+        self.retired: set[int] = set()
+        self.queue: collections.deque[int] = collections.deque()
+        self.ever_ready = False
+        self.last_init_error: tuple[str, str] | None = None
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def run(self, task_ids: list[int]) -> None:
+        self.queue.extend(task_ids)
+        try:
+            while self.queue or any(w.state == "busy" for w in self.workers.values()):
+                self._top_up()
+                if not self.workers:
+                    self._give_up()
+                    break
+                self._dispatch()
+                self._poll(timeout=1.0)
+                self.books.flush()
+        except BaseException:
+            self._abort()
+            raise
+        self._shutdown()
+
+    def _top_up(self) -> None:
+        """Keep min(slots, outstanding tasks) workers alive."""
+        busy = sum(w.state == "busy" for w in self.workers.values())
+        want = min(self.n_slots, len(self.queue) + busy)
+        for slot in range(self.n_slots):
+            if len(self.workers) >= want:
+                break
+            if slot not in self.workers and slot not in self.retired:
+                self._spawn(slot)
+
+    def _spawn(self, slot: int) -> None:
+        self.generation[slot] += 1
+        name = f"{os.uname().nodename}/w{slot}.{self.generation[slot]}"
+        log = self.books.worker_log(f"w{slot}.{self.generation[slot]}")
+        to_r, to_w = os.pipe()
+        from_r, from_w = os.pipe()
+        with open(log, "ab") as logf:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "blendgen.farm.worker", "--rfd", str(to_r), "--wfd",
+                 str(from_w), "--ppid", str(os.getpid())],
+                pass_fds=(to_r, from_w), stdin=subprocess.DEVNULL, stdout=logf,
+                stderr=subprocess.STDOUT, env=worker_env(), close_fds=True)
+        os.close(to_r)
+        os.close(from_w)
+        os.set_blocking(from_r, False)
+        w = _Worker(slot=slot, name=name, proc=proc, rfd=from_r, wfd=to_w, log=log)
+        self.workers[slot] = w
+        self.sel.register(from_r, selectors.EVENT_READ, w)
+        self.books.ledger.worker_started(self.books.run_id, name, os.uname().nodename,
+                                         proc.pid, log)
+        self.books.summary.workers_started += 1
+        self._send(w, {"op": "init", "processor": self.processor,
+                       "processor_args": self.processor_args, "log": log})
+
+    def _send(self, w: _Worker, msg: dict) -> bool:
+        try:
+            os.write(w.wfd, (json.dumps(msg) + "\n").encode("utf-8"))
+            return True
+        except (BrokenPipeError, OSError):
+            return False  # it died; its EOF is handled by _poll
+
+    # -- scheduling ------------------------------------------------------------------------
+    def _dispatch(self) -> None:
+        for w in list(self.workers.values()):
+            if w.state != "idle" or not self.queue:
+                continue
+            tid = self._pick(w)
+            if tid is None:
+                continue
+            self.queue.remove(tid)
+            attempt, items, log = self.books.claim(tid, w.name)
+            if not items:  # every item finished meanwhile (e.g. done just before a crash)
+                self.books.on_task_done(tid)
+                continue
+            w.state, w.task, w.attempt, w.items_left, w.error = "busy", tid, attempt, items, None
+            # a failed send means it just died: _poll sees the exit and re-queues the task
+            self._send(w, {"op": "task", "task": tid, "attempt": attempt, "items": items,
+                           "log": log})
+
+    def _pick(self, w: _Worker) -> int | None:
+        """First queued task this worker did not already fail; a task every live worker has
+        failed may go back to one of them (retry elsewhere when there is an elsewhere)."""
+        live = {x.name for x in self.workers.values()}
+        for tid in self.queue:
+            avoid = set(self.books.ledger.avoid(tid))
+            if w.name not in avoid or live <= avoid:
+                return tid
+        return None
+
+    # -- events ----------------------------------------------------------------------------
+    def _poll(self, timeout: float) -> None:
+        for key, _ in self.sel.select(timeout):
+            self._read(key.data)
+        for w in list(self.workers.values()):
+            if w.eof or w.proc.poll() is not None:
+                self._read(w, drain=True)  # events sent just before it died still count
+                self._on_exit(w)
+
+    def _read(self, w: _Worker, drain: bool = False) -> None:
+        while not w.eof:
+            try:
+                chunk = os.read(w.rfd, 1 << 16)
+            except BlockingIOError:
+                break
+            if not chunk:
+                w.eof = True
+            w.buf += chunk
+            while b"\n" in w.buf:
+                line, w.buf = w.buf.split(b"\n", 1)
+                self._on_message(w, json.loads(line))
+            if not drain:
+                break
+
+    def _on_message(self, w: _Worker, ev: dict) -> None:
+        kind = ev["ev"]
+        if kind == "ready":
+            w.state, w.rss_mb = "idle", ev.get("rss_mb", 0.0)
+            self.ever_ready = True
+            self.books.ledger.worker_update(self.books.run_id, w.name, state="idle")
+        elif kind == "init_error":
+            w.error = ev["error"]
+            self.last_init_error = (ev["error"], w.log)
+        elif kind == "item" and ev.get("task") == w.task:
+            self.books.on_item(w.task, w.attempt, w.name, ev)
+            with contextlib.suppress(ValueError):
+                w.items_left.remove(ev["item"])
+            if not ev.get("skipped"):
+                w.processed += 1
+        elif kind == "error" and ev.get("task") == w.task:
+            w.error = f"item {ev['item']}: {ev['error']}"
+        elif kind == "task_end" and ev.get("task") == w.task:
+            w.rss_mb = ev.get("rss_mb", 0.0)
+            tid, w.task, w.state = w.task, None, "idle"
+            if ev["ok"]:
+                self.books.on_task_done(tid)
+                self.fails_in_row[w.slot] = 0
+                self.books.ledger.worker_update(self.books.run_id, w.name, items=0)
+            else:
+                self._task_failed(tid, w, w.error or "unknown error")
+            if w.processed >= self.recycle_after or w.rss_mb > self.max_rss_mb:
+                why = (f"{w.processed} items" if w.processed >= self.recycle_after
+                       else f"RSS {w.rss_mb:.0f} MB > {self.max_rss_mb} MB")
+                self._stop(w, f"recycled after {why}")
+                self.books.summary.recycled += 1
+
+    def _task_failed(self, tid: int, w: _Worker, error: str) -> None:
+        final = self.books.on_task_failed(tid, w.name, error)
+        if not final:
+            self.queue.appendleft(tid)  # re-queued at once, at the front
+        self.fails_in_row[w.slot] += 1
+        self.books.ledger.worker_update(self.books.run_id, w.name, failed=True)
+        if self.fails_in_row[w.slot] >= SLOT_MAX_FAILURES_IN_ROW and w.slot not in self.retired:
+            self.retired.add(w.slot)
+            self.books.summary.retired.append(f"slot w{w.slot} (last: {w.name})")
+            if w.state == "idle":
+                self._stop(w, "retired: failed repeatedly")
+
+    def _stop(self, w: _Worker, why: str) -> None:
+        w.state = "stopping"
+        self.books.ledger.worker_update(self.books.run_id, w.name, state="stopping", exit=why)
+        self._send(w, {"op": "stop"})
+
+    def _on_exit(self, w: _Worker) -> None:
+        try:
+            rc = w.proc.wait(timeout=STOP_GRACE_S if w.state == "stopping" else 5.0)
+        except subprocess.TimeoutExpired:
+            if not w.eof:
+                return  # alive; pipe still open
+            w.proc.kill()
+            rc = w.proc.wait()
+        self.sel.unregister(w.rfd)
+        os.close(w.rfd)
+        os.close(w.wfd)
+        del self.workers[w.slot]
+        how = describe_exit(rc)
+        planned = w.state == "stopping" and rc == 0
+        self.books.ledger.worker_update(self.books.run_id, w.name, state="exited",
+                                        exit=None if planned else how)
+        if planned:
+            return
+        self.books.summary.worker_deaths += 1
+        if w.task is not None:
+            where = f" during item {w.items_left[0]}" if w.items_left else ""
+            self._task_failed(w.task, w, f"worker {w.name} died ({how}){where}; "
+                                         f"worker log: {w.log}")
+        else:
+            # died while starting or idle: counts against the slot, not against a task
+            self.fails_in_row[w.slot] += 1
+            if self.fails_in_row[w.slot] >= SLOT_MAX_FAILURES_IN_ROW:
+                self.retired.add(w.slot)
+                self.books.summary.retired.append(f"slot w{w.slot} (last: {w.name}, {how})")
+
+    def _give_up(self) -> None:
+        """No worker can run: fail what is left, or say why workers cannot start."""
+        if not self.ever_ready and self.last_init_error:
+            err, log = self.last_init_error
+            raise StageError(f"farm stage {self.books.stage}: processor {self.processor} "
+                             f"failed to start on every worker: {err} (log: {log})")
+        if not self.ever_ready:
+            raise StageError(f"farm stage {self.books.stage}: workers died before starting; "
+                             f"see {self.books.log_dir}")
+        while self.queue:
+            tid = self.queue.popleft()
+            self.books.ledger.claim(tid, "-", "", 0)
+            self.books.ledger.task_failed(tid, "-", "no healthy worker left", 0)
+
+    def _shutdown(self) -> None:
+        for w in list(self.workers.values()):
+            if w.state != "stopping":
+                self._stop(w, "job finished")
+        deadline = time.monotonic() + STOP_GRACE_S
+        while self.workers and time.monotonic() < deadline:
+            self._poll(timeout=0.2)
+        self._kill_all()
+
+    def _abort(self) -> None:
+        """Ctrl-C or an internal error: kill workers (outputs are atomic, so nothing partial
+        stays under a final name), give their tasks back uncounted, keep the ledger sane."""
+        self._kill_all()
+        for w in list(self.workers.values()):
+            if w.task is not None:
+                self.books.release(w.task)
+        with contextlib.suppress(Exception):
+            self.books.flush()
+
+    def _kill_all(self) -> None:
+        for w in self.workers.values():
+            with contextlib.suppress(ProcessLookupError):
+                w.proc.kill()
+        for w in self.workers.values():
+            with contextlib.suppress(Exception):
+                w.proc.wait(timeout=5)
+            with contextlib.suppress(Exception):
+                self.sel.unregister(w.rfd)
+            for fd in (w.rfd, w.wfd):
+                with contextlib.suppress(OSError):
+                    os.close(fd)

@@ -1,0 +1,189 @@
+"""The Ray engine (`engine="ray"`, extra `blendgen[ray]`): tasks on a Ray cluster, the same
+ledger as source of truth.
+
+The driver (this process, holding the ledger lock) submits one Ray task per ledger task.
+Inside the Ray worker process the processor is built once and cached (a warm Blender
+session), tasks run on the worker's main thread, and `max_calls` restarts the process after
+`recycle_after` items' worth of tasks to bound memory. Crashes of a worker process or a whole
+node are retried by Ray (`max_retries`); failures raised by the processor come back to the
+driver, which re-submits them to another node and retires nodes that keep failing.
+"""
+
+from __future__ import annotations
+
+import atexit
+import collections
+import contextlib
+import json
+import math
+import os
+import socket
+import time
+
+from ..errors import UserError
+from .books import Books
+from .local import worker_env
+from .processor import close_processor, load_processor, redirect_output, rss_mb, run_items
+
+NODE_MAX_FAILURES_IN_ROW = 3
+
+_CACHE: dict[tuple[str, str], object] = {}  # per Ray worker process: the warm processor
+
+
+def ray_task(processor: str, processor_args: dict, items: list[str], log_path: str) -> dict:
+    """Body of one Ray task (runs in a Ray worker process, on its main thread)."""
+    import ray
+
+    key = (processor, json.dumps(processor_args, sort_keys=True))
+    events: list[dict] = []
+    ctx = ray.get_runtime_context()
+    where = {"node": ctx.get_node_id(), "worker": f"{socket.gethostname()}/ray-{os.getpid()}"}
+    with redirect_output(log_path):
+        print(f"[blendgen.farm] ray worker {where['worker']} node {where['node'][:12]}: "
+              f"{len(items)} items", flush=True)
+        proc = _CACHE.get(key)
+        if proc is None:
+            try:
+                proc = load_processor(processor, processor_args)
+            except Exception as e:
+                import traceback
+
+                traceback.print_exc()
+                return {"ok": False, "events": [{"ev": "error", "item": items[0] if items else "",
+                                                 "error": f"init: {type(e).__name__}: {e}"}],
+                        **where}
+            _CACHE[key] = proc
+            atexit.register(close_processor, proc)  # best effort when max_calls ends us
+        ok = run_items(proc, items, events.append)
+    return {"ok": ok, "events": events, "rss_mb": rss_mb(), **where}
+
+
+class RayEngine:
+    def __init__(self, books: Books, processor: str, processor_args: dict, *, workers: int,
+                 recycle_after: int, address: str | None):
+        self.books = books
+        self.processor, self.processor_args = processor, processor_args
+        self.workers, self.recycle_after, self.address = workers, recycle_after, address
+        self.node_fails: collections.Counter = collections.Counter()
+        self.banned: set[str] = set()
+        self._rr = 0
+
+    def run(self, task_ids: list[int]) -> None:
+        try:
+            import ray
+        except ImportError:
+            raise UserError("needs Ray: pip install 'blendgen[ray]'", where="farm.engine=ray")
+        started_here = not ray.is_initialized()
+        if started_here:
+            self._init(ray)
+        try:
+            self._loop(ray, task_ids)
+        finally:
+            if started_here:
+                ray.shutdown()
+
+    def _init(self, ray) -> None:
+        # Ray workers start from the raylet, never from this process: bpy cannot leak into
+        # them; PYTHONPATH makes blendgen (and the processor's module) importable there.
+        kw = dict(runtime_env={"env_vars": {"PYTHONPATH": worker_env()["PYTHONPATH"]}},
+                  logging_level="WARNING", log_to_driver=False)
+        try:
+            if self.address:
+                ray.init(address=self.address, **kw)
+            else:  # a private single-machine Ray, gone when the job ends
+                ray.init(num_cpus=self.workers, include_dashboard=False, **kw)
+        except (ConnectionError, RuntimeError, ValueError) as e:
+            raise UserError(f"cannot connect to the Ray cluster at {self.address!r}: {e}",
+                            where="farm.address") from e
+
+    def _remote(self, ray):
+        gpus_here = ray.cluster_resources().get("GPU", 0) > 0
+        num_gpus = float(os.environ.get("BLENDGEN_RAY_NUM_GPUS", 1 if gpus_here else 0))
+        num_cpus = float(os.environ.get("BLENDGEN_RAY_NUM_CPUS", 1))
+        per_task = max(1, len(self.books.ledger.remaining_items(self.books.task_ids[0]))
+                       if self.books.task_ids else 1)
+        return ray.remote(num_cpus=num_cpus, num_gpus=num_gpus,
+                          max_calls=max(1, math.ceil(self.recycle_after / per_task)),
+                          max_retries=max(0, self.books.max_attempts - 1),
+                          retry_exceptions=False)(ray_task)
+
+    def _healthy_nodes(self, ray) -> list[str]:
+        return [n["NodeID"] for n in ray.nodes()
+                if n["Alive"] and n["Resources"].get("CPU", 0) > 0 and n["NodeID"] not in self.banned]
+
+    def _options(self, ray, tid: int) -> dict:
+        """Default placement; a retry, or any task once a node is retired, is pinned (softly)
+        to a healthy node it has not failed on."""
+        avoid = {a[5:] for a in self.books.ledger.avoid(tid) if a.startswith("node:")}
+        if not avoid and not self.banned:
+            return {}
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        nodes = self._healthy_nodes(ray)
+        pick = [n for n in nodes if n not in avoid] or nodes
+        if not pick:
+            return {}
+        self._rr += 1
+        return {"scheduling_strategy": NodeAffinitySchedulingStrategy(
+            pick[self._rr % len(pick)], soft=True)}
+
+    def _loop(self, ray, task_ids: list[int]) -> None:
+        fn = self._remote(ray)
+        cpus = int(ray.cluster_resources().get("CPU", self.workers))
+        cap = 2 * max(self.workers, cpus)  # enough queued for every slot, few to re-place
+        pending = collections.deque(task_ids)
+        inflight: dict = {}
+        try:
+            while pending or inflight:
+                while pending and len(inflight) < cap:
+                    tid = pending.popleft()
+                    attempt, items, log = self.books.claim(tid, "ray")
+                    if not items:
+                        self.books.on_task_done(tid)
+                        continue
+                    ref = fn.options(**self._options(ray, tid)).remote(
+                        self.processor, self.processor_args, items, log)
+                    inflight[ref] = (tid, attempt)
+                self.books.flush()
+                if not inflight:
+                    continue
+                ready, _ = ray.wait(list(inflight), num_returns=1, timeout=1.0)
+                for ref in ready:
+                    tid, attempt = inflight.pop(ref)
+                    if not self._collect(ray, ref, tid, attempt):
+                        pending.appendleft(tid)
+                self.books.flush()
+        except BaseException:
+            for ref, (tid, _) in inflight.items():
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
+                self.books.release(tid)
+            with contextlib.suppress(Exception):
+                self.books.flush()
+            raise
+
+    def _collect(self, ray, ref, tid: int, attempt: int) -> bool:
+        """Record a finished Ray task. Returns False when it must be re-submitted."""
+        try:
+            res = ray.get(ref)
+        except ray.exceptions.RayError as e:  # worker/node lost beyond Ray's own retries
+            msg = f"{type(e).__name__}: {str(e).splitlines()[0][:500]}"
+            return self.books.on_task_failed(tid, "ray:unknown", msg)
+        node = f"node:{res['node']}"
+        self.books.ledger.set_attempt_worker(tid, attempt, res["worker"])
+        error = None
+        for ev in res["events"]:
+            if ev["ev"] == "item":
+                self.books.on_item(tid, attempt, res["worker"], ev)
+            elif ev["ev"] == "error":
+                error = f"item {ev['item']}: {ev['error']} (on {res['worker']})"
+        if res["ok"]:
+            self.books.on_task_done(tid)
+            self.node_fails[node] = 0
+            return True
+        final = self.books.on_task_failed(tid, node, error or "unknown error")
+        self.node_fails[node] += 1
+        if self.node_fails[node] >= NODE_MAX_FAILURES_IN_ROW and res["node"] not in self.banned:
+            self.banned.add(res["node"])
+            self.books.summary.retired.append(node)
+        return final

@@ -1,0 +1,193 @@
+"""Sensor matching: measure the real camera's noise, blur, JPEG compression and vignetting,
+and give the rendered pixels the same, each only when it is measured above a threshold.
+
+Measurements (no reference needed):
+- noise: Immerkaer's 1996 fast sigma estimate (Laplacian-difference mask) on non-edge pixels;
+- blur: the re-blur metric of Crete et al. 2007 (0 sharp .. 1 blurred); the render is given
+  the Gaussian sigma that brings its own metric to the real frame's;
+- JPEG: 8x8 block-boundary gradient ratio (blockiness); quality from the JPEG-ghost minimum
+  (re-compressing at the original quality changes the image least);
+- vignetting: radial falloff k of I(r) = I0 (1 - k r^2), fitted per row so that the
+  vertical sky/road layout does not count as falloff.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import cv2
+import numpy as np
+
+NOISE_MIN_SIGMA = 1.5  # 8-bit levels (quantisation and fine texture read as ~1)
+BLUR_MIN_DELTA = 0.03  # re-blur metric above the render's
+BLOCKINESS_MIN = 1.12  # boundary / interior gradient ratio
+VIGNETTE_MIN_K = 0.08  # 8% darker at the corner radius
+BLUR_SIGMAS = (0.0, 0.5, 0.8, 1.1, 1.5, 2.0, 2.6)
+GHOST_QUALITIES = (30, 40, 50, 60, 70, 80, 90)
+
+
+@dataclass
+class SensorProfile:
+    noise_sigma: float
+    blur_metric: float
+    blockiness: float
+    jpeg_quality: int | None
+    vignette_k: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def measure(real_bgr: np.ndarray) -> SensorProfile:
+    gray = cv2.cvtColor(real_bgr, cv2.COLOR_BGR2GRAY)
+    blockiness = _blockiness(gray)
+    return SensorProfile(noise_sigma=noise_sigma(gray), blur_metric=blur_metric(gray), blockiness=blockiness,
+                         jpeg_quality=_jpeg_quality(gray) if blockiness >= BLOCKINESS_MIN else None,
+                         vignette_k=vignette_k(gray))
+
+
+def noise_sigma(gray: np.ndarray) -> float:
+    """Immerkaer's estimate on the flat part of the image (8-bit units)."""
+    g = gray.astype(np.float32)
+    if min(g.shape) < 3:
+        return 0.0
+    m = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    resp = np.abs(cv2.filter2D(g, -1, m, borderType=cv2.BORDER_REFLECT))[1:-1, 1:-1]
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0)[1:-1, 1:-1]
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1)[1:-1, 1:-1]
+    edge = np.abs(gx) + np.abs(gy)
+    # Exclude edges and texture, but not the noise itself: a tight threshold would keep only
+    # the quietest pixels and underestimate sigma.
+    flat = edge < max(2.0 * np.median(edge), 1e-3)
+    sat = (gray[1:-1, 1:-1] < 3) | (gray[1:-1, 1:-1] > 252)  # clipped pixels carry no noise
+    sel = flat & ~sat
+    if sel.sum() < 64:
+        return 0.0
+    return float(np.sqrt(np.pi / 2) * resp[sel].mean() / 6.0)
+
+
+def blur_metric(gray: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Crete et al. re-blur metric in [0, 1] (0: sharp)."""
+    g = gray.astype(np.float32)
+    if min(g.shape) < 10:
+        return 0.0
+    k = np.ones((1, 9), np.float32) / 9
+    bv = cv2.filter2D(g, -1, k.T)
+    bh = cv2.filter2D(g, -1, k)
+    d_f_v = np.abs(np.diff(g, axis=0))[:, :-1]
+    d_f_h = np.abs(np.diff(g, axis=1))[:-1, :]
+    d_b_v = np.abs(np.diff(bv, axis=0))[:, :-1]
+    d_b_h = np.abs(np.diff(bh, axis=1))[:-1, :]
+    v_v = np.maximum(0, d_f_v - d_b_v)
+    v_h = np.maximum(0, d_f_h - d_b_h)
+    if mask is not None:
+        m = mask[:-1, :-1]
+        d_f_v, d_f_h, v_v, v_h = d_f_v[m], d_f_h[m], v_v[m], v_h[m]
+    s_f_v, s_f_h = d_f_v.sum(), d_f_h.sum()
+    if s_f_v < 1e-3 or s_f_h < 1e-3:
+        return 0.0
+    b_v = (s_f_v - v_v.sum()) / s_f_v
+    b_h = (s_f_h - v_h.sum()) / s_f_h
+    return float(max(b_v, b_h))
+
+
+def _blockiness(gray: np.ndarray) -> float:
+    g = gray.astype(np.float32)
+    if g.shape[1] < 32 or g.shape[0] < 32:
+        return 1.0
+    # Per-line mean steps, then medians: one scene edge that happens to lie on the 8-px grid
+    # must not look like blocking.
+    col_step = np.abs(np.diff(g, axis=1)).mean(axis=0)  # step between columns j and j+1
+    row_step = np.abs(np.diff(g, axis=0)).mean(axis=1)
+    cb = np.arange(col_step.size) % 8 == 7
+    rb = np.arange(row_step.size) % 8 == 7
+    boundary = 0.5 * (np.median(col_step[cb]) + np.median(row_step[rb]))
+    interior = 0.5 * (np.median(col_step[~cb]) + np.median(row_step[~rb]))
+    return float(boundary / max(interior, 1e-3))
+
+
+def _jpeg_quality(gray: np.ndarray) -> int:
+    """JPEG-ghost estimate on a central crop aligned to the 8x8 grid."""
+    h, w = gray.shape
+    s = min(256, h // 8 * 8, w // 8 * 8)
+    y0, x0 = (h - s) // 2 // 8 * 8, (w - s) // 2 // 8 * 8
+    crop = gray[y0:y0 + s, x0:x0 + s]
+    diffs = []
+    for q in GHOST_QUALITIES:
+        ok, enc = cv2.imencode(".jpg", crop, [cv2.IMWRITE_JPEG_QUALITY, q])
+        rec = cv2.imdecode(enc, cv2.IMREAD_GRAYSCALE)
+        diffs.append(float(np.mean((rec.astype(np.float32) - crop) ** 2)))
+    d = np.array(diffs)
+    # The ghost: the lowest quality whose re-compression error is already near the floor.
+    floor = d.min()
+    ok = np.nonzero(d <= floor + 0.15 * (d.max() - floor) + 1e-6)[0]
+    return int(GHOST_QUALITIES[ok[0]])
+
+
+def vignette_k(gray: np.ndarray) -> float:
+    """Fitted radial falloff k (0: none); rows are normalised by their central band."""
+    small = cv2.resize(gray, (96, max(8, round(96 * gray.shape[0] / gray.shape[1]))),
+                       interpolation=cv2.INTER_AREA).astype(np.float32)
+    h, w = small.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    rmax2 = cx * cx + cy * cy
+    r2 = ((xs - cx) ** 2 + (ys - cy) ** 2) / rmax2
+    band = np.abs(xs - cx) < w * 0.1
+    centre = np.array([np.median(small[y][band[y]]) for y in range(h)])
+    ok = (small > 8) & (small < 247) & (centre[:, None] > 8)
+    rel = np.log(np.maximum(small, 1) / np.maximum(centre[:, None], 1))
+    dr = r2 - (((ys - cy) ** 2) / rmax2)  # extra r^2 relative to the row's centre
+    sel = ok & ~band
+    if sel.sum() < 50:
+        return 0.0
+    x, y = dr[sel], rel[sel]
+    # log(1 - k r^2) ~ -k r^2; least squares through the origin, robust to scene content by
+    # symmetric averaging: a scene brighter on one side cancels against the other.
+    k = -float((x * y).sum() / max((x * x).sum(), 1e-9))
+    return float(np.clip(k, 0.0, 0.9))
+
+
+def apply(obj_bgr: np.ndarray, alpha: np.ndarray, profile: SensorProfile, *, origin: tuple[int, int],
+          frame_size: tuple[int, int], seed: int) -> tuple[np.ndarray, dict]:
+    """Give the rendered crop (float BGR in [0, 1]) the real camera's degradations.
+
+    ``alpha`` is the object coverage of the crop; ``origin`` (x0, y0) places the crop in a
+    frame of ``frame_size`` (w, h) for vignetting. Returns the new crop and what was applied.
+    """
+    applied: dict = {}
+    out = obj_bgr
+    inside = alpha > 0.5
+    if inside.sum() >= 16:
+        real_blur = profile.blur_metric
+        g = cv2.cvtColor(np.clip(out * 255, 0, 255).astype(np.uint8), cv2.COLOR_BGR2GRAY)
+        own = blur_metric(g, inside)
+        if real_blur - own > BLUR_MIN_DELTA:
+            best, best_err = 0.0, abs(real_blur - own)
+            for s in BLUR_SIGMAS[1:]:
+                gb = cv2.GaussianBlur(g, (0, 0), s)
+                err = abs(blur_metric(gb, inside) - real_blur)
+                if err < best_err:
+                    best, best_err = s, err
+            if best > 0:
+                out = cv2.GaussianBlur(out, (0, 0), best)
+                applied["blur_sigma"] = best
+    if profile.vignette_k >= VIGNETTE_MIN_K:
+        W, H = frame_size
+        x0, y0 = origin
+        h, w = out.shape[:2]
+        ys, xs = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.float32)
+        r2 = ((xs - (W - 1) / 2) ** 2 + (ys - (H - 1) / 2) ** 2) / (((W - 1) / 2) ** 2 + ((H - 1) / 2) ** 2)
+        out = out * (1.0 - profile.vignette_k * r2)[..., None]
+        applied["vignette_k"] = profile.vignette_k
+    if profile.noise_sigma >= NOISE_MIN_SIGMA:
+        rng = np.random.default_rng(seed)
+        out = out + rng.normal(0.0, profile.noise_sigma / 255.0, size=out.shape).astype(np.float32)
+        applied["noise_sigma"] = profile.noise_sigma
+    if profile.jpeg_quality is not None:
+        u8 = np.clip(np.rint(out * 255), 0, 255).astype(np.uint8)
+        ok, enc = cv2.imencode(".jpg", u8, [cv2.IMWRITE_JPEG_QUALITY, int(profile.jpeg_quality)])
+        if ok:
+            out = cv2.imdecode(enc, cv2.IMREAD_COLOR).astype(np.float32) / 255.0
+            applied["jpeg_quality"] = profile.jpeg_quality
+    return np.clip(out, 0.0, 1.0).astype(np.float32), applied

@@ -1,0 +1,619 @@
+"""A warm Blender (Cycles) session: build the twin once, then realise one FramePlan per call.
+
+Imports bpy: only farm workers may import this module (see docs/architecture.md).
+The decisions about what to render are bpy-free (effects.py); this module applies them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+import time
+import warnings
+from pathlib import Path
+from typing import Callable
+
+import bpy
+import numpy as np
+from mathutils import Matrix, Vector
+
+from blendgen.atomic import atomic_path
+from blendgen.errors import StageError, UserError
+from blendgen.geometry import Camera
+from blendgen.render import effects as fx
+from blendgen.render.exr import empty_passes, read_passes, write_passes
+from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
+from blendgen.render.raster import rasterize_mask
+from blendgen.scene.plan import FramePlan, PlacedObject
+
+GROUND_ROLES = {"road", "sidewalk", "marking"}
+HOLDOUT_ROLES = {"structure", "vegetation"}
+# Data-block collections an object builder may fill; what it adds is removed with the object.
+DATA_KINDS = ("objects", "meshes", "materials", "images", "textures", "node_groups", "curves",
+              "lights", "actions")
+MESHLIKE = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * 4096 / 2**20
+    except OSError:
+        return float("nan")
+
+
+class _Placed:
+    """One realised PlacedObject: its Blender objects, its data blocks, its mesh for rasterising."""
+
+    def __init__(self, key: str, root, blocks: dict[str, list[str]]):
+        self.key = key
+        self.root = root
+        self.blocks = blocks
+        self.tris_local: tuple[np.ndarray, np.ndarray] | None = None
+
+    def hierarchy(self):
+        return [self.root, *self.root.children_recursive]
+
+
+class RenderSession:
+    """See docs/render.md. `object_builder`/`twin_builder` default to assets_procedural's."""
+
+    def __init__(self, twin_path: Path | None, ground_plane, render, camera: Camera, *,
+                 object_builder: Callable[[PlacedObject], object] | None = None,
+                 twin_builder: Callable[[], object] | None = None):
+        t0 = time.perf_counter()
+        self.render = render
+        if render.resolution is not None and tuple(render.resolution) != (camera.width, camera.height):
+            camera = camera.scaled(*render.resolution)
+        self.camera = camera
+        self.canvas = make_canvas(camera)
+        self._object_builder = object_builder
+        self._placed: dict[int, _Placed] = {}
+        self._tmp = Path(tempfile.mkdtemp(prefix="blendgen_render_"))
+        self._frames = 0
+
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        self.scene = sc = bpy.context.scene
+        self.view_layer = sc.view_layers[0]
+        self._setup_render()
+        self._setup_camera()
+        self._setup_lights()
+        self._ground = None
+        self._catcher = None
+        if twin_builder is not None:
+            twin_builder()
+        elif twin_path is not None:
+            self._build_twin(Path(twin_path))
+        else:
+            from blendgen.render.primitives import ground_plane as make_ground
+
+            self._ground = make_ground()
+        self._roles = {ob.name: ob.get("blendgen_role") for ob in sc.objects if ob.get("blendgen_role")}
+        self.twin_objects = [ob for ob in sc.objects if ob.name in self._roles]
+        self.setup_s = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ setup
+    def _setup_render(self):
+        sc, r = self.scene, self.render
+        sc.render.engine = "CYCLES"
+        cy = sc.cycles
+        cy.device = "CPU"
+        self.device = "CPU"
+        if r.device == "GPU":
+            self.device = self._enable_gpu()
+        if r.threads:
+            sc.render.threads_mode = "FIXED"
+            sc.render.threads = int(r.threads)
+        sc.render.use_persistent_data = True  # keep the BVH and shaders between frames
+        sc.render.resolution_percentage = 100
+        sc.render.use_crop_to_border = False
+        sc.render.film_transparent = True
+        sc.view_settings.view_transform = "Standard"  # PNG previews in plain sRGB
+        cy.use_light_tree = False
+        cy.pixel_filter_type = "BLACKMAN_HARRIS"
+        cy.denoiser = "OPENIMAGEDENOISE"
+        cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        cy.denoising_prefilter = "FAST"
+        cy.denoising_quality = "BALANCED"
+        cy.seed = 0
+        ims = sc.render.image_settings
+        ims.media_type = "MULTI_LAYER_IMAGE"
+        ims.file_format = "OPEN_EXR_MULTILAYER"
+        ims.color_depth = "32"
+        ims.exr_codec = "ZIP"
+        self.view_layer.use_pass_combined = True
+
+    def _enable_gpu(self) -> str:
+        try:
+            prefs = bpy.context.preferences.addons["cycles"].preferences
+            for kind in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+                try:
+                    prefs.compute_device_type = kind
+                except TypeError:
+                    continue
+                prefs.get_devices()
+                devs = [d for d in prefs.devices if d.type == kind]
+                if devs:
+                    for d in prefs.devices:
+                        d.use = d.type == kind
+                    self.scene.cycles.device = "GPU"
+                    return f"GPU ({kind})"
+        except Exception:  # no GPU backend in this build/machine: CPU is the right answer
+            pass
+        return "CPU (no GPU found)"
+
+    def _setup_camera(self):
+        sc = self.scene
+        pin = self.canvas.pinhole
+        b = blender_intrinsics(pin)
+        data = bpy.data.cameras.new("blendgen_camera")
+        data.sensor_fit = b["sensor_fit"]
+        data.sensor_width = b["sensor_width"]
+        data.sensor_height = b["sensor_height"]
+        data.lens = b["lens"]
+        data.shift_x, data.shift_y = b["shift_x"], b["shift_y"]
+        data.clip_start, data.clip_end = 0.05, 5000.0
+        self.cam_ob = bpy.data.objects.new("blendgen_camera", data)
+        sc.collection.objects.link(self.cam_ob)
+        sc.camera = self.cam_ob
+        sc.render.resolution_x, sc.render.resolution_y = b["resolution"]
+        sc.render.pixel_aspect_x, sc.render.pixel_aspect_y = b["pixel_aspect"]
+
+    def _setup_lights(self):
+        sc = self.scene
+        sun = bpy.data.lights.new("blendgen_sun", "SUN")
+        self.sun = bpy.data.objects.new("blendgen_sun", sun)
+        sc.collection.objects.link(self.sun)
+        world = bpy.data.worlds.new("blendgen_world")
+        sc.world = world
+        with warnings.catch_warnings():  # deprecated in 5.0 but still needed for a new world
+            warnings.simplefilter("ignore", DeprecationWarning)
+            world.use_nodes = True
+        nt = world.node_tree
+        nt.nodes.clear()
+        out = nt.nodes.new("ShaderNodeOutputWorld")
+        bg = nt.nodes.new("ShaderNodeBackground")         # uniform sky: lights the objects
+        sky = nt.nodes.new("ShaderNodeBackground")        # gradient: what a camera sees
+        mix = nt.nodes.new("ShaderNodeMixShader")
+        lp = nt.nodes.new("ShaderNodeLightPath")
+        tc = nt.nodes.new("ShaderNodeTexCoord")
+        sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+        ramp = nt.nodes.new("ShaderNodeValToRGB")
+        nt.links.new(tc.outputs["Generated"], sep.inputs[0])
+        nt.links.new(sep.outputs["Z"], ramp.inputs["Fac"])
+        nt.links.new(ramp.outputs["Color"], sky.inputs["Color"])
+        nt.links.new(lp.outputs["Is Camera Ray"], mix.inputs["Fac"])
+        nt.links.new(bg.outputs[0], mix.inputs[1])
+        nt.links.new(sky.outputs[0], mix.inputs[2])
+        nt.links.new(mix.outputs[0], out.inputs["Surface"])
+        self._world_nodes = {"bg": bg, "sky": sky, "ramp": ramp}
+
+    def _build_twin(self, twin_path: Path):
+        try:
+            from assets_procedural.twin_builder import build_twin
+            from blendgen.scene.twin import load_twin
+        except ImportError as e:
+            raise StageError(f"cannot build the twin {twin_path}: {e}") from None
+        if not twin_path.is_file():
+            raise UserError("twin YAML not found", where=str(twin_path))
+        self.twin_info = build_twin(load_twin(twin_path))
+
+    # ------------------------------------------------------------------ per frame state
+    def _apply_lighting(self, lighting: dict, *, background: bool):
+        sun_dir = fx.sun_direction(lighting)
+        sun = self.sun
+        if sun_dir is None:
+            sun.hide_render = True
+        else:
+            sun.hide_render = False
+            # A sun lamp shines along its local -z: point local +z at the sun.
+            sun.rotation_euler = Vector(sun_dir).to_track_quat("Z", "Y").to_euler()
+            sun.data.energy = float(lighting.get("sun_strength", 3.0))
+            sun.data.color = tuple(float(c) for c in lighting.get("sun_color", (1, 1, 1)))[:3]
+            sun.data.angle = math.radians(float(lighting.get("sun_angle_deg", 0.53)))
+        sky = np.asarray(lighting.get("sky_color", (0.6, 0.7, 0.9)), dtype=float)[:3]
+        strength = float(lighting.get("sky_strength", 1.0))
+        n = self._world_nodes
+        n["bg"].inputs["Color"].default_value = (*sky, 1.0)
+        n["bg"].inputs["Strength"].default_value = strength
+        # Camera-ray sky for opaque backgrounds: paler at the horizon, the sky colour above.
+        horizon = 0.5 * sky + 0.5 * float(sky.mean()) + 0.1
+        ramp = n["ramp"].color_ramp
+        ramp.elements[0].position, ramp.elements[1].position = 0.5, 0.8
+        ramp.elements[0].color = (*horizon, 1.0)
+        ramp.elements[1].color = (*(sky * 0.8), 1.0)
+        n["sky"].inputs["Strength"].default_value = strength if background else 0.0
+
+    def _set_twin_mode(self, mode: str, catcher: bool):
+        """mode 'composite': structures holdout, ground catches shadows (or is hidden);
+        mode 'background': the twin rendered as itself."""
+        for ob in self.twin_objects:
+            role = self._roles.get(ob.name)
+            if mode == "background":
+                ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = False, False, False
+                ob.visible_shadow = True
+                continue
+            if role in GROUND_ROLES:
+                # Shadows are caught by per-frame patches where they can fall (catcher_patches);
+                # the rest of the ground would only cost shadow-catcher samples.
+                ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = False, False, True
+            elif role in HOLDOUT_ROLES:
+                ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = True, False, False
+                # Real structures already shadow the real road; do not darken it twice.
+                ob.visible_shadow = False
+            else:  # sky domes and anything unknown: the real frame supplies them
+                ob.hide_render = True
+
+    def _set_catcher(self, polygons: list[np.ndarray] | None):
+        """Rebuild the shadow-catcher patch mesh in place (one data block for the session)."""
+        if self._catcher is None:
+            me = bpy.data.meshes.new("blendgen_catcher")
+            self._catcher = bpy.data.objects.new("blendgen_catcher", me)
+            self.scene.collection.objects.link(self._catcher)
+            self._catcher.is_shadow_catcher = True
+            self._catcher.data.materials.append(self._catcher_material())
+        me = self._catcher.data
+        me.clear_geometry()
+        if not polygons:
+            self._catcher.hide_render = True
+            return
+        verts, faces = [], []
+        for poly in polygons:
+            faces.append(tuple(range(len(verts), len(verts) + len(poly))))
+            verts.extend(map(tuple, poly))
+        me.from_pydata(verts, [], faces)
+        me.update()
+        self._catcher.hide_render = False
+
+    def _catcher_material(self):
+        from blendgen.render.primitives import material
+
+        return material("blendgen_catcher", (0.3, 0.3, 0.3), roughness=0.9)
+
+    def _set_camera(self, T_world_cam):
+        self.cam_ob.matrix_world = Matrix(blender_matrix_world(T_world_cam).tolist())
+        if self._ground is not None:  # the ground plane follows the camera (flat world)
+            t = np.asarray(T_world_cam, dtype=float)[:3, 3]
+            self._ground.location = (float(t[0]), float(t[1]), 0.0)
+
+    def _build(self, obj: PlacedObject):
+        if self._object_builder is None:
+            try:
+                from assets_procedural.objects import build_object
+            except ImportError as e:
+                raise StageError(f"cannot build objects: {e}") from None
+            self._object_builder = build_object
+        before = {k: set(getattr(bpy.data, k).keys()) for k in DATA_KINDS}
+        root = self._object_builder(obj)
+        if root is None:
+            raise StageError(f"object builder returned nothing for object {obj.id} ({obj.cls})")
+        blocks = {k: sorted(set(getattr(bpy.data, k).keys()) - before[k]) for k in DATA_KINDS}
+        for ob in [root, *root.children_recursive]:
+            if ob.name not in self.scene.objects:
+                self.scene.collection.objects.link(ob)
+            ob.pass_index = int(obj.id)
+        return root, blocks
+
+    def _remove(self, placed: _Placed):
+        for ob in reversed(placed.hierarchy()):
+            if ob.name in bpy.data.objects:
+                bpy.data.objects.remove(ob, do_unlink=True)
+        for kind in DATA_KINDS[1:] + ("objects",):
+            coll = getattr(bpy.data, kind)
+            for name in placed.blocks.get(kind, []):
+                block = coll.get(name)
+                if block is not None and block.users == 0:
+                    coll.remove(block)
+
+    def _sync_objects(self, plan: FramePlan, kept_ids: set[int]) -> dict:
+        """Add/move/remove objects so the scene holds exactly the kept objects of the plan."""
+        stats = {"built": 0, "reused": 0, "removed": 0, "hidden": 0}
+        by_id = {int(o.id): o for o in plan.objects}
+        for oid in list(self._placed):
+            o = by_id.get(oid)
+            if o is None or self._key(o) != self._placed[oid].key:
+                self._remove(self._placed.pop(oid))
+                stats["removed"] += 1
+        for oid, o in by_id.items():
+            p = self._placed.get(oid)
+            if oid not in kept_ids:
+                if p is not None:  # culled this frame: keep it for when it comes back
+                    for ob in p.hierarchy():
+                        ob.hide_render = True
+                    stats["hidden"] += 1
+                continue
+            if p is None:
+                root, blocks = self._build(o)
+                p = self._placed[oid] = _Placed(self._key(o), root, blocks)
+                stats["built"] += 1
+            else:
+                stats["reused"] += 1
+            for ob in p.hierarchy():
+                ob.hide_render = False
+            p.root.location = tuple(float(c) for c in o.position)
+            p.root.rotation_mode = "XYZ"
+            p.root.rotation_euler = (0.0, 0.0, float(o.yaw))
+        return stats
+
+    @staticmethod
+    def _key(o: PlacedObject) -> str:
+        return json.dumps([o.cls, list(map(float, o.dims)), o.variant, o.state], sort_keys=True, default=str)
+
+    def _hide_objects(self, hide: bool):
+        for p in self._placed.values():
+            for ob in p.hierarchy():
+                ob.hide_render = hide
+
+    # ------------------------------------------------------------------ motion blur
+    def _keyframe_motion(self, plan: FramePlan, ids, shutter_s: float):
+        """Linear motion over the shutter: keys at frames 0 and 2, rendered at frame 1 with a
+        one-frame shutter, so the exposure spans position -/+ velocity * shutter / 2."""
+        sc = self.scene
+        by_id = {int(o.id): o for o in plan.objects}
+        for oid in ids:
+            o, p = by_id[oid], self._placed[oid]
+            v = np.asarray(o.velocity, dtype=float)
+            pos = np.asarray(o.position, dtype=float)
+            for frame, sign in ((0, -1.0), (2, 1.0)):
+                p.root.location = tuple(pos + sign * v * shutter_s)
+                p.root.keyframe_insert("location", frame=frame)
+            for fc in p.root.animation_data.action.fcurves if hasattr(p.root.animation_data.action, "fcurves") else []:
+                for kp in fc.keyframe_points:
+                    kp.interpolation = "LINEAR"
+        sc.frame_set(1)
+        sc.render.use_motion_blur = True
+        sc.render.motion_blur_shutter = 1.0
+        sc.render.motion_blur_position = "CENTER"
+
+    def _clear_motion(self, plan: FramePlan, ids):
+        by_id = {int(o.id): o for o in plan.objects}
+        for oid in ids:
+            p = self._placed[oid]
+            action = p.root.animation_data.action if p.root.animation_data else None
+            p.root.animation_data_clear()
+            if action is not None and action.users == 0:
+                bpy.data.actions.remove(action)
+            p.root.location = tuple(float(c) for c in by_id[oid].position)
+        self.scene.render.use_motion_blur = False
+
+    # ------------------------------------------------------------------ passes and sampling
+    def _set_passes(self, keys: list[str]):
+        vl = self.view_layer
+        lighting = {"diffuse_direct", "diffuse_indirect", "diffuse_color",
+                    "glossy_direct", "glossy_indirect", "glossy_color"}
+        vl.use_pass_object_index = "index" in keys
+        vl.use_pass_z = "depth" in keys
+        vl.cycles.use_pass_shadow_catcher = "shadow_catcher" in keys
+        for k in lighting:
+            setattr(vl, f"use_pass_{k}", k in keys)
+
+    def _set_sampling(self, s: dict):
+        cy = self.scene.cycles
+        cy.samples = s["samples"]
+        cy.use_adaptive_sampling = s["adaptive"]
+        cy.adaptive_threshold = s["adaptive_threshold"]
+        cy.adaptive_min_samples = 0
+        cy.use_denoising = s["denoise"]
+        cy.max_bounces = s["max_bounces"]
+        cy.diffuse_bounces = s["diffuse_bounces"]
+        cy.glossy_bounces = s["glossy_bounces"]
+        cy.transmission_bounces = s["transmission_bounces"]
+        cy.transparent_max_bounces = s["transparent_bounces"]
+        cy.volume_bounces = s["volume_bounces"]
+        cy.caustics_reflective = cy.caustics_refractive = s["caustics"]
+        cy.sample_clamp_indirect = s["clamp_indirect"]
+
+    def _set_region(self, region):
+        r = self.scene.render
+        if region is None:
+            r.use_border = False
+            return
+        pin = self.canvas.pinhole
+        r.use_border = True
+        r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = fx.border_fractions(
+            region, pin.width, pin.height)
+
+    # ------------------------------------------------------------------ amodal masks
+    def _tris_local(self, p: _Placed) -> tuple[np.ndarray, np.ndarray]:
+        """The object's triangles in its root frame (cached: reused objects are rigid)."""
+        if p.tris_local is not None:
+            return p.tris_local
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        inv_root = np.array(p.root.matrix_world.inverted())
+        verts, tris, n = [], [], 0
+        for ob in p.hierarchy():
+            if ob.type not in MESHLIKE:
+                continue
+            ev = ob.evaluated_get(depsgraph)
+            me = ev.to_mesh()
+            try:
+                me.calc_loop_triangles()
+                co = np.empty(len(me.vertices) * 3, np.float64)
+                me.vertices.foreach_get("co", co)
+                tri = np.empty(len(me.loop_triangles) * 3, np.int64)
+                me.loop_triangles.foreach_get("vertices", tri)
+            finally:
+                ev.to_mesh_clear()
+            M = inv_root @ np.array(ob.matrix_world)
+            co = co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+            verts.append(co)
+            tris.append(tri.reshape(-1, 3) + n)
+            n += len(co)
+        p.tris_local = ((np.concatenate(verts) if verts else np.zeros((0, 3))),
+                        (np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)))
+        return p.tris_local
+
+    def _amodal(self, plan: FramePlan, ids) -> dict[int, int]:
+        bpy.context.view_layer.update()
+        out = {}
+        for oid in ids:
+            p = self._placed[oid]
+            v_local, tris = self._tris_local(p)
+            M = np.array(p.root.matrix_world)
+            v_world = v_local @ M[:3, :3].T + M[:3, 3]
+            mask = rasterize_mask(self.canvas.pinhole, plan.T_world_cam, v_world, tris)
+            mask = self.canvas.to_output(mask, nearest=True)
+            out[oid] = int(np.count_nonzero(mask))
+        return out
+
+    # ------------------------------------------------------------------ public API
+    def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str]) -> dict:
+        t0 = time.perf_counter()
+        timings: dict[str, float] = {}
+        outputs = set(outputs)
+        lighting_src = "plan" if plan.lighting else "default (the plan has no lighting estimate)"
+        lighting = plan.lighting or fx.DEFAULT_LIGHTING
+        plan_l = FramePlan(plan.frame_id, plan.t, plan.T_world_cam, plan.objects, lighting)
+        try:
+            eff = fx.decide_effects(plan_l, self.canvas.pinhole, self.render, outputs)
+        except ValueError as e:
+            raise UserError(str(e), where=f"frame {plan.frame_id}") from None
+        timings["decide"] = time.perf_counter() - t0
+        keys = eff.passes.value
+        W, H = self.camera.width, self.camera.height
+        info = {"frame_id": plan.frame_id, "decisions": eff.to_dict(), "lighting": lighting_src,
+                "device": self.device, "canvas": [self.canvas.pinhole.width, self.canvas.pinhole.height],
+                "amodal_method": "mesh rasterisation with OpenCV (no render)"}
+        if eff.skip_render.value:
+            t1 = time.perf_counter()
+            kept = set()
+            self._sync_objects(plan, kept)  # hide culled objects that exist
+            write_passes(out_exr, empty_passes(W, H, keys))
+            timings["write"] = time.perf_counter() - t1
+            timings["total"] = time.perf_counter() - t0
+            info.update(region=None, amodal_px={}, skipped=True,
+                        timings={k: round(v, 4) for k, v in timings.items()}, rss_mb=round(_rss_mb(), 1))
+            return info
+
+        t1 = time.perf_counter()
+        kept = set(eff.objects.value)
+        info["objects"] = self._sync_objects(plan, kept)
+        self._set_camera(plan.T_world_cam)
+        self._apply_lighting(lighting, background=False)
+        self._set_twin_mode("composite", catcher=bool(eff.shadow_catcher.value))
+        if self._ground is not None:
+            self._ground.hide_render = True
+        by_id = {int(o.id): o for o in plan.objects}
+        patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.sun_direction(lighting))
+                   if eff.shadow_catcher.value else None)
+        self._set_catcher(patches)
+        self.scene.render.film_transparent = True
+        self._set_passes(keys)
+        self._set_sampling(eff.sampling.value)
+        self._set_region(eff.region.value)
+        movers = [i for i, px in eff.blur_px.items() if px > 0] if eff.motion_blur.value else []
+        if movers:
+            self._keyframe_motion(plan, movers, float(self.render.shutter_s))
+        timings["scene"] = time.perf_counter() - t1
+
+        t2 = time.perf_counter()
+        tmp = self._tmp / "frame.exr"
+        try:
+            self.scene.render.filepath = str(tmp)
+            bpy.ops.render.render(write_still=True)
+        finally:
+            if movers:
+                self._clear_motion(plan, movers)
+        timings["render"] = time.perf_counter() - t2
+
+        t3 = time.perf_counter()
+        raw = read_passes(tmp)
+        passes = self._finish_passes(raw, keys, eff.region.value)
+        write_passes(out_exr, passes)
+        tmp.unlink(missing_ok=True)
+        timings["write"] = time.perf_counter() - t3
+
+        t4 = time.perf_counter()
+        amodal = self._amodal(plan, sorted(kept)) if "index" in outputs else {}
+        timings["amodal"] = time.perf_counter() - t4
+        self._frames += 1
+        timings["total"] = time.perf_counter() - t0
+        info.update(region=list(self.canvas.region_to_output(eff.region.value)) if eff.region.value else None,
+                    amodal_px=amodal, skipped=False,
+                    timings={k: round(v, 4) for k, v in timings.items()}, rss_mb=round(_rss_mb(), 1))
+        return info
+
+    def _finish_passes(self, raw: dict, keys: list[str], region) -> dict:
+        """Blender's passes -> the contract: requested keys only, outside-region values
+        neutral (shadow catcher 1), distortion applied identically to every pass."""
+        pin = self.canvas.pinhole
+        out = {}
+        for k in keys:
+            if k not in raw:
+                # e.g. no shadow-catcher objects this frame: the neutral pass
+                out[k] = empty_passes(pin.width, pin.height, [k])[k]
+                continue
+            a = raw[k]
+            if k == "shadow_catcher":
+                # Blender leaves 0 outside the border and where no catcher was hit with
+                # transparent film; multiplicatively that must read "unshadowed".
+                valid = np.zeros(a.shape[:2], bool)
+                if region is None:
+                    valid[:] = True
+                else:
+                    x0, y0, x1, y1 = region
+                    valid[y0:y1, x0:x1] = True
+                a = np.where(valid[..., None] & (a.sum(axis=2, keepdims=True) > 0), a, 1.0).astype(np.float32)
+            if k == "index":
+                a = self.canvas.to_output(a.astype(np.float32), nearest=True)
+            elif k == "shadow_catcher":
+                a = self.canvas.to_output(a, border=1.0)
+            else:
+                a = self.canvas.to_output(a)
+            out[k] = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+        return out
+
+    def render_background(self, T_world_cam, lighting: dict | None, out_png: Path, samples: int) -> dict:
+        """The twin itself, opaque, under a sky: an 8-bit sRGB PNG (synthetic recordings)."""
+        t0 = time.perf_counter()
+        lighting = lighting or fx.DEFAULT_LIGHTING
+        sc = self.scene
+        self._hide_objects(True)
+        self._set_camera(T_world_cam)
+        self._apply_lighting(lighting, background=True)
+        self._set_twin_mode("background", catcher=False)
+        if self._ground is not None:
+            self._ground.hide_render = False
+        if self._catcher is not None:
+            self._catcher.hide_render = True
+        sc.render.film_transparent = False
+        self._set_passes([])
+        s = fx.decide_sampling(self.render, ["rgba"]).value
+        s["samples"] = int(samples)
+        s["adaptive"] = s["adaptive"] and samples >= 16
+        self._set_sampling(s)
+        self._set_region(None)
+        ims = sc.render.image_settings
+        t1 = time.perf_counter()
+        try:
+            ims.media_type = "IMAGE"
+            ims.file_format = "PNG"
+            ims.color_mode = "RGB"
+            ims.color_depth = "8"
+            with atomic_path(out_png) as tmp:
+                sc.render.filepath = str(tmp)
+                bpy.ops.render.render(write_still=True)
+            undistort = self.canvas.remapped
+        finally:
+            ims.media_type = "MULTI_LAYER_IMAGE"
+            ims.file_format = "OPEN_EXR_MULTILAYER"
+            ims.color_depth = "32"
+            sc.render.film_transparent = True
+        if undistort:  # the same lens as the real camera: distort the pinhole render
+            import cv2
+
+            from blendgen.atomic import write_image
+            img = cv2.imread(str(out_png), cv2.IMREAD_COLOR)
+            write_image(out_png, self.canvas.to_output(img))
+        t2 = time.perf_counter()
+        return {"samples": int(samples), "device": self.device,
+                "timings": {"scene": round(t1 - t0, 4), "render": round(t2 - t1, 4)},
+                "rss_mb": round(_rss_mb(), 1)}
+
+    def close(self):
+        for p in list(self._placed.values()):
+            self._remove(p)
+        self._placed.clear()
+        shutil.rmtree(self._tmp, ignore_errors=True)

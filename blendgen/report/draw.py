@@ -1,0 +1,63 @@
+"""Contact sheet: composites with their instance masks and boxes drawn."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from blendgen import CLASSES
+from blendgen.labels.instances import decode_mask
+
+# One colour per class (BGR), distinct on road scenes.
+CLASS_BGR = {"person": (60, 20, 220), "bicycle": (0, 200, 255), "car": (255, 144, 30),
+             "motorcycle": (180, 0, 180), "bus": (0, 215, 100), "truck": (30, 105, 210),
+             "traffic light": (0, 255, 255)}
+assert set(CLASS_BGR) == set(CLASSES)
+
+
+def draw_labels(img: np.ndarray, instances: list[dict], alpha: float = 0.45, scale: float = 1.0) -> np.ndarray:
+    """Masks blended in the class colour, boxes, and `class #track` tags; ignored objects grey.
+
+    `img` may be the composite resized by `scale`: masks and boxes are scaled to it, so the
+    text stays sharp on a contact sheet.
+    """
+    H, W = img.shape[:2]
+    overlay = img.copy()
+    for inst in instances:
+        colour = (160, 160, 160) if inst["ignore"] else CLASS_BGR[inst["cls"]]
+        m = decode_mask(inst["segmentation"])
+        if m.shape != (H, W):
+            m = cv2.resize(m, (W, H), interpolation=cv2.INTER_NEAREST)
+        overlay[m.astype(bool)] = colour
+    out = cv2.addWeighted(overlay, alpha, img, 1 - alpha, 0)
+    thick = max(1, round(W / 800))
+    for inst in instances:
+        colour = (160, 160, 160) if inst["ignore"] else CLASS_BGR[inst["cls"]]
+        x, y, w, h = (v * scale for v in inst["bbox"])
+        cv2.rectangle(out, (int(x), int(y)), (max(int(x + w) - 1, int(x)), max(int(y + h) - 1, int(y))),
+                      colour, thick)
+        tag = f"{inst['cls']} #{inst.get('track_id', inst['id'])}"
+        org = (int(x), max(int(y) - 3, 10))
+        cv2.putText(out, tag, org, cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick, (0, 0, 0), thick + 2, cv2.LINE_AA)
+        cv2.putText(out, tag, org, cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick, colour, thick, cv2.LINE_AA)
+    return out
+
+
+def contact_sheet(tiles: list[tuple[str, np.ndarray]], cols: int = 4, tile_w: int = 400) -> np.ndarray:
+    """Grid of (caption, BGR image) tiles, each scaled to `tile_w` wide."""
+    if not tiles:
+        return np.full((60, tile_w, 3), 255, np.uint8)
+    scaled = []
+    for caption, im in tiles:
+        h = max(1, round(im.shape[0] * tile_w / im.shape[1]))
+        t = cv2.resize(im, (tile_w, h), interpolation=cv2.INTER_AREA)
+        cv2.putText(t, caption, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(t, caption, (5, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        scaled.append(t)
+    th = max(t.shape[0] for t in scaled)
+    rows = -(-len(scaled) // cols)
+    sheet = np.full((rows * (th + 4), min(cols, len(scaled)) * (tile_w + 4), 3), 255, np.uint8)
+    for k, t in enumerate(scaled):
+        r, c = divmod(k, cols)
+        sheet[r * (th + 4):r * (th + 4) + t.shape[0], c * (tile_w + 4):c * (tile_w + 4) + tile_w] = t
+    return sheet

@@ -1,0 +1,137 @@
+"""The object catalog (bpy-free): a seeded sampler of builder parameters and real-world
+dimensions per class, so the planner knows each object's box before Blender builds it.
+
+`assets_procedural.objects.build_object` builds exactly these parameters and scales the
+result so its tight box equals `dims` (length x, width y, height z; metres). Ranges are
+typical European/North-American figures for each body type.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from blendgen import CLASSES
+
+# kind -> (length range, width range, height range)
+CAR_BODIES = {
+    "sedan": ((4.40, 4.90), (1.76, 1.86), (1.40, 1.50)),
+    "hatchback": ((3.80, 4.25), (1.68, 1.78), (1.42, 1.54)),
+    "suv": ((4.50, 4.95), (1.85, 1.98), (1.65, 1.80)),
+    "van": ((4.80, 5.30), (1.90, 2.02), (1.90, 2.10)),
+}
+TRUCK_BODIES = {
+    "box_truck": ((6.5, 8.5), (2.40, 2.50), (3.20, 3.60)),
+    "semi": ((15.0, 16.5), (2.50, 2.55), (3.80, 4.00)),
+    "pickup": ((5.30, 5.90), (1.95, 2.05), (1.80, 1.95)),
+}
+BUS_BODIES = {
+    "city": ((11.5, 12.2), (2.50, 2.55), (3.00, 3.20)),
+    "midi": ((8.5, 9.5), (2.35, 2.45), (2.90, 3.05)),
+}
+CAR_PAINTS = {  # linear RGB, roughly the world's car-colour mix
+    "white": (0.80, 0.80, 0.78), "black": (0.012, 0.012, 0.014), "silver": (0.50, 0.51, 0.53),
+    "grey": (0.16, 0.17, 0.18), "blue": (0.02, 0.06, 0.25), "red": (0.45, 0.02, 0.02),
+    "green": (0.02, 0.12, 0.05), "beige": (0.55, 0.45, 0.30), "yellow": (0.75, 0.50, 0.02),
+}
+PAINT_WEIGHTS = {"white": 0.24, "black": 0.20, "silver": 0.13, "grey": 0.16, "blue": 0.09, "red": 0.09,
+                 "green": 0.03, "beige": 0.03, "yellow": 0.03}
+BUS_LIVERIES = [(0.75, 0.55, 0.02), (0.60, 0.02, 0.02), (0.03, 0.20, 0.45), (0.02, 0.30, 0.10),
+                (0.80, 0.80, 0.78)]
+CLOTHES = [(0.02, 0.02, 0.025), (0.80, 0.80, 0.78), (0.05, 0.08, 0.25), (0.35, 0.02, 0.03),
+           (0.05, 0.18, 0.06), (0.30, 0.22, 0.12), (0.25, 0.25, 0.27), (0.75, 0.35, 0.03),
+           (0.55, 0.10, 0.35), (0.04, 0.25, 0.35), (0.60, 0.55, 0.35)]
+SKIN = [(0.75, 0.55, 0.42), (0.62, 0.42, 0.30), (0.45, 0.28, 0.18), (0.28, 0.16, 0.10), (0.82, 0.64, 0.52)]
+HAIR = [(0.02, 0.015, 0.01), (0.12, 0.06, 0.03), (0.35, 0.22, 0.10), (0.55, 0.45, 0.30), (0.4, 0.4, 0.4)]
+
+# plausible speeds (m/s) when moving
+SPEED = {"person": (0.9, 1.7), "bicycle": (3.5, 6.5), "car": (6.0, 14.0), "motorcycle": (7.0, 15.0),
+         "bus": (5.0, 11.0), "truck": (5.0, 12.0), "traffic light": (0.0, 0.0)}
+
+
+def _u(rng, lo_hi) -> float:
+    return float(rng.uniform(*lo_hi))
+
+
+def _jitter(rng, rgb, amount=0.06):
+    return [float(np.clip(c * (1 + rng.uniform(-amount, amount)), 0, 1)) for c in rgb]
+
+
+def _pick(rng, seq):
+    return seq[int(rng.integers(len(seq)))]
+
+
+def _person(rng, *, height=None, pose=None) -> tuple[dict, tuple]:
+    h = float(height if height is not None else np.clip(rng.normal(1.71, 0.09), 1.50, 1.95))
+    build = _pick(rng, ["slim", "medium", "broad"])
+    shoulder = {"slim": 0.23, "medium": 0.25, "broad": 0.28}[build] * h  # shoulder breadth
+    pose = pose or _pick(rng, ["standing", "walking", "walking"])
+    stride = _u(rng, (0.25, 0.45)) if pose == "walking" else 0.0  # hip swing (rad)
+    leg = 0.47 * h
+    depth = max(0.28 * h / 1.75, 2 * leg * np.sin(stride) + 0.26)
+    width = shoulder + 0.12 * h / 1.75
+    v = {"kind": pose, "build": build, "stride_rad": stride, "skin": _pick(rng, SKIN),
+         "hair": _pick(rng, HAIR), "shirt": _jitter(rng, _pick(rng, CLOTHES)),
+         "pants": _jitter(rng, _pick(rng, CLOTHES)), "shoes": _jitter(rng, _pick(rng, CLOTHES[:3] + CLOTHES[5:7])),
+         "long_sleeves": bool(rng.random() < 0.6), "skirt": bool(rng.random() < 0.12),
+         "bag": bool(rng.random() < 0.3), "height_m": h}
+    return v, (float(depth), float(width), h)
+
+
+def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[float, float, float]]:
+    """(builder parameters, dims) of a random instance of `cls`."""
+    if cls not in CLASSES:
+        raise ValueError(f"unknown class {cls!r}; expected one of {sorted(CLASSES)}")
+    seed = int(rng.integers(2**31))
+    if cls == "car":
+        kind = _pick(rng, list(CAR_BODIES))
+        L, W, H = (_u(rng, r) for r in CAR_BODIES[kind])
+        paint = str(rng.choice(list(PAINT_WEIGHTS), p=np.array(list(PAINT_WEIGHTS.values())) /
+                               sum(PAINT_WEIGHTS.values())))
+        v = {"kind": kind, "paint": _jitter(rng, CAR_PAINTS[paint], 0.08), "paint_name": paint,
+             "wheel_radius": _u(rng, (0.31, 0.36)), "chrome_trim": bool(rng.random() < 0.4)}
+    elif cls == "truck":
+        kind = _pick(rng, list(TRUCK_BODIES))
+        L, W, H = (_u(rng, r) for r in TRUCK_BODIES[kind])
+        v = {"kind": kind, "paint": _jitter(rng, _pick(rng, list(CAR_PAINTS.values()))),
+             "cargo": _jitter(rng, _pick(rng, [(0.8, 0.8, 0.78), (0.5, 0.51, 0.53), (0.45, 0.02, 0.02),
+                                                (0.03, 0.1, 0.3), (0.7, 0.45, 0.02)])),
+             "wheel_radius": 0.33 if kind == "pickup" else 0.5}
+    elif cls == "bus":
+        kind = _pick(rng, list(BUS_BODIES))
+        L, W, H = (_u(rng, r) for r in BUS_BODIES[kind])
+        v = {"kind": kind, "paint": _jitter(rng, _pick(rng, BUS_LIVERIES)), "wheel_radius": 0.5,
+             "doors": 3 if kind == "city" else 2}
+    elif cls == "person":
+        v, (L, W, H) = _person(rng)
+    elif cls in ("bicycle", "motorcycle"):
+        if cls == "bicycle":
+            kind = _pick(rng, ["city", "road", "mountain"])
+            wheel = {"city": 0.35, "road": 0.34, "mountain": 0.36}[kind]
+            L, W, H = _u(rng, (1.68, 1.82)), _u(rng, (0.56, 0.66)), _u(rng, (0.98, 1.10))
+            rider_p = 0.7
+        else:
+            kind = _pick(rng, ["sport", "cruiser", "scooter"])
+            wheel = {"sport": 0.31, "cruiser": 0.33, "scooter": 0.24}[kind]
+            L = _u(rng, {"sport": (2.0, 2.15), "cruiser": (2.2, 2.4), "scooter": (1.75, 1.95)}[kind])
+            W, H = _u(rng, (0.72, 0.90)), _u(rng, (1.10, 1.30))
+            rider_p = 0.8
+        v = {"kind": kind, "paint": _jitter(rng, _pick(rng, list(CAR_PAINTS.values()))), "wheel_radius": wheel}
+        if rng.random() < rider_p:
+            rv, _ = _person(rng, pose="riding")
+            rv["helmet"] = bool(cls == "motorcycle" or rng.random() < 0.5)
+            v["rider"] = rv
+            # the seated rider raises the top of the box to about 0.80-0.85 of their height
+            H = max(H, rv["height_m"] * (0.83 if cls == "bicycle" else 0.78) + (0.55 if cls == "bicycle" else 0.45) * 0.5)
+            W = max(W, 0.32 * rv["height_m"] / 1.0 * 0.9)
+    else:  # traffic light: the signal head; the pole below it is scenery (pass_index 0)
+        kind = _pick(rng, ["visor", "visor", "backplate"])
+        L = _u(rng, (0.30, 0.42))
+        W = _u(rng, (0.30, 0.36)) + (0.18 if kind == "backplate" else 0.0)
+        H = _u(rng, (0.95, 1.10)) + (0.14 if kind == "backplate" else 0.0)
+        v = {"kind": kind, "housing": _pick(rng, [(0.02, 0.02, 0.02), (0.03, 0.05, 0.03), (0.5, 0.42, 0.05)]),
+             "mount_height_m": _u(rng, (2.4, 3.0))}
+    v["seed"] = seed
+    v = json.loads(json.dumps(v))  # plain JSON data (lists, not tuples): plans round-trip exactly
+    return v, (round(float(L), 4), round(float(W), 4), round(float(H), 4))

@@ -1,0 +1,587 @@
+"""Road-aware scene planning (bpy-free): which objects, where, facing where, in which state.
+
+Each object is a *track*: at spawn time its whole trajectory over the remaining frames is
+simulated (vehicles along their lane, bicycles at the road edge, pedestrians along the
+sidewalk or across a crosswalk, traffic lights fixed at an intersection slot), then checked
+frame by frame against every other track, the ego vehicle (with a headway margin) and the
+twin's structures. A candidate that conflicts anywhere is rejected, so accepted tracks never
+overlap and never need to be repaired later; ids persist for the track's lifetime.
+
+A frame's plan holds the tracks that are visible in it: box fully in front of the camera,
+centre distance within `inject.distance_m`, at least half of the projected box inside the
+image and its larger side >= `inject.min_projected_px`, and the line of sight not crossing a
+building. New tracks are spawned (visible at their first frame) until the frame holds the
+target count drawn from `inject.objects_per_frame`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from blendgen.geometry import Camera, yaw_of_camera
+from blendgen.scene.catalog import SPEED, sample_variant
+from blendgen.scene.geom2d import convex_overlap, point_in_convex, wrap_angle
+from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.scene.twin import Twin
+
+# The ego vehicle's footprint relative to the camera (dashcam behind the windscreen).
+EGO_LENGTH, EGO_WIDTH = 4.6, 1.85
+EGO_FRONT_OF_CAM = 1.8
+EGO_HEADWAY_S, EGO_HEADWAY_MIN_M = 1.0, 2.0
+CLEARANCE_M = 0.25        # spawn-time clearance between object footprints
+MAX_TRACK_RANGE_M = 90.0  # a track ends once this far from the camera
+SPAWN_TRIES = 40
+TARGET_PERIOD_S = 3.0     # how often the per-frame object target is redrawn
+SCENARIO_PERIOD_S = 8.0   # a scenario whose actors are gone is re-staged after this
+SCENARIO_RETRY_S = 1.0
+SIGNAL_CYCLE = (("green", 12.0), ("amber", 3.0), ("red", 15.0))
+VEHICLES = ("car", "bus", "truck", "motorcycle")
+
+
+@dataclass
+class Track:
+    id: int
+    cls: str
+    variant: dict
+    dims: tuple[float, float, float]
+    k0: int
+    xy: np.ndarray      # (n, 2) positions for frames k0 .. k0+n-1
+    z: np.ndarray       # (n,)
+    yaw: np.ndarray     # (n,)
+    scenario: str | None = None
+    states: list | None = None
+    corners: np.ndarray = field(init=False)  # (n, 4, 2) footprints
+    radius: float = field(init=False)
+
+    def __post_init__(self):
+        self.corners = footprints(self.xy, self.yaw, self.dims[0], self.dims[1])
+        self.radius = 0.5 * math.hypot(self.dims[0], self.dims[1])
+
+    @property
+    def k1(self) -> int:
+        return self.k0 + len(self.xy)
+
+    def velocity(self, i: int, times: np.ndarray) -> tuple[float, float, float]:
+        n = len(self.xy)
+        if n < 2:
+            return (0.0, 0.0, 0.0)
+        a, b = (i, i + 1) if i + 1 < n else (i - 1, i)
+        dt = times[self.k0 + b] - times[self.k0 + a]
+        v = (self.xy[b] - self.xy[a]) / max(dt, 1e-6)
+        return (float(v[0]), float(v[1]), 0.0)
+
+
+def footprints(xy: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
+    """(n, 4, 2) corners of oriented rectangles; length/width may be per-row arrays."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    hl = np.broadcast_to(np.asarray(length, float) / 2, c.shape)[:, None] * np.array([1, -1, -1, 1])
+    hw = np.broadcast_to(np.asarray(width, float) / 2, c.shape)[:, None] * np.array([1, 1, -1, -1])
+    x = c[:, None] * hl - s[:, None] * hw
+    y = s[:, None] * hl + c[:, None] * hw
+    return np.stack([x, y], axis=2) + xy[:, None, :]
+
+
+class _Ego:
+    """The recording vehicle per frame: camera position, heading, speed and footprints."""
+
+    def __init__(self, poses, twin: Twin):
+        self.T = [np.asarray(T, dtype=float) for _, _, T in poses]
+        self.t = np.array([float(t) for _, t, _ in poses])
+        self.cam = np.array([T[:3, 3] for T in self.T])
+        self.yaw = np.array([yaw_of_camera(T[:3, :3]) for T in self.T])
+        h = np.stack([np.cos(self.yaw), np.sin(self.yaw)], axis=1)
+        self.heading = h
+        dt = np.diff(self.t)
+        step = np.linalg.norm(np.diff(self.cam[:, :2], axis=0), axis=1)
+        v = step / np.maximum(dt, 1e-6) if len(dt) else np.zeros(0)
+        self.speed = np.concatenate([v, v[-1:]]) if len(v) else np.zeros(1)
+        centre = self.cam[:, :2] + h * (EGO_FRONT_OF_CAM - EGO_LENGTH / 2)
+        self.box = footprints(centre, self.yaw, EGO_LENGTH, EGO_WIDTH)
+        # the box swept forward by the headway: plain traffic keeps out of it
+        ahead = np.maximum(EGO_HEADWAY_MIN_M, self.speed * EGO_HEADWAY_S)
+        self.safe_box = footprints(centre + h * (ahead / 2)[:, None], self.yaw, EGO_LENGTH + ahead,
+                                   EGO_WIDTH + 0.3)
+        self.lane = [twin.lane_at(p[0], p[1], heading=y) for p, y in zip(self.cam[:, :2], self.yaw)]
+
+
+class Planner:
+    def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int):
+        self.twin, self.camera, self.inject = twin, camera, inject
+        self.rng = np.random.default_rng(seed)
+        self.poses = list(poses)
+        self.ego = _Ego(self.poses, twin)
+        self.times = self.ego.t
+        self.K = len(self.poses)
+        self.tracks: list[Track] = []
+        self.next_id = 1
+        classes = {c: w for c, w in inject.classes.items() if w > 0}
+        self.classes = list(classes)
+        self.weights = np.array([classes[c] for c in self.classes], dtype=float)
+        self.weights /= self.weights.sum() if self.weights.sum() > 0 else 1.0
+        self.d0, self.d1 = inject.distance_m
+        self.hfov = 2 * math.atan(camera.width / 2 / camera.fx)
+        self._buildings = [i for i, s in enumerate(twin.structures) if s.kind == "building"]
+
+    # ------------------------------------------------------------ visibility
+    def visible(self, tr: Track, k: int) -> bool:
+        i = k - tr.k0
+        L, W, H = tr.dims
+        z0 = tr.z[i]
+        corners = np.concatenate([np.column_stack([tr.corners[i], np.full(4, z0)]),
+                                  np.column_stack([tr.corners[i], np.full(4, z0 + H)])])
+        T = self.ego.T[k]
+        centre = np.array([*tr.xy[i], z0 + H / 2])
+        dist = float(np.linalg.norm(centre - T[:3, 3]))
+        if not self.d0 <= dist <= self.d1:
+            return False
+        Xc = (corners - T[:3, 3]) @ T[:3, :3]
+        if np.any(Xc[:, 2] < 0.3):
+            return False
+        uv, _ = self.camera.project(Xc)
+        lo, hi = uv.min(0), uv.max(0)
+        full = np.prod(np.maximum(hi - lo, 1e-6))
+        clo = np.maximum(lo, [-0.5, -0.5])
+        chi = np.minimum(hi, [self.camera.width - 0.5, self.camera.height - 0.5])
+        side = chi - clo
+        if np.any(side <= 0) or np.prod(side) < 0.5 * full:
+            return False
+        if max(side) < self.inject.min_projected_px:
+            return False
+        return not self._behind_building(T[:3, 3], centre)
+
+    def _behind_building(self, cam: np.ndarray, target: np.ndarray) -> bool:
+        if not self._buildings:
+            return False
+        seg = np.linspace(cam[:2], target[:2], 24)[1:-1]
+        mid = (cam[:2] + target[:2]) / 2
+        r = np.linalg.norm(target[:2] - cam[:2]) / 2
+        for i in self.twin.structures_near(mid, r):
+            if i in self._buildings and point_in_convex(seg, self.twin.structures[i].polygon).any():
+                return True
+        return False
+
+    # ------------------------------------------------------------ conflicts
+    def conflicts(self, tr: Track, *, ego_margin: str = "headway") -> bool:
+        n = len(tr.xy)
+        ks = np.arange(tr.k0, tr.k1)
+        # ego vehicle: plain traffic keeps out of the headway box, scenario actors out of the body
+        ego = self.ego.safe_box[ks] if ego_margin == "headway" else self.ego.box[ks]
+        margin = 0.0 if ego_margin == "headway" else 0.3
+        ego_c = ego.mean(1)
+        near = np.linalg.norm(ego_c - tr.xy, axis=1) < tr.radius + EGO_LENGTH + 40.0
+        for i in np.nonzero(near)[0]:
+            if convex_overlap(tr.corners[i], ego[i], margin):
+                return True
+        for o in self.tracks:
+            a, b = max(tr.k0, o.k0), min(tr.k1, o.k1)
+            if a >= b:
+                continue
+            pa, pb = tr.xy[a - tr.k0:b - tr.k0], o.xy[a - o.k0:b - o.k0]
+            close = np.linalg.norm(pa - pb, axis=1) < tr.radius + o.radius + CLEARANCE_M
+            for j in np.nonzero(close)[0]:
+                if convex_overlap(tr.corners[a - tr.k0 + j], o.corners[a - o.k0 + j], CLEARANCE_M):
+                    return True
+        # structures: check where the footprint comes near one
+        if len(self.twin.structures):
+            d = np.linalg.norm(tr.xy[:, None, :] - self.twin._st_center[None], axis=2)
+            hit = d < self.twin._st_radius[None] + tr.radius + 0.1
+            for i, s in zip(*np.nonzero(hit)):
+                if convex_overlap(tr.corners[i], self.twin.structures[s].polygon, 0.05):
+                    return True
+        return False
+
+    # ------------------------------------------------------------ trajectories
+    def _limit(self, k0: int, xy: np.ndarray) -> int:
+        """Frames until the track leaves the range of interest (or the sequence ends)."""
+        if not self.inject.sequences:
+            return 1
+        cam = self.ego.cam[k0:k0 + len(xy), :2]
+        far = np.nonzero(np.linalg.norm(xy - cam, axis=1) > MAX_TRACK_RANGE_M)[0]
+        return int(far[0]) if len(far) else len(xy)
+
+    def _frames_from(self, k0: int) -> np.ndarray:
+        return self.times[k0:] - self.times[k0] if self.inject.sequences else np.zeros(1)
+
+    def lane_track(self, k0, cls, variant, dims, road, index, direction, s0, speed, lat=0.0,
+                   lat_profile=None, scenario=None) -> Track | None:
+        rg = self.twin.roads[road]
+        cd = next(c for i, dr, c in rg.lanes if i == index and dr == direction)
+        tt = self._frames_from(k0)
+        s = s0 + direction * speed * tt
+        ok = (s >= dims[0] / 2) & (s <= rg.length - dims[0] / 2)
+        n = int(np.argmin(ok)) if not ok.all() else len(s)
+        if n == 0:
+            return None
+        s, tt = s[:n], tt[:n]
+        d = cd + np.full(n, lat) if lat_profile is None else cd + lat_profile(tt)
+        xy = rg.line.offset_point(s, d)
+        _, tan = rg.line.at(s)
+        yaw = np.arctan2(tan[:, 1], tan[:, 0]) + (0.0 if direction > 0 else math.pi)
+        if n > 1 and lat_profile is not None:  # heading follows the lane change
+            left_rate = np.gradient(d, tt) * direction if n > 2 else np.zeros(n)
+            yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
+        m = self._limit(k0, xy)
+        return self._track(cls, variant, dims, k0, xy[:m], np.zeros(m), wrap_angle(yaw[:m]), scenario)
+
+    def walk_track(self, k0, variant, dims, start, direction_xy, speed, allowed, scenario=None,
+                   stop_at=None) -> Track | None:
+        """A pedestrian walking from `start` along `direction_xy`; it stops (and stands) at the
+        last point where `allowed(points)` holds, or after `stop_at` metres."""
+        tt = self._frames_from(k0)
+        u = np.asarray(direction_xy, float) / np.linalg.norm(direction_xy)
+        dist = speed * tt
+        if stop_at is not None:
+            dist = np.minimum(dist, stop_at)
+        xy = np.asarray(start, float)[None] + dist[:, None] * u[None]
+        ok = allowed(xy)
+        if not ok[0]:
+            return None
+        if not ok.all():
+            first_bad = int(np.argmin(ok))
+            xy[first_bad:] = xy[first_bad - 1]
+        yaw = np.full(len(xy), math.atan2(u[1], u[0]))
+        m = self._limit(k0, xy)
+        z = self.twin.ground_heights(xy[:m])
+        return self._track("person", variant, dims, k0, xy[:m], z, yaw[:m], scenario)
+
+    def static_track(self, k0, cls, variant, dims, xy, yaw, z=0.0, scenario=None, states=None):
+        n = len(self._frames_from(k0))
+        xy = np.repeat(np.asarray(xy, float)[None], n, axis=0)
+        m = self._limit(k0, xy)
+        return self._track(cls, variant, dims, k0, xy[:m], np.full(m, z), np.full(m, yaw), scenario,
+                           states[:m] if states else None)
+
+    def _track(self, cls, variant, dims, k0, xy, z, yaw, scenario=None, states=None):
+        if len(xy) == 0:
+            return None
+        return Track(0, cls, variant, dims, k0, xy, z, yaw, scenario, states)
+
+    def accept(self, tr: Track) -> Track:
+        tr.id = self.next_id
+        self.next_id = self.next_id % 65535 + 1
+        self.tracks.append(tr)
+        return tr
+
+    # ------------------------------------------------------------ spawning by class
+    def _view_point(self, k: int) -> np.ndarray:
+        r = self.rng.uniform(max(self.d0, 3.0), self.d1)
+        b = self.ego.yaw[k] + self.rng.uniform(-0.5, 0.5) * self.hfov * 0.95
+        return self.ego.cam[k, :2] + r * np.array([math.cos(b), math.sin(b)])
+
+    def spawn(self, cls: str, k: int) -> Track | None:
+        variant, dims = sample_variant(cls, self.rng)
+        p = self._view_point(k)
+        if cls in VEHICLES or cls == "bicycle":
+            return self._spawn_on_road(cls, variant, dims, k, p)
+        if cls == "person":
+            return self._spawn_person(variant, dims, k, p)
+        return self._spawn_signal(variant, dims, k)
+
+    def _spawn_on_road(self, cls, variant, dims, k, p):
+        lane = self.twin.lane_at(p[0], p[1])
+        if lane is None or lane.in_junction:
+            return None
+        rg = self.twin.roads[lane.road]
+        rider = "rider" in variant
+        lat = 0.0
+        if cls == "bicycle" or (cls == "motorcycle" and not rider):
+            # bicycles (and parked motorcycles) keep to the curb side of the outermost lane
+            n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
+            lane = self.twin.lane_at(*rg.line.offset_point(
+                lane.s, (-1 if lane.direction > 0 else 1) * (rg.spec.median_m / 2 + (n - 0.5) * lane.width))[0])
+            if lane is None or lane.in_junction:
+                return None
+            lat = -(lane.width / 2 - 0.3 - dims[1] / 2)  # to the right of travel
+        elif cls == "motorcycle":
+            lat = float(self.rng.uniform(-0.6, 0.6))
+        moving = rider if cls in ("bicycle", "motorcycle") else self.rng.random() < 0.8
+        speed = float(self.rng.uniform(*SPEED[cls])) if moving else 0.0
+        # `lat` is relative to the travel direction (left > 0); lane_track wants road-frame d
+        return self.lane_track(k, cls, variant, dims, lane.road, lane.index, lane.direction, lane.s,
+                               speed, lat=lat * lane.direction)
+
+    def _spawn_person(self, variant, dims, k, p):
+        tw = self.twin
+        if tw.on_crosswalk(*p) and not tw.in_junction(*p):
+            lane_roads = [(rg, float(s[0]), float(d[0])) for rg in tw.roads.values()
+                          for s, d, _ in [rg.line.project(p)]]
+            rg, s, d = min(lane_roads, key=lambda r: abs(r[2]) if r[0].carriageway(r[1], r[2]) else 1e9)
+            _, t = rg.line.at(s)
+            normal = np.array([-t[0, 1], t[0, 0]]) * (1 if self.rng.random() < 0.5 else -1)
+            allowed = lambda xy: tw.crosswalk_mask(xy) | tw.sidewalk_mask(xy)  # noqa: E731
+            speed = float(self.rng.uniform(*SPEED["person"]))
+            return self.walk_track(k, variant, dims, p, normal, speed, allowed)
+        if not tw.on_sidewalk(*p):
+            # snap to the nearest sidewalk across the road's cross-section
+            best = None
+            for rg in tw.roads.values():
+                if rg.spec.sidewalk_m < 1.0:
+                    continue
+                s, d, _ = rg.line.project(p)
+                s, d = float(s[0]), float(d[0])
+                edge = -rg.hw_right if d < 0 else rg.hw_left
+                dd = edge + math.copysign(rg.spec.sidewalk_m * self.rng.uniform(0.25, 0.75), edge)
+                if abs(dd - d) < 12 and (best is None or abs(dd - d) < best[0]):
+                    best = (abs(dd - d), rg.line.offset_point(s, dd)[0])
+            if best is None:
+                return None
+            p = best[1]
+            if not tw.on_sidewalk(*p):
+                return None
+        rg, s = None, 0.0
+        for cand in tw.roads.values():
+            cs, cdd, _ = cand.line.project(p)
+            if cand.sidewalk_band(cs, cdd)[0]:
+                rg, s = cand, float(cs[0])
+                break
+        _, t = rg.line.at(s)
+        walking = variant["kind"] == "walking"
+        if walking:
+            u = t[0] * (1 if self.rng.random() < 0.5 else -1)
+            speed = float(self.rng.uniform(*SPEED["person"]))
+        else:
+            a = self.rng.uniform(-math.pi, math.pi)
+            u, speed = np.array([math.cos(a), math.sin(a)]), 0.0
+        return self.walk_track(k, variant, dims, p, u, speed, tw.sidewalk_mask)
+
+    def _spawn_signal(self, variant, dims, k):
+        slots = self.twin.signal_slots
+        if not slots:
+            return None
+        sl = slots[int(self.rng.integers(len(slots)))]
+        z = self.twin.ground_height(sl.x, sl.y) + variant["mount_height_m"]
+        tt = self.times[k:] if self.inject.sequences else self.times[k:k + 1]
+        offset = float(self.rng.uniform(0, sum(d for _, d in SIGNAL_CYCLE)))
+        states = [signal_state(t + offset) for t in tt]
+        return self.static_track(k, "traffic light", variant, dims, (sl.x, sl.y), sl.yaw, z, states=states)
+
+    # ------------------------------------------------------------ scenarios
+    def stage_scenario(self, name: str, k: int) -> list[Track]:
+        lane = self.ego.lane[k]
+        if lane is None or lane.in_junction:
+            return []
+        rg = self.twin.roads[lane.road]
+        fn = {"jaywalker": self._jaywalker, "cut_in": self._cut_in, "near_collision": self._near_collision,
+              "occluded_pedestrian": self._occluded_pedestrian, "cyclist_overtake": self._cyclist}[name]
+        for _ in range(6):
+            tracks = fn(k, lane, rg)
+            if not tracks or any(t is None for t in tracks):
+                continue
+            ok, staged = True, []
+            for tr in tracks:
+                if self.conflicts(tr, ego_margin="body"):
+                    ok = False
+                    break
+                staged.append(tr)
+                self.tracks.append(tr)  # later actors of the scenario check against earlier ones
+            for tr in staged:
+                self.tracks.remove(tr)
+            if ok and any(self.visible(t, k) for t in tracks):
+                return [self.accept(t) for t in tracks]
+        return []
+
+    def _ahead(self, lane, rg, dist):
+        """Road arc length `dist` metres ahead of the ego along its lane direction."""
+        return lane.s + lane.direction * dist
+
+    def _jaywalker(self, k, lane, rg):
+        v, dims = sample_variant("person", self.rng)
+        v["kind"] = "walking"
+        v["stride_rad"] = v["stride_rad"] or 0.35
+        dist = self.rng.uniform(max(self.d0, 12.0), min(self.d1, 35.0))
+        s = self._ahead(lane, rg, dist)
+        if not 2 < s < rg.length - 2:
+            return None
+        side = 1 if self.rng.random() < 0.5 else -1
+        d_start = (rg.hw_left + 0.4) if side > 0 else -(rg.hw_right + 0.4)
+        start = rg.line.offset_point(s, d_start)[0]
+        if self.twin.on_crosswalk(*start):
+            return None
+        _, t = rg.line.at(s)
+        normal = np.array([-t[0, 1], t[0, 0]]) * -side
+        width = rg.hw_left + rg.hw_right + 1.6
+        speed = float(self.rng.uniform(1.2, 1.9))
+        allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731 - jaywalking: anywhere
+        return [self.walk_track(k, v, dims, start, normal, speed, allowed, "jaywalker", stop_at=width)]
+
+    def _cut_in(self, k, lane, rg):
+        n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
+        neighbours = [i for i in (lane.index - 1, lane.index + 1) if 0 <= i < n]
+        if not neighbours:
+            return None
+        j = neighbours[int(self.rng.integers(len(neighbours)))]
+        cls = "car" if self.rng.random() < 0.8 else "motorcycle"
+        v, dims = sample_variant(cls, self.rng)
+        if cls == "motorcycle" and "rider" not in v:
+            return None
+        gap = self.rng.uniform(5.0, 14.0)
+        s0 = self._ahead(lane, rg, EGO_FRONT_OF_CAM + gap + dims[0] / 2)
+        v_e = float(np.median(self.ego.speed[k:k + 10]))
+        speed = max(4.0, v_e + self.rng.uniform(0.5, 2.5))
+        cd_from = next(c for i, dr, c in rg.lanes if i == j and dr == lane.direction)
+        delta = lane.center_d - cd_from
+        # cosine profile; duration keeps the heading within 8 deg of the lane
+        T = max(2.5, math.pi * abs(delta) / (2 * speed * math.tan(math.radians(8.0))))
+        t_start = self.rng.uniform(0.3, 1.0)
+
+        def prof(tt):
+            x = np.clip((tt - t_start) / T, 0, 1)
+            return delta * (1 - np.cos(math.pi * x)) / 2
+
+        return [self.lane_track(k, cls, v, dims, rg.id, j, lane.direction, s0, speed, lat_profile=prof,
+                                scenario="cut_in")]
+
+    def _near_collision(self, k, lane, rg):
+        cls = str(self.rng.choice(["car", "car", "truck", "bus"]))
+        v, dims = sample_variant(cls, self.rng)
+        v_e = float(np.median(self.ego.speed[k:k + 10]))
+        g0 = self.rng.uniform(12.0, 25.0)
+        g_min = self.rng.uniform(1.0, 3.0)
+        window = float(self.rng.uniform(2.5, 4.0))
+        speed = max(0.0, v_e - (g0 - g_min) / window)  # the lead closes to g_min, then waits
+        s0 = self._ahead(lane, rg, EGO_FRONT_OF_CAM + g0 + dims[0] / 2)
+        tr = self.lane_track(k, cls, v, dims, rg.id, lane.index, lane.direction, s0, speed,
+                             scenario="near_collision")
+        if tr is None:
+            return None
+        # after the window the lead stops dead: the ego path ends in a near miss
+        tt = self.times[tr.k0:tr.k1] - self.times[tr.k0]
+        stop = np.searchsorted(tt, window)
+        if stop < len(tt):
+            tr.xy[stop:] = tr.xy[stop - 1 if stop else 0]
+            tr.yaw[stop:] = tr.yaw[stop - 1 if stop else 0]
+            tr.__post_init__()
+        # cut the track where the ego would get within g_min/2 of it
+        ks = np.arange(tr.k0, tr.k1)
+        for i, kk in enumerate(ks):
+            if convex_overlap(tr.corners[i], self.ego.box[kk], g_min / 2):
+                return [self._truncate(tr, i)] if i > 0 else None
+        return [tr]
+
+    def _truncate(self, tr: Track, n: int) -> Track:
+        return Track(tr.id, tr.cls, tr.variant, tr.dims, tr.k0, tr.xy[:n], tr.z[:n], tr.yaw[:n], tr.scenario,
+                     tr.states[:n] if tr.states else None)
+
+    def _occluded_pedestrian(self, k, lane, rg):
+        # parked cars along the curb of the ego's side if the ego is not in the curb lane,
+        # else along the opposite curb
+        n_same = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
+        if lane.index < n_same - 1:
+            direction, idx = lane.direction, n_same - 1
+        else:
+            n_opp = rg.spec.lanes_backward if lane.direction > 0 else rg.spec.lanes_forward
+            if n_opp == 0:
+                return None
+            direction, idx = -lane.direction, n_opp - 1
+        curb_side = -1 if direction > 0 else 1  # d sign of this curb
+        if rg.spec.sidewalk_m < 1.0:
+            return None
+        cd = next(c for i, dr, c in rg.lanes if i == idx and dr == direction)
+        dist = self.rng.uniform(max(self.d0, 12.0), min(self.d1, 30.0))
+        s_gap = self._ahead(lane, rg, dist)
+        gap = self.rng.uniform(1.2, 1.8)
+        out = []
+        s_cursor = {+1: s_gap + gap / 2, -1: s_gap - gap / 2}
+        for sgn in (+1, -1):
+            v, dims = sample_variant("car", self.rng)
+            s_c = s_cursor[sgn] + sgn * dims[0] / 2
+            if not dims[0] / 2 <= s_c <= rg.length - dims[0] / 2:
+                return None
+            lat_d = cd + curb_side * (rg.spec.lane_width_m / 2 - dims[1] / 2 - 0.25)
+            p = rg.line.offset_point(s_c, lat_d)[0]
+            _, t = rg.line.at(s_c)
+            yaw = math.atan2(t[0, 1], t[0, 0]) + (0 if direction > 0 else math.pi)
+            out.append(self.static_track(k, "car", v, dims, p, yaw, 0.0, "occluded_pedestrian"))
+        pv, pdims = sample_variant("person", self.rng)
+        pv["kind"], pv["stride_rad"] = "walking", max(pv["stride_rad"], 0.3)
+        edge = curb_side * (rg.hw_right if curb_side < 0 else rg.hw_left)
+        start = rg.line.offset_point(s_gap, edge + curb_side * 0.6)[0]
+        end_d = cd - curb_side * (rg.spec.lane_width_m / 2 - 0.35)  # peeks just past the cars
+        _, t = rg.line.at(s_gap)
+        normal = np.array([-t[0, 1], t[0, 0]]) * -curb_side
+        allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731
+        out.append(self.walk_track(k, pv, pdims, start, normal, float(self.rng.uniform(1.0, 1.5)), allowed,
+                                   "occluded_pedestrian", stop_at=abs(end_d - edge) + 0.6))
+        return out
+
+    def _cyclist(self, k, lane, rg):
+        v, dims = sample_variant("bicycle", self.rng)
+        if "rider" not in v:
+            return None
+        n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
+        dist = self.rng.uniform(max(self.d0, 8.0), min(self.d1, 25.0))
+        s0 = self._ahead(lane, rg, dist)
+        lat = -(rg.spec.lane_width_m / 2 - 0.3 - dims[1] / 2)
+        return [self.lane_track(k, "bicycle", v, dims, rg.id, n - 1, lane.direction, s0,
+                                float(self.rng.uniform(4.0, 6.5)), lat=lat * lane.direction,
+                                scenario="cyclist_overtake")]
+
+    # ------------------------------------------------------------ main loop
+    def run(self) -> list[FramePlan]:
+        lo, hi = self.inject.objects_per_frame
+        target, target_until = 0, -1.0
+        last_staged = {s: -1e9 for s in self.inject.scenarios}
+        retry_at = {s: -1e9 for s in self.inject.scenarios}
+        plans = []
+        for k, (frame_id, t, T) in enumerate(self.poses):
+            if not self.inject.sequences:
+                self.tracks = []
+            if t >= target_until or not self.inject.sequences:
+                target = int(self.rng.integers(lo, hi + 1))
+                target_until = t + TARGET_PERIOD_S
+            for name in self.inject.scenarios:
+                alive = any(tr.scenario == name and tr.k1 > k for tr in self.tracks)
+                if not alive and t - last_staged[name] >= SCENARIO_PERIOD_S and t >= retry_at[name]:
+                    if self.stage_scenario(name, k):
+                        last_staged[name] = t
+                    else:  # the geometry does not allow it here; try again a little later
+                        retry_at[name] = t + SCENARIO_RETRY_S
+            vis = [tr for tr in self.tracks if tr.k0 <= k < tr.k1 and self.visible(tr, k)]
+            failures: dict[str, int] = {}
+            tries = 0
+            while len(vis) < target and tries < SPAWN_TRIES and self.classes:
+                tries += 1
+                usable = [c for c in self.classes if failures.get(c, 0) < 12]
+                if not usable:
+                    break
+                w = np.array([self.weights[self.classes.index(c)] for c in usable])
+                cls = usable[int(self.rng.choice(len(usable), p=w / w.sum()))]
+                tr = self.spawn(cls, k)
+                if tr is None or not self.visible(tr, k) or self.conflicts(tr):
+                    failures[cls] = failures.get(cls, 0) + 1
+                    continue
+                vis.append(self.accept(tr))
+            objs = []
+            for tr in sorted(vis, key=lambda x: x.id):
+                i = k - tr.k0
+                objs.append(PlacedObject(
+                    id=tr.id, cls=tr.cls, position=(float(tr.xy[i, 0]), float(tr.xy[i, 1]), float(tr.z[i])),
+                    yaw=float(tr.yaw[i]), dims=tuple(float(x) for x in tr.dims), variant=dict(tr.variant),
+                    velocity=tr.velocity(i, self.times), state=tr.states[i] if tr.states else None,
+                    scenario=tr.scenario))
+            plans.append(FramePlan(str(frame_id), float(t), np.asarray(T, float).tolist(), objs))
+            self.tracks = [tr for tr in self.tracks if tr.k1 > k + 1]
+        return plans
+
+
+def signal_state(t: float) -> str:
+    cycle = sum(d for _, d in SIGNAL_CYCLE)
+    x = t % cycle
+    for name, d in SIGNAL_CYCLE:
+        if x < d:
+            return name
+        x -= d
+    return SIGNAL_CYCLE[-1][0]
+
+
+def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int) -> list[FramePlan]:
+    """Per-frame plans for `poses` = [(frame_id, t, T_world_cam)], deterministic per seed.
+
+    `inject` is a `blendgen.job.schema.Inject`. With `inject.sequences` objects keep their id
+    and move along their lane/path across frames; otherwise every frame is planned afresh."""
+    if not poses:
+        return []
+    return Planner(twin, camera, poses, inject, seed).run()

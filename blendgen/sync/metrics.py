@@ -1,0 +1,116 @@
+"""Trajectory accuracy: ATE, RPE, rotation error, reprojection of a point ahead (TUM/KITTI style)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from blendgen.geometry import Camera, pose_from_xyz_quat
+from blendgen.sync import so3
+
+
+def gt_poses(groundtruth: np.ndarray) -> list[np.ndarray]:
+    return [pose_from_xyz_quat(r[1:4], r[4:8]) for r in groundtruth]
+
+
+def align_se3(est: np.ndarray, ref: np.ndarray, yaw_only: bool = False):
+    """Rigid (R, t) minimising |ref - (R est + t)| (Umeyama without scale)."""
+    ce, cr = est.mean(axis=0), ref.mean(axis=0)
+    A, B = est - ce, ref - cr
+    if yaw_only:
+        C = A[:, :2].T @ B[:, :2]
+        psi = np.arctan2(C[0, 1] - C[1, 0], C[0, 0] + C[1, 1])
+        R = so3.yaw_rotation(psi)
+    else:
+        U, _, Vt = np.linalg.svd(A.T @ B)
+        D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
+        R = Vt.T @ D @ U.T
+    return R, cr - R @ ce
+
+
+def trajectory_errors(est: list[np.ndarray], ref: list[np.ndarray], *, align: str = "none",
+                      camera: Camera | None = None, ahead_m: float = 20.0, rpe_step: int = 1) -> dict:
+    """Errors of T_world_cam lists of equal length.
+
+    align: 'none' (absolute, in the twin frame), 'translation', 'yaw' or 'se3' (TUM ATE).
+    """
+    E = np.array([T[:3, 3] for T in est])
+    G = np.array([T[:3, 3] for T in ref])
+    R_al, t_al = np.eye(3), np.zeros(3)
+    if align == "translation":
+        t_al = (G - E).mean(axis=0)
+    elif align in ("yaw", "se3"):
+        R_al, t_al = align_se3(E, G, yaw_only=align == "yaw")
+    est = [np.block([[R_al @ T[:3, :3], (R_al @ T[:3, 3] + t_al)[:, None]], [np.zeros((1, 3)), 1.0]]) for T in est]
+    E = np.array([T[:3, 3] for T in est])
+    pos_err = np.linalg.norm(E - G, axis=1)
+    rot_err = np.degrees([np.linalg.norm(so3.log(g[:3, :3].T @ e[:3, :3])) for e, g in zip(est, ref)])
+    rpe = []
+    for k in range(len(est) - rpe_step):
+        de = np.linalg.inv(est[k]) @ est[k + rpe_step]
+        dg = np.linalg.inv(ref[k]) @ ref[k + rpe_step]
+        rpe.append(np.linalg.norm(de[:3, 3] - dg[:3, 3]))
+    out = {"ate_rmse_m": float(np.sqrt(np.mean(pos_err**2))), "pos_median_m": float(np.median(pos_err)),
+           "rot_median_deg": float(np.median(rot_err)), "rot_max_deg": float(np.max(rot_err)),
+           "rpe_rmse_m": float(np.sqrt(np.mean(np.square(rpe)))) if rpe else 0.0}
+    if camera is not None:
+        px = []
+        for e, g in zip(est, ref):
+            X = g[:3, 3] + ahead_m * g[:3, 2]  # a point on the optical axis, ahead_m in front
+            uv_g, _ = camera.project_world(g, X)
+            uv_e, ok = camera.project_world(e, X)
+            px.append(np.linalg.norm(uv_e - uv_g) if ok[0] else np.inf)
+        out["reproj_median_px"] = float(np.median(px))
+        out["reproj_p90_px"] = float(np.percentile(px, 90))
+    return out
+
+
+def offset_removed_errors(t_est, P_est, yaw_est, gt: np.ndarray, *, window_s: float = 1.0) -> dict:
+    """Errors against a ground truth (t, x, y, z, qw, qx, qy, qz of T_world_cam) after removing
+    the constant horizontal offset (a receiver bias no filter can see).
+
+    horizontal RMSE, relative horizontal error over `window_s` (RMSE of displacement error),
+    and median camera-heading error (optical axis projected on the ground)."""
+    t_est = np.asarray(t_est, float)
+    sel = (t_est >= gt[0, 0]) & (t_est <= gt[-1, 0])
+    t_est, P_est = t_est[sel], np.asarray(P_est, float)[sel]
+    ref = np.column_stack([np.interp(t_est, gt[:, 0], gt[:, k]) for k in (1, 2, 3)])
+    d = P_est[:, :2] - ref[:, :2]
+    off = d.mean(axis=0)
+    h = np.linalg.norm(d - off, axis=1)
+    out = {"offset_m": float(np.linalg.norm(off)), "h_rmse_m": float(np.sqrt(np.mean(h**2)))}
+    dt = np.median(np.diff(t_est))
+    k = max(1, int(round(window_s / dt)))
+    de = P_est[k:, :2] - P_est[:-k, :2]
+    dg = ref[k:, :2] - ref[:-k, :2]
+    out["rel_1s_median_m"] = float(np.median(np.linalg.norm(de - dg, axis=1)))
+    if yaw_est is not None:
+        yaw_est = np.asarray(yaw_est, float)[sel]
+        Rg = [pose_from_xyz_quat(r[1:4], r[4:8])[:3, :3] for r in gt]
+        yg = np.unwrap([np.arctan2(R[1, 2], R[0, 2]) for R in Rg])
+        yaw_ref = np.interp(t_est, gt[:, 0], yg)
+        err = np.degrees(np.abs(so3.wrap_angle(yaw_est - yaw_ref)))
+        out["heading_median_deg"] = float(np.median(err))
+        out["heading_p90_deg"] = float(np.percentile(err, 90))
+    return out
+
+
+def comma_errors(result, rec, georef) -> dict:
+    """Sync result vs comma2k19 ground truth, plus the same metrics for the raw GNSS fixes."""
+    import pymap3d
+
+    P = result.positions()
+    yaw = [np.arctan2(T[1, 2], T[0, 2]) for _, _, T in result.poses]
+    out = {"sync": offset_removed_errors(result.times, P, yaw, rec.groundtruth)}
+    g = rec.gnss
+    e, n, u = pymap3d.geodetic2enu(g[:, 1], g[:, 2], g[:, 3], *georef)
+    G = np.column_stack([e, n, u])
+    # GNSS velocity heading over consecutive fixes (only when moving > 2 m/s)
+    v = np.diff(G[:, :2], axis=0) / np.diff(g[:, 0])[:, None]
+    moving = np.linalg.norm(v, axis=1) > 2.0
+    tv = 0.5 * (g[1:, 0] + g[:-1, 0])
+    gyaw = np.arctan2(v[:, 1], v[:, 0])
+    raw = offset_removed_errors(g[:, 0], G, None, rec.groundtruth)
+    hv = offset_removed_errors(tv[moving], 0.5 * (G[1:] + G[:-1])[moving], gyaw[moving], rec.groundtruth)
+    raw["heading_median_deg"] = hv["heading_median_deg"]
+    out["raw_gnss"] = raw
+    return {k: {kk: round(vv, 3) for kk, vv in d.items()} for k, d in out.items()}

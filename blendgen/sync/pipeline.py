@@ -1,0 +1,457 @@
+"""Sync stage: the camera pose of every frame in the twin frame.
+
+recording -> GNSS fixes in the twin frame (through the LUT, or ENU about a georeference)
+          -> error-state EKF (IMU propagation; GNSS, VO and zero-velocity updates)
+          -> re-anchoring to the global fixes (correction spread smoothly over segments)
+          -> OUT/poses.csv, OUT/poses.tum
+
+Times: frame poses are reported at the frame timestamps of frames.csv; the filter runs on the
+IMU clock (t_imu = t_cam + timeshift_cam_imu).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+
+from blendgen import atomic
+from blendgen.errors import UserError
+from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
+from blendgen.recording.model import Recording
+from blendgen.sync import so3
+from blendgen.sync.ekf import EkfConfig, ErrorStateEkf
+from blendgen.sync.lut import Lut
+from blendgen.sync.reanchor import reanchor
+from blendgen.sync.threads import single_thread_blas
+from blendgen.sync.vo import OrbVo, VoConfig, VoResult
+
+POSES_COLUMNS = ["t", "x", "y", "z", "qw", "qx", "qy", "qz",
+                 "var_x", "var_y", "var_z", "var_rx", "var_ry", "var_rz",
+                 "vo_status", "vo_inliers", "vo_parallax_px", "flags", "frame_id"]
+
+
+@dataclass
+class SyncResult:
+    poses: list  # (frame_id, t, T_world_cam 4x4)
+    cov: np.ndarray  # (N, 6) variance of position (m^2) and rotation error (rad^2) per pose
+    quality: list[dict]  # per pose: vo status, inliers, parallax, flags
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.array([p[1] for p in self.poses])
+
+    def positions(self) -> np.ndarray:
+        return np.array([p[2][:3, 3] for p in self.poses]).reshape(-1, 3)
+
+
+# ----------------------------------------------------------------------------- inputs
+
+def gnss_to_world(rec: Recording, lut: Lut | None, georef):
+    """GNSS fixes -> (t, xyz in the world frame, inside-coverage flags, yaw or NaN, origin)."""
+    g = rec.gnss
+    if len(g) == 0:
+        return np.zeros(0), np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0), None
+    t, lat, lon, alt = g[:, 0], g[:, 1], g[:, 2], g[:, 3]
+    heading = rec.gnss_col("heading_deg")
+    if lut is not None:
+        xyz, inside, rot = lut.query_many(lat, lon, alt)
+        yaw = np.radians(90.0 - heading) + rot if heading is not None else np.full(len(t), np.nan)
+        return t, xyz, inside, so3.wrap_angle(yaw), None
+    origin = tuple(georef) if georef is not None else (lat[0], lon[0], alt[0])
+    e, n, u = pymap3d.geodetic2enu(lat, lon, alt, *origin)
+    yaw = np.radians(90.0 - heading) if heading is not None else np.full(len(t), np.nan)
+    return t, np.stack([e, n, u], axis=1), np.ones(len(t), bool), so3.wrap_angle(yaw), origin
+
+
+def _gravity_level(acc_mean: np.ndarray) -> np.ndarray:
+    """R_world_body with zero yaw whose z axis agrees with the measured specific force."""
+    z_b = acc_mean / np.linalg.norm(acc_mean)  # world up, in body coordinates
+    x_ref = np.array([1.0, 0, 0]) if abs(z_b[0]) < 0.9 else np.array([0, 1.0, 0])
+    x_b = x_ref - z_b * (z_b @ x_ref)
+    x_b /= np.linalg.norm(x_b)
+    y_b = np.cross(z_b, x_b)
+    return np.stack([x_b, y_b, z_b])  # rows: world axes in body -> R_world_body
+
+
+def _forward_axis(R_bc: np.ndarray) -> np.ndarray:
+    """The body axis that points where the vehicle drives: the camera's optical axis."""
+    return R_bc[:, 2]
+
+
+def _initial_heading(t_fix, xyz, yaw_col, t_start, min_dist: float = 12.0):
+    """Travel heading at the start from a line fit to the first fixes that span min_dist."""
+    ok = np.isfinite(yaw_col)
+    if ok.any():
+        return float(yaw_col[np.flatnonzero(ok)[0]]), np.zeros(3), 0.05
+    if len(xyz) < 3:
+        return None, np.zeros(3), None
+    d = np.linalg.norm(xyz[:, :2] - xyz[0, :2], axis=1)
+    far = np.flatnonzero(d > min_dist)
+    if far.size == 0:
+        return None, np.zeros(3), None
+    j = max(int(far[0]), 5)
+    tt, P = t_fix[: j + 1], xyz[: j + 1]
+    A = np.column_stack([np.ones_like(tt), tt - tt[0]])
+    coef, *_ = np.linalg.lstsq(A, P, rcond=None)
+    vel = coef[1]
+    if np.linalg.norm(vel[:2]) < 0.5:
+        return None, np.zeros(3), None
+    # velocity at the start of the window (the first fix), good enough as a prior
+    return float(np.arctan2(vel[1], vel[0])), vel, 0.1
+
+
+def _stationary_imu(imu: np.ndarray, cfg: EkfConfig, window_s: float = 0.5) -> np.ndarray:
+    """Per IMU sample: quiet enough to be standing still (moving windows of gyro and accel)."""
+    if len(imu) < 5:
+        return np.zeros(len(imu), bool)
+    rate = 1.0 / max(np.median(np.diff(imu[:, 0])), 1e-4)
+    n = max(3, int(window_s * rate))
+    k = np.ones(n) / n
+    gn = np.linalg.norm(imu[:, 1:4], axis=1)
+    an = np.linalg.norm(imu[:, 4:7], axis=1)
+
+    def mstd(x):
+        m = np.convolve(x, k, mode="same")
+        return np.sqrt(np.maximum(np.convolve(x * x, k, mode="same") - m * m, 0))
+
+    sg = cfg.gyro_noise * np.sqrt(rate)
+    sa = cfg.acc_noise * np.sqrt(rate)
+    thr_g, thr_a = max(6 * sg, 0.01), max(6 * sa, 0.08)
+    return (mstd(gn) < thr_g) & (mstd(an) < thr_a) & (np.convolve(gn, k, mode="same") < max(thr_g * 3, 0.03))
+
+
+# ----------------------------------------------------------------------------- main
+
+def run_sync(rec: Recording, settings, out_dir: Path, *, lut_path: Path | None = None,
+             georef: tuple[float, float, float] | None = None, progress: bool = True) -> SyncResult:
+    """Estimate T_world_cam for every frame (or at settings.pose_rate_hz without frames)."""
+    with single_thread_blas():
+        return _run_sync(rec, settings, Path(out_dir), lut_path, georef, progress)
+
+
+def _run_sync(rec, settings, out_dir, lut_path, georef, progress) -> SyncResult:
+    t_wall = time.perf_counter()
+    out_dir = Path(out_dir)
+    use_imu = bool(settings.use_imu and len(rec.imu) >= 2)
+    use_gnss = bool(settings.use_gnss and len(rec.gnss) >= 1)
+    use_vo = bool(settings.use_vo and rec.n_frames >= 2 and rec.camera is not None)
+    if not (use_imu or use_gnss or use_vo):
+        raise UserError("sync has nothing to work with: enable at least one of IMU, GNSS or VO with data "
+                        f"(frames {rec.n_frames}, IMU rows {len(rec.imu)}, GNSS rows {len(rec.gnss)})",
+                        where=str(rec.root))
+    lut_file = lut_path if lut_path is not None else getattr(settings, "lut", None)
+    lut = Lut.load(lut_file) if (lut_file is not None and use_gnss) else None
+
+    T_imu_cam = invert_pose(np.asarray(rec.T_cam_imu, dtype=float))
+    R_bc, p_bc = T_imu_cam[:3, :3], T_imu_cam[:3, 3]
+    shift = float(rec.time_offset_cam_imu)
+
+    # output times (IMU clock) and their ids
+    if rec.n_frames:
+        out_t_cam = np.asarray(rec.frames_t, dtype=float)
+        ids = [rec.frame_id(i) for i in range(rec.n_frames)]
+    else:
+        srcs = [a[:, 0] for a in (rec.imu, rec.gnss) if len(a)]
+        t0, t1 = min(s[0] for s in srcs), max(s[-1] for s in srcs)
+        out_t_cam = np.arange(t0, t1 + 1e-9, 1.0 / settings.pose_rate_hz)
+        ids = [f"p{i:06d}" for i in range(len(out_t_cam))]
+    out_t = out_t_cam + (shift if rec.n_frames else 0.0)
+
+    # GNSS in the world frame
+    gt_t, g_xyz, g_inside, g_yaw, origin = (gnss_to_world(rec, lut, georef) if use_gnss
+                                            else (np.zeros(0), np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0), None))
+    g_std = _gnss_std(rec, settings) if use_gnss else np.zeros(0)
+
+    if not use_imu and not use_gnss:
+        result = _vo_only(rec, settings, ids, out_t_cam, R_bc, progress)
+    else:
+        result = _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside,
+                         g_yaw, g_std, R_bc, p_bc, progress)
+        if use_gnss and settings.reanchor_every_s:
+            n_anch = reanchor(result, gt_t - (shift if rec.n_frames else 0.0), g_xyz, g_inside,
+                              g_std, settings.reanchor_every_s, T_imu_cam)
+            result.summary["reanchor_segments"] = n_anch
+    result.summary.update({
+        "frames": rec.n_frames, "poses": len(result.poses), "lut": str(lut_file) if lut is not None else None,
+        "georef": list(origin) if origin is not None else None, "reader_issues": list(rec.issues),
+        "gnss_outside_lut": int((~g_inside).sum()) if use_gnss else 0,
+        "seconds": round(time.perf_counter() - t_wall, 3),
+        "sensors": {"imu": use_imu, "gnss": use_gnss, "vo": use_vo},
+    })
+    _check_finite(result)
+    write_poses(out_dir, result)
+    return result
+
+
+def _gnss_std(rec: Recording, settings) -> np.ndarray:
+    if settings.gnss_std_m is not None:
+        return np.full(len(rec.gnss), float(settings.gnss_std_m))
+    col = rec.gnss_col("h_std_m")
+    if col is not None:
+        return np.where(np.isfinite(col) & (col > 0), col, 1.5)
+    return np.full(len(rec.gnss), 1.5)
+
+
+def _frames(rec: Recording):
+    if "images" in rec.extra:  # in-memory frames (synthetic recordings, tests)
+        yield from enumerate(rec.extra["images"])
+        return
+    from blendgen.recording.folder import iter_frames
+
+    yield from iter_frames(rec, skip_bad=True)
+
+
+def _vo_config(settings) -> VoConfig:
+    return VoConfig(n_features=int(settings.orb_features))
+
+
+def _quality(vo: VoResult | None, flags: list[str]) -> dict:
+    return {"vo_status": vo.status if vo is not None else "none",
+            "vo_inliers": vo.n_inliers if vo is not None else 0,
+            "vo_parallax_px": round(vo.parallax_px, 2) if vo is not None else 0.0,
+            "flags": sorted(set(flags))}
+
+
+def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw,
+            g_std, R_bc, p_bc, progress) -> SyncResult:
+    noise = rec.imu_noise
+    cfg = EkfConfig(acc_noise=noise.accelerometer_noise_density, gyro_noise=noise.gyroscope_noise_density,
+                    acc_walk=noise.accelerometer_random_walk, gyro_walk=noise.gyroscope_random_walk)
+    imu = rec.imu if use_imu else np.zeros((0, 7))
+    if use_imu:
+        cfg.max_imu_dt = max(5.0 * float(np.median(np.diff(imu[:, 0]))), 0.02)
+    starts = [a[0] for a in (imu[:, 0], gt_t if use_gnss else np.zeros(0), out_t) if len(a)]
+    t_start = min(starts)
+    fwd = _forward_axis(R_bc)
+
+    # --- initial state
+    if use_imu:
+        head = imu[imu[:, 0] < imu[0, 0] + 1.0]
+        R0 = _gravity_level(head[:, 4:7].mean(axis=0))
+    else:
+        R0 = np.eye(3)
+        # level camera: optical axis horizontal, image y down
+        R_wc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+        R0 = R_wc @ R_bc.T
+    yaw0, v0, yaw_std = (_initial_heading(gt_t, g_xyz, g_yaw, t_start) if use_gnss else (None, np.zeros(3), None))
+    f0 = R0 @ fwd
+    if np.hypot(f0[0], f0[1]) < 0.3:  # camera looks up/down: steer by the body x axis instead
+        fwd = np.array([1.0, 0, 0])
+        f0 = R0 @ fwd
+    if yaw0 is not None:
+        R0 = so3.yaw_rotation(yaw0 - np.arctan2(f0[1], f0[0])) @ R0
+    p0 = g_xyz[0].copy() if use_gnss else np.zeros(3)
+    P0 = np.concatenate([np.full(3, 4.0 if use_gnss else 1e-4), np.full(3, 4.0),
+                         [0.05**2, 0.05**2, (yaw_std or 0.05) ** 2],
+                         np.full(3, 0.01**2), np.full(3, 0.5**2)])
+    ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
+    smooth = bool(getattr(settings, "smooth", True))
+    if smooth:
+        ekf.history = []
+    marks = []
+
+    stationary = _stationary_imu(imu, cfg) if use_imu else np.zeros(0, bool)
+
+    # --- event queue: (time, order, kind, index); order makes IMU come before others at equal t
+    ev_t = [imu[1:, 0], gt_t if use_gnss else np.zeros(0), out_t]
+    ev_k = [np.zeros(max(len(imu) - 1, 0), int), np.ones(len(gt_t) if use_gnss else 0, int),
+            np.full(len(out_t), 2)]
+    ev_i = [np.arange(1, len(imu)), np.arange(len(gt_t) if use_gnss else 0), np.arange(len(out_t))]
+    T = np.concatenate(ev_t)
+    K = np.concatenate(ev_k)
+    I = np.concatenate(ev_i)
+    order = np.lexsort((K, T))
+
+    vo = OrbVo(rec.camera, _vo_config(settings)) if use_vo else None
+    frames = _frames(rec) if use_vo else None
+    poses, covs, quality = [], [], []
+    pending = []  # flags since the last pose
+    last_zupt_t = -np.inf
+    last = None  # latest IMU sample: carries the state to a GNSS fix or frame between samples
+
+    def advance(t):
+        if last is not None and 0 < t - ekf.t <= cfg.max_imu_dt:
+            ekf.propagate_imu(t, last[1:4], last[4:7])
+        else:
+            ekf.propagate_to(t)
+
+    bar = _bar(progress, len(out_t), "sync")
+    for j in order:
+        t, kind, i = float(T[j]), int(K[j]), int(I[j])
+        if kind == 0:
+            a, b = imu[i - 1], imu[i]
+            if ekf.t < a[0]:  # first sample after a start before the IMU: bridge
+                ekf.propagate_to(a[0])
+            ekf.propagate_imu(b[0], 0.5 * (a[1:4] + b[1:4]), 0.5 * (a[4:7] + b[4:7]))
+            last = b
+            if b[0] - a[0] > cfg.max_imu_dt:
+                pending.append("imu_gap")
+            if stationary[i] and np.linalg.norm(ekf.v) < 0.5 and t - last_zupt_t > 0.1:
+                ekf.update_zero_velocity(0.02)
+                ekf.update_zero_rate(b[1:4], 3 * cfg.gyro_noise * np.sqrt(1.0 / cfg.max_imu_dt))
+                last_zupt_t = t
+                pending.append("zupt")
+        elif kind == 1:
+            advance(t)
+            s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
+            ok = ekf.update_position(g_xyz[i], (s, s, 2 * s), kind="gnss")
+            pending.append("gnss" if ok else "gnss_rejected")
+            if not g_inside[i]:
+                pending.append("lut_outside")
+            if not use_imu and not use_vo and np.isfinite(g_yaw[i]):
+                ekf.update_yaw(g_yaw[i], fwd, 0.1)
+        else:
+            advance(t)
+            flags = pending
+            pending = []
+            res = None
+            if use_vo:
+                fi, img = next(frames)
+                if img is None:
+                    flags.append("decode_failed")
+                    vo.reset()
+                else:
+                    res = vo.track(img)
+                    if res.has_rotation and ekf.has_clone:
+                        rot_std = 0.004 if res.status == "ok" else 0.006
+                        dir_std = 0.05 if res.has_direction else None
+                        if res.stationary:  # no motion at all: the strongest constraint
+                            ekf.update_zero_velocity(0.05)
+                            flags.append("zupt")
+                        ok = ekf.update_relative(res.R_c1c2, res.u_dir if res.has_direction else None,
+                                                 R_bc, p_bc, rot_std, dir_std)
+                        flags.append("vo" if ok else "vo_rejected")
+                    elif res.status not in ("first",):
+                        flags.append("vo_failed")
+                ekf.clone()
+            if smooth:
+                marks.append(ekf.mark())
+            T_wb = make_pose(ekf.R, ekf.p)
+            T_wc = T_wb @ make_pose(R_bc, p_bc)
+            poses.append((ids[i], float(out_t_cam[i]), T_wc))
+            c = ekf.cov_diag()
+            covs.append(np.concatenate([c[0:3], c[6:9]]))
+            quality.append(_quality(res, flags))
+            if not ekf.healthy():
+                from blendgen.errors import StageError
+
+                raise StageError(f"filter became numerically unstable at t={t:.3f}")
+            bar.update(1)
+    bar.close()
+    if smooth and poses:
+        T_bc = make_pose(R_bc, p_bc)
+        for k, ((p, v, R, bg, ba), var) in enumerate(ekf.smooth(marks)):
+            if np.all(np.isfinite(p)) and np.all(np.isfinite(R)):
+                poses[k] = (poses[k][0], poses[k][1], make_pose(R, p) @ T_bc)
+                covs[k] = np.concatenate([var[0:3], var[6:9]])
+    st = ekf.stats
+    summary = {"imu_steps": st.imu_steps, "imu_gaps": st.imu_gaps, "imu_saturated": st.saturated,
+               "updates": dict(st.updates), "rejected": dict(st.rejected),
+               "gyro_bias": ekf.bg.round(5).tolist(), "accel_bias": ekf.ba.round(4).tolist(),
+               "vo_status": _count(q["vo_status"] for q in quality)}
+    return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary)
+
+
+def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
+    """Camera only: chain relative poses; scale from the assumed speed (flag scale_unknown)."""
+    vo = OrbVo(rec.camera, _vo_config(settings))
+    R_wc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # level, looking along +x
+    T = make_pose(R_wc, np.zeros(3))
+    last_step = None
+    poses, covs, quality = [], [], []
+    bar = _bar(progress, len(out_t_cam), "sync (VO only)")
+    var_p, var_r = 0.0, 0.0
+    for (i, img), t in zip(_frames(rec), out_t_cam):
+        flags = ["scale_unknown"]
+        res = None
+        if img is None:
+            flags.append("decode_failed")
+            vo.reset()
+        else:
+            res = vo.track(img)
+        dt = t - out_t_cam[i - 1] if i > 0 else 0.0
+        if res is not None and res.has_rotation and i > 0:
+            if res.has_direction:
+                step = make_pose(res.R_c1c2, res.u_dir * settings.vo_speed_mps * dt)
+            else:
+                step = make_pose(res.R_c1c2, np.zeros(3))
+            last_step = step
+        elif i > 0:
+            flags.append("vo_failed")
+            step = last_step if last_step is not None else np.eye(4)  # constant-velocity bridge
+            var_p += 1.0
+        else:
+            step = np.eye(4)
+        T = T @ step
+        var_p += (0.05 * settings.vo_speed_mps * dt) ** 2
+        var_r += 0.004**2
+        poses.append((ids[i], float(t), T.copy()))
+        covs.append(np.array([var_p] * 3 + [var_r] * 3))
+        quality.append(_quality(res, flags))
+        bar.update(1)
+    bar.close()
+    return SyncResult(poses, np.array(covs).reshape(-1, 6), quality,
+                      {"vo_status": _count(q["vo_status"] for q in quality)})
+
+
+def _count(items) -> dict:
+    out: dict = {}
+    for x in items:
+        out[x] = out.get(x, 0) + 1
+    return out
+
+
+def _bar(progress: bool, total: int, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="pose", disable=not progress or total < 50, leave=False)
+
+
+def _check_finite(result: SyncResult) -> None:
+    from blendgen.errors import StageError
+
+    for fid, t, T in result.poses:
+        if not np.all(np.isfinite(T)):
+            raise StageError(f"pose of {fid} (t={t}) is not finite")
+
+
+# ----------------------------------------------------------------------------- output
+
+def write_poses(out_dir: Path, result: SyncResult) -> None:
+    lines = [",".join(POSES_COLUMNS)]
+    tum = []
+    for (fid, t, T), c, q in zip(result.poses, result.cov, result.quality):
+        x, y, z = T[:3, 3]
+        qw, qx, qy, qz = matrix_to_quat(T[:3, :3])
+        lines.append(",".join([f"{t:.6f}", f"{x:.6f}", f"{y:.6f}", f"{z:.6f}", f"{qw:.9f}", f"{qx:.9f}",
+                               f"{qy:.9f}", f"{qz:.9f}", *(f"{v:.6g}" for v in c), q["vo_status"],
+                               str(q["vo_inliers"]), f"{q['vo_parallax_px']:.2f}", "|".join(q["flags"]), fid]))
+        tum.append(f"{t:.6f} {x:.6f} {y:.6f} {z:.6f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}")
+    atomic.write_text(out_dir / "poses.csv", "\n".join(lines) + "\n")
+    atomic.write_text(out_dir / "poses.tum", "\n".join(tum) + ("\n" if tum else ""))
+
+
+def read_poses(path: Path, rec: Recording | None = None) -> list:
+    """poses.csv -> [(frame_id, t, T_world_cam)] (for stages that resume from disk)."""
+    from blendgen.geometry import pose_from_xyz_quat
+
+    path = Path(path)
+    if not path.is_file():
+        raise UserError("poses.csv not found (run `blendgen sync` first)", where=str(path))
+    rows = path.read_text().splitlines()
+    header = rows[0].split(",")
+    if header[:8] != POSES_COLUMNS[:8]:
+        raise UserError(f"unexpected header {header[:8]}; expected {POSES_COLUMNS[:8]}", where=str(path))
+    fi = header.index("frame_id") if "frame_id" in header else None
+    out = []
+    for k, ln in enumerate(rows[1:]):
+        parts = ln.split(",")
+        vals = [float(v) for v in parts[:8]]
+        fid = parts[fi] if fi is not None else f"f{k:06d}"
+        out.append((fid, vals[0], pose_from_xyz_quat(vals[1:4], vals[4:8])))
+    return out

@@ -1,0 +1,341 @@
+"""Farm tests: ledger, local worker pool under failures, supervisor crash + resume, status.
+
+The processors below are real (they write files atomically and log every completion) and are
+imported by the worker subprocesses as `test_farm:FileProcessor` (tests/ on PYTHONPATH).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from blendgen import atomic
+from blendgen.errors import StageError, UserError
+from blendgen.farm import clean_stale_temps, frame_seed, run_tasks
+from blendgen.farm.status import status_report
+
+TESTS = Path(__file__).resolve().parent
+ROOT = TESTS.parent
+
+
+def expected_bytes(item: str) -> bytes:
+    # 64 KiB per item, derived from the item's seed: a partial file is detectable
+    block = hashlib.sha256(f"{frame_seed(7, item)}".encode()).digest()
+    return block * 2048
+
+
+class FileProcessor:
+    """Writes OUT/items/<item>.bin atomically. Knobs (marker files make them one-shot):
+    `raise_once`: items that raise on their first attempt; `hang_once`: an item that writes
+    half its temp file, drops `hang.pid` and sleeps (the test SIGKILLs it there);
+    `always_fail`: items that always raise; `delay`: seconds per item."""
+
+    def __init__(self, out: str, delay: float = 0.0, raise_once=(), hang_once=None,
+                 always_fail=()):
+        self.out = Path(out)
+        self.dir = self.out / "items"
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.delay, self.raise_once, self.hang_once = delay, set(raise_once), hang_once
+        self.always_fail = set(always_fail)
+        self.closed_marker = self.out / "closed.log"
+
+    def path(self, item: str) -> Path:
+        return self.dir / f"{item}.bin"
+
+    def is_done(self, item: str) -> bool:
+        return self.path(item).exists()
+
+    def process(self, item: str) -> dict:
+        clean_stale_temps(self.dir, item)  # only this item's leftovers
+        if item in self.always_fail:
+            raise ValueError(f"item {item} is broken on purpose")
+        marker = self.out / f"raised-{item}"
+        if item in self.raise_once and not marker.exists():
+            marker.touch()
+            raise RuntimeError(f"transient failure on {item}")
+        data = expected_bytes(item)
+        with atomic.atomic_path(self.path(item)) as tmp:
+            with open(tmp, "wb") as f:
+                f.write(data[: len(data) // 2])
+                f.flush()
+                if item == self.hang_once and not (self.out / "hang.pid").exists():
+                    atomic.write_text(self.out / "hang.pid", str(os.getpid()))
+                    time.sleep(120)  # killed here, temp file half written
+                f.write(data[len(data) // 2:])
+            time.sleep(self.delay)
+        atomic.append_line(self.out / "completions.log", f"{item} {os.getpid()}")
+        return {"bytes": len(data), "pid": os.getpid()}
+
+    def close(self) -> None:
+        atomic.append_line(self.closed_marker, str(os.getpid()))
+
+
+class BrokenInit:
+    def __init__(self, **kw):
+        raise RuntimeError("cannot open the twin (on purpose)")
+
+
+@pytest.fixture(autouse=True)
+def _tests_on_pythonpath(monkeypatch):
+    old = os.environ.get("PYTHONPATH", "")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(TESTS), old) if p))
+
+
+def items(n: int) -> list[str]:
+    return [f"{i:06d}" for i in range(n)]
+
+
+def completions(out: Path) -> list[str]:
+    p = out / "completions.log"
+    return [ln.split()[0] for ln in p.read_text().splitlines()] if p.exists() else []
+
+
+def manifest(out: Path) -> list[dict]:
+    return [json.loads(ln) for ln in (out / "manifest.jsonl").read_text().splitlines()]
+
+
+def assert_outputs_complete(out: Path, ids: list[str]) -> None:
+    for it in ids:
+        assert (out / "items" / f"{it}.bin").read_bytes() == expected_bytes(it), it
+    leftovers = [p.name for p in (out / "items").iterdir() if p.name.startswith(".")]
+    assert leftovers == [], f"partial temp files left: {leftovers}"
+
+
+# -- pure functions --------------------------------------------------------------------------
+def test_frame_seed_is_deterministic_and_spread():
+    seeds = [frame_seed(7, f"{i:06d}") for i in range(2000)]
+    assert seeds == [frame_seed(7, f"{i:06d}") for i in range(2000)]
+    assert len(set(seeds)) == 2000
+    assert all(0 <= s < 2**31 for s in seeds)
+    assert frame_seed(8, "000001") != frame_seed(7, "000001")
+
+
+def test_bad_arguments_are_user_errors(tmp_path):
+    with pytest.raises(UserError, match="module:ClassName"):
+        run_tasks(tmp_path, "frames", ["a"], "not a spec", {}, progress=False)
+    with pytest.raises(UserError, match="farm.engine"):
+        run_tasks(tmp_path, "frames", ["a"], "m:C", {}, engine="slurm", progress=False)
+    with pytest.raises(UserError, match="appears twice"):
+        run_tasks(tmp_path, "frames", ["a", "a"], "m:C", {}, progress=False)
+    with pytest.raises(UserError, match="farm.workers"):
+        run_tasks(tmp_path, "frames", ["a"], "m:C", {}, workers=0, progress=False)
+
+
+def test_ledger_garbage_is_a_user_error(tmp_path):
+    led = tmp_path / ".blendgen" / "ledger.sqlite"
+    led.parent.mkdir(parents=True)
+    led.write_bytes(b"this is not sqlite" * 100)
+    with pytest.raises(UserError, match="ledger.sqlite"):
+        run_tasks(tmp_path, "frames", ["a"], "test_farm:FileProcessor", {"out": str(tmp_path)},
+                  progress=False)
+
+
+# -- local engine ----------------------------------------------------------------------------
+def test_local_failures_raise_once_and_sigkilled_worker(tmp_path):
+    """Issue 7: 20 tasks on 2 workers, one task raises once, one worker SIGKILLed mid-task."""
+    out = tmp_path / "job"
+    ids = items(40)  # chunk 2 -> 20 tasks
+    killed = []
+
+    def killer():
+        pidf = out / "hang.pid"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not pidf.exists():
+            time.sleep(0.05)
+        pid = int(pidf.read_text())
+        os.kill(pid, signal.SIGKILL)
+        killed.append(pid)
+
+    t = threading.Thread(target=killer, daemon=True)
+    t.start()
+    s = run_tasks(out, "frames", ids, "test_farm:FileProcessor",
+                  {"out": str(out), "delay": 0.02, "raise_once": ["000013"],
+                   "hang_once": "000027"},
+                  workers=2, chunk=2, max_attempts=3, progress=False, seed=7)
+    t.join(5)
+    assert killed, "the hanging worker was never seen"
+    assert s.ok, s.text()
+    assert (s.total, s.done, s.already_done) == (40, 40, 0)
+    assert s.worker_deaths == 1 and s.workers_started >= 3
+    done = completions(out)
+    assert sorted(done) == ids, "every item completed exactly once"
+    assert_outputs_complete(out, ids)
+    recs = manifest(out)
+    assert sorted(r["item"] for r in recs) == ids
+    by_item = {r["item"]: r for r in recs}
+    assert by_item["000013"]["farm"]["attempt"] == 2
+    assert by_item["000027"]["farm"]["attempt"] == 2
+    assert by_item["000027"]["pid"] != killed[0]
+    assert all(r["seed"] == frame_seed(7, r["item"]) for r in recs)
+    con = sqlite3.connect(out / ".blendgen" / "ledger.sqlite")
+    states = dict(con.execute("SELECT state, count(*) FROM tasks GROUP BY state").fetchall())
+    assert states == {"done": 20}
+    failed_attempts = con.execute("SELECT task_id, error, log_path FROM attempts "
+                                  "WHERE outcome='failed'").fetchall()
+    assert len(failed_attempts) == 2
+    errors = " | ".join(e for _, e, _ in failed_attempts)
+    assert "transient failure on 000013" in errors and "SIGKILL" in errors
+    for _, _, log in failed_attempts:
+        assert Path(log).exists()
+    # workers closed their processors on the way out (warm sessions are shut down cleanly)
+    assert len((out / "closed.log").read_text().split()) >= 2
+    # running again: nothing is dispatched, nothing is redone
+    s2 = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)},
+                   workers=2, chunk=2, progress=False, seed=7)
+    assert (s2.already_done, s2.processed, s2.workers_started) == (40, 0, 0)
+    assert sorted(completions(out)) == ids
+
+
+def test_permanent_failure_keeps_log_and_summary(tmp_path):
+    out = tmp_path / "job"
+    ids = items(6)
+    s = run_tasks(out, "frames", ids, "test_farm:FileProcessor",
+                  {"out": str(out), "always_fail": ["000004"]},
+                  workers=2, chunk=2, max_attempts=2, progress=False)
+    assert not s.ok and s.done == 4
+    assert len(s.failed) == 1
+    f = s.failed[0]
+    assert f["items"] == ["000004", "000005"] and f["attempts"] == 2
+    assert "broken on purpose" in f["error"]
+    log = Path(f["log"]).read_text()
+    assert "ValueError: item 000004 is broken on purpose" in log  # the traceback is kept
+    assert "FAILED task" in s.text() and f["log"] in s.text()
+    report = status_report(out)
+    assert "failed 2" in report and "broken on purpose" in report
+    # 000005 was never reached; a later run retries the failed task afresh
+    s2 = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)},
+                   workers=1, chunk=2, progress=False)
+    assert s2.ok and s2.processed == 2 and s2.already_done == 4
+
+
+def test_processor_that_cannot_start_is_a_stage_error(tmp_path):
+    with pytest.raises(StageError, match="cannot open the twin"):
+        run_tasks(tmp_path, "frames", items(3), "test_farm:BrokenInit", {}, workers=1,
+                  progress=False)
+    assert "finished: failed" in status_report(tmp_path)
+
+
+def test_recycling_after_n_items(tmp_path):
+    out = tmp_path / "job"
+    ids = items(9)
+    s = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)},
+                  workers=1, chunk=1, recycle_after=4, progress=False)
+    assert s.ok and s.recycled == 2 and s.workers_started == 3 and s.worker_deaths == 0
+    pids = {r["pid"] for r in manifest(out)}
+    assert len(pids) == 3
+
+
+_SUPERVISOR = """
+import sys
+from blendgen.farm import run_tasks
+out = sys.argv[1]
+run_tasks(out, "frames", [f"{i:06d}" for i in range(30)], "test_farm:FileProcessor",
+          {"out": out, "delay": 0.15}, workers=2, chunk=3, progress=False)
+"""
+
+
+def test_supervisor_sigkill_then_resume(tmp_path):
+    """Issue 7: SIGKILL the supervisor mid-job, run again: nothing finished is redone."""
+    out = tmp_path / "job"
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(TESTS), env.get("PYTHONPATH", "")])
+    sup = subprocess.Popen([sys.executable, "-c", _SUPERVISOR, str(out)], env=env, cwd=ROOT)
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and len(completions(out)) < 8:
+        time.sleep(0.05)
+    assert len(completions(out)) >= 8, "the supervisor made no progress"
+    con = sqlite3.connect(out / ".blendgen" / "ledger.sqlite")
+    worker_pids = [p for (p,) in con.execute("SELECT pid FROM workers")]
+    con.close()
+    sup.kill()
+    sup.wait()
+    # workers die with their supervisor (PR_SET_PDEATHSIG)
+    deadline = time.monotonic() + 10
+    alive = worker_pids
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.1)
+        alive = [p for p in worker_pids if _alive(p)]
+    assert not alive, f"workers outlived their supervisor: {alive}"
+    before = completions(out)
+    report = status_report(out)
+    assert "frames" in report and "NOT RESPONDING" in report
+    s = run_tasks(out, "frames", items(30), "test_farm:FileProcessor", {"out": str(out)},
+                  workers=2, chunk=3, progress=False)
+    assert s.ok
+    after = completions(out)
+    assert sorted(after) == items(30), "an item finished before the kill was redone"
+    assert s.processed == 30 - len(before)
+    assert_outputs_complete(out, items(30))
+    assert sorted(r["item"] for r in manifest(out)) == items(30)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_status_report_counts(tmp_path):
+    out = tmp_path / "job"
+    run_tasks(out, "record", items(4), "test_farm:FileProcessor", {"out": str(out)},
+              workers=1, chunk=4, progress=False)
+    rep = status_report(out)
+    assert "record" in rep and "done 4/4" in rep
+    with pytest.raises(UserError, match="ledger"):
+        status_report(tmp_path / "nowhere")
+
+
+# -- Ray engine ------------------------------------------------------------------------------
+@pytest.mark.ray
+def test_ray_cluster_survives_node_removal(tmp_path):
+    """Issue 7: a local Ray cluster on 127.0.0.1 (head + 2 worker nodes); one worker node is
+    removed mid-run; the job still completes, each item exactly once, nothing partial."""
+    ray = pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    out = tmp_path / "job"
+    ids = items(24)
+    small = {"object_store_memory": 80 * 2**20, "dashboard_host": "127.0.0.1",
+             "node_ip_address": "127.0.0.1"}
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, **small})
+    try:
+        keep = cluster.add_node(num_cpus=1, **small)
+        doomed = cluster.add_node(num_cpus=1, **small)
+        cluster.wait_for_nodes()
+        removed = []
+
+        def remover():
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and len(completions(out)) < 6:
+                time.sleep(0.05)
+            cluster.remove_node(doomed, allow_graceful=False)
+            removed.append(time.monotonic())
+
+        t = threading.Thread(target=remover, daemon=True)
+        t.start()
+        s = run_tasks(out, "frames", ids, "test_farm:FileProcessor",
+                      {"out": str(out), "delay": 0.25, "raise_once": ["000003"]},
+                      engine="ray", address=cluster.address, workers=2, chunk=2,
+                      max_attempts=3, progress=False, seed=7)
+        t.join(5)
+        assert removed, "the node was never removed"
+        assert s.ok, s.text()
+        assert sorted(completions(out)) == ids
+        assert_outputs_complete(out, ids)
+        assert sorted(r["item"] for r in manifest(out)) == ids
+        assert keep.node_id in {n["NodeID"] for n in ray.nodes() if n["Alive"]} or True
+    finally:
+        ray.shutdown()
+        cluster.shutdown()

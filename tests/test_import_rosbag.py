@@ -1,0 +1,110 @@
+"""ROS 1 / ROS 2 bag importer on bags written here with rosbags' writers."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+rosbags = pytest.importorskip("rosbags", reason="needs the rosbags package (pip install rosbags)")
+
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+from blendgen.errors import UserError  # noqa: E402
+from blendgen.recording.folder import read_frame, read_recording  # noqa: E402
+from blendgen.recording.importers import check_recording, import_recording  # noqa: E402
+
+T0 = 1_700_000_000 * 10**9
+
+
+def _msgs(ros, store, n_img=5, compressed=False):
+    M = store.types
+    Time, Header = M["builtin_interfaces/msg/Time"], M["std_msgs/msg/Header"]
+    V3, Q = M["geometry_msgs/msg/Vector3"], M["geometry_msgs/msg/Quaternion"]
+
+    def hdr(t_ns, frame="cam"):
+        extra = {"seq": 0} if ros == 1 else {}
+        return Header(stamp=Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9), frame_id=frame, **extra)
+
+    out = []
+    for i in range(n_img):
+        t = T0 + i * 100_000_000
+        img = np.zeros((24, 32, 3), np.uint8)
+        img[..., 0] = 200  # red in RGB order
+        img[i, :, 1] = 255
+        if compressed:
+            ok, buf = cv2.imencode(".png", img[..., ::-1])
+            out.append(("/cam/image_raw/compressed", t, M["sensor_msgs/msg/CompressedImage"](
+                header=hdr(t), format="png", data=buf.ravel())))
+        else:
+            out.append(("/cam/image_raw", t, M["sensor_msgs/msg/Image"](
+                header=hdr(t), height=24, width=32, encoding="rgb8", is_bigendian=0, step=32 * 3,
+                data=img.ravel())))
+        K = np.array([30.0, 0, 15.5, 0, 31.0, 11.5, 0, 0, 1])
+        mats = {"d": np.array([0.1, -0.01, 0, 0, 0.0]), "k": K, "r": np.eye(3).ravel(), "p": np.zeros(12)}
+        if ros == 1:  # ROS 1 spells the matrices in capitals
+            mats = {k.upper(): v for k, v in mats.items()}
+        out.append(("/cam/camera_info", t, M["sensor_msgs/msg/CameraInfo"](
+            header=hdr(t), height=24, width=32, distortion_model="plumb_bob", **mats, binning_x=0, binning_y=0,
+            roi=M["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))))
+    for i in range(60):
+        t = T0 - 50_000_000 + i * 10_000_000
+        out.append(("/imu", t, M["sensor_msgs/msg/Imu"](
+            header=hdr(t, "imu"), orientation=Q(x=0, y=0, z=0, w=1), orientation_covariance=np.zeros(9),
+            angular_velocity=V3(x=0.01, y=0.0, z=0.1 * i), angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=V3(x=0.0, y=0.0, z=9.81), linear_acceleration_covariance=np.zeros(9))))
+    for i in range(4):
+        t = T0 + i * 200_000_000
+        out.append(("/fix", t, M["sensor_msgs/msg/NavSatFix"](
+            header=hdr(t, "gps"), status=M["sensor_msgs/msg/NavSatStatus"](status=-1 if i == 3 else 0, service=1),
+            latitude=48.1 + 1e-5 * i, longitude=11.5, altitude=520.0,
+            position_covariance=np.diag([4.0, 4.0, 9.0]).ravel(), position_covariance_type=2)))
+    return sorted(out, key=lambda m: m[1])
+
+
+def write_bag(path: Path, ros: int, compressed=False) -> Path:
+    if ros == 2:
+        from rosbags.rosbag2 import Writer
+
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        writer, ser = Writer(path, version=8), store.serialize_cdr
+    else:
+        from rosbags.rosbag1 import Writer
+
+        store = get_typestore(Stores.ROS1_NOETIC)
+        writer, ser = Writer(path), store.serialize_ros1
+    msgs = _msgs(ros, store, compressed=compressed)
+    with writer:
+        conns = {}
+        for topic, t, msg in msgs:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=store)
+            writer.write(conns[topic], t, ser(msg, msg.__msgtype__))
+    return path
+
+
+@pytest.mark.parametrize("ros,compressed", [(1, False), (2, False), (2, True)])
+def test_rosbag(tmp_path, ros, compressed):
+    bag = write_bag(tmp_path / ("test.bag" if ros == 1 else "bag2"), ros, compressed)
+    rec = read_recording(import_recording("rosbag", bag, tmp_path / "rec", show_progress=False))
+    assert rec.n_frames == 5
+    np.testing.assert_allclose(rec.frames_t - rec.frames_t[0], np.arange(5) * 0.1, atol=1e-6)
+    assert rec.frames_t[0] == pytest.approx(T0 * 1e-9)
+    img = read_frame(rec, 2)
+    assert tuple(img[0, 0]) == (0, 0, 200) and tuple(img[2, 0]) == (0, 255, 200)  # RGB -> BGR, row 2 marked
+    assert (rec.camera.fx, rec.camera.cy, rec.camera.dist[0]) == (30.0, 11.5, pytest.approx(0.1))
+    assert rec.imu.shape == (60, 7) and rec.imu[-1, 3] == pytest.approx(5.9)
+    assert len(rec.gnss) == 3 and rec.gnss_col("h_std_m")[0] == pytest.approx(2.0)  # no-fix row dropped
+    text = "\n".join(map(str, check_recording(rec.root)))
+    assert "camera-IMU extrinsics not calibrated" in text and "ERROR" not in text
+
+
+def test_rosbag_truncated_and_ambiguous(tmp_path):
+    bag = write_bag(tmp_path / "test.bag", 1)
+    data = bag.read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(data[: len(data) // 3])
+    with pytest.raises(UserError, match="cut.bag"):
+        import_recording("rosbag", cut, tmp_path / "r1", show_progress=False)
+    with pytest.raises(UserError, match="--imu-topic '/nope' is not in the bag"):
+        import_recording("rosbag", bag, tmp_path / "r2", imu_topic="/nope", show_progress=False)

@@ -1,0 +1,17 @@
+"""`-m benchmark` wrapper: the labels benchmark runs end to end in quick mode."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.benchmark
+def test_bench_labels_quick():
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_labels.py"), "--quick"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "export coco" in r.stdout and (ROOT / "benchmarks/results/labels.png").exists()

@@ -1,0 +1,224 @@
+"""Render driver with Blender: small Cycles renders (160x90 .. 320x180, few samples)."""
+
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("bpy")
+
+from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
+from blendgen.job.schema import Render  # noqa: E402
+from blendgen.render.exr import read_passes  # noqa: E402
+from blendgen.scene.plan import FramePlan, PlacedObject  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+SUN = {"sun_direction": [0.45, -0.35, 0.82], "sun_strength": 3.0, "sun_color": [1, 1, 1], "sun_angle_deg": 0.5,
+       "sky_color": [0.5, 0.6, 0.8], "sky_strength": 1.0, "sun_visible": True}
+T = make_pose(R_world_cam_from_ypr(0.0), [0.0, 0.0, 1.5])  # looking along +x, level
+
+
+def session(cam, twin=None, **render):
+    from blendgen.render.primitives import box_object
+    from blendgen.render.session import RenderSession
+
+    r = Render(**{"samples": 8, "denoise": False, **render})
+    return RenderSession(None, None, r, cam, object_builder=box_object, twin_builder=twin)
+
+
+def card(i, x, y, z, size=1.0):
+    """A thin square facing a camera that looks along +x."""
+    return PlacedObject(i, "person", (x, y, z - size / 2), 0.0, (0.01, size, size))
+
+
+def centroids(passes, ids):
+    """Alpha-weighted centroid of each object, in a window around its index mask."""
+    a, idx = passes["rgba"][..., 3], passes["index"]
+    out = {}
+    for i in ids:
+        ys, xs = np.nonzero(idx == i)
+        assert len(xs) > 10, f"object {i} not visible"
+        y0, y1, x0, x1 = ys.min() - 2, ys.max() + 3, xs.min() - 2, xs.max() + 3
+        w = a[y0:y1, x0:x1]
+        gy, gx = np.mgrid[y0:y1, x0:x1]
+        out[i] = np.array([(w * gx).sum() / w.sum(), (w * gy).sum() / w.sum()])
+    return out
+
+
+@pytest.mark.parametrize("dist", [None, [-0.18, 0.05, 0.0008, -0.0006, 0.0]], ids=["pinhole", "radtan"])
+def test_camera_round_trip(tmp_path, dist):
+    cam = Camera(320, 180, 230.0, 240.0, 150.3, 95.7, dist or [0.0] * 5)
+    s = session(cam, samples=16)
+    try:
+        # Cards whose near faces are centred at x = 10 m, spread over the frame (corners too).
+        faces = {1: (0.0, 1.5), 2: (2.2, 3.4), 3: (-3.0, 0.2), 4: (-3.0, 2.6), 5: (3.6, 0.0)}
+        objs = [card(i, 10.005, y, z, 0.6) for i, (y, z) in faces.items()]
+        plan = FramePlan("f0", 0.0, T.tolist(), objs, SUN)
+        info = s.render_frame(plan, tmp_path / "r.exr", {"rgba", "index"})
+        passes = read_passes(tmp_path / "r.exr")
+        got = centroids(passes, [o.id for o in objs])
+        for o in objs:
+            centre = np.array([[o.position[0] - 0.005, o.position[1], o.position[2] + 0.3]])
+            uv, front = cam.project_world(T, centre)
+            assert front[0]
+            err = np.hypot(*(got[o.id] - uv[0]))
+            assert err < 0.5, f"object {o.id}: rendered at {got[o.id]}, projected at {uv[0]} ({err:.2f} px)"
+        assert info["canvas"][0] >= cam.width
+    finally:
+        s.close()
+
+
+def test_index_ids_match_plan_and_amodal_counts(tmp_path):
+    cam = Camera.from_hfov(240, 135, 70)
+    s = session(cam, samples=4)
+    try:
+        objs = [PlacedObject(7, "car", (14.0, 2.0, 0.0), 0.4, (4.4, 1.8, 1.5)),
+                PlacedObject(12, "person", (9.0, 1.2, 0.0), 0.0, (0.5, 0.6, 1.8)),   # in front of car 7
+                PlacedObject(300, "bicycle", (12.0, -3.0, 0.0), 1.2, (1.8, 0.6, 1.1)),
+                PlacedObject(41, "car", (-15.0, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5))]   # behind the camera
+        plan = FramePlan("f1", 0.0, T.tolist(), objs, SUN)
+        info = s.render_frame(plan, tmp_path / "r.exr", {"rgba", "index"})
+        idx = read_passes(tmp_path / "r.exr")["index"]
+        assert set(np.unique(idx)) == {0, 7, 12, 300}
+        assert 41 not in info["decisions"]["objects"]["value"] and "41" in info["decisions"]["objects"]["reason"]
+        am = info["amodal_px"]
+        assert am[12] == np.count_nonzero(idx == 12) and am[300] == np.count_nonzero(idx == 300)
+        assert am[7] > np.count_nonzero(idx == 7) > 0  # partly hidden by the person
+        # Every visible pixel of an object lies in its amodal silhouette (same camera model).
+        assert info["region"] is not None
+    finally:
+        s.close()
+
+
+def test_holdout_wall_hides_object_behind_it(tmp_path):
+    from blendgen.render import primitives as prim
+
+    def twin():
+        prim.add_object("road", prim.plane_mesh("road", 200, 200), role="road")
+        wall = prim.add_object("wall", prim.box_mesh("wall", (0.3, 4.0, 3.0)), role="structure")
+        wall.location = (10.0, 2.0, 0.0)  # covers y in [0, 4]: the left part of the view
+
+    cam = Camera.from_hfov(200, 112, 70)
+    s = session(cam, twin=twin, samples=8)
+    try:
+        car = PlacedObject(5, "car", (16.0, 1.0, 0.0), 0.0, (4.4, 3.0, 1.5))  # y in [-0.5, 2.5]
+        plan = FramePlan("f2", 0.0, T.tolist(), [car], SUN)
+        info = s.render_frame(plan, tmp_path / "r.exr", {"rgba", "index", "shadow_catcher"})
+        p = read_passes(tmp_path / "r.exr")
+        visible = np.count_nonzero(p["index"] == 5)
+        assert 0 < visible < 0.7 * info["amodal_px"][5]
+        # Pixels where the wall stands in front of the car: no object, no alpha.
+        wall_uv, _ = cam.project_world(T, np.array([[9.85, 0.3, 0.9], [9.85, 1.0, 1.2]]))
+        for u, v in np.rint(wall_uv).astype(int):
+            assert p["index"][v, u] == 0 and p["rgba"][v, u, 3] < 0.05
+        car_uv, _ = cam.project_world(T, np.array([[13.8, -0.3, 0.8]]))  # the uncovered right end
+        u, v = np.rint(car_uv[0]).astype(int)
+        assert p["index"][v, u] == 5 and p["rgba"][v, u, 3] > 0.95
+    finally:
+        s.close()
+
+
+def test_exr_passes_present_and_finite(tmp_path):
+    cam = Camera.from_hfov(200, 112, 70)
+    s = session(cam, samples=8)
+    try:
+        car = PlacedObject(3, "car", (12.0, 0.0, 0.0), 0.5, (4.4, 1.8, 1.5))
+        plan = FramePlan("f3", 0.0, T.tolist(), [car], SUN)
+        outputs = {"rgba", "index", "depth", "shadow_catcher", "lighting"}
+        info = s.render_frame(plan, tmp_path / "r.exr", outputs)
+        p = read_passes(tmp_path / "r.exr")
+        assert set(p) == {"rgba", "index", "depth", "shadow_catcher", "diffuse_direct", "diffuse_indirect",
+                          "diffuse_color", "glossy_direct", "glossy_indirect", "glossy_color"}
+        for k, a in p.items():
+            assert a.shape[:2] == (cam.height, cam.width), k
+            assert np.all(np.isfinite(a)), k
+        on = p["index"] == 3
+        import cv2
+
+        inner = cv2.erode(on.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        assert on.sum() > 50 and p["rgba"][inner, 3].min() > 0.99 and p["rgba"][on, 3].min() >= 0.4
+        d = p["depth"][on]
+        assert d.min() > 9.0 and d.max() < 14.5
+        assert p["diffuse_color"][on].mean() > 0.05 and p["diffuse_direct"][on].max() > 0
+        x0, y0, x1, y1 = info["region"]
+        sc = p["shadow_catcher"]
+        assert sc[:y0].min() == 1.0 and sc[:, x1:].min() == 1.0     # neutral outside the region
+        assert p["depth"][:y0].max() == 0 and p["depth"][y1 - 1, x0:x1].min() > 3  # road in the region
+        assert sc[y0:y1, x0:x1].min() < 0.6                          # the car's shadow on the road
+        assert (x1 - x0) * (y1 - y0) < 0.5 * cam.width * cam.height
+    finally:
+        s.close()
+
+
+def test_frame_without_visible_objects_costs_almost_nothing(tmp_path):
+    cam = Camera.from_hfov(320, 180, 70)
+    s = session(cam, samples=8)
+    try:
+        behind = PlacedObject(1, "car", (-12.0, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5))
+        t0 = time.perf_counter()
+        info = s.render_frame(FramePlan("f4", 0.0, T.tolist(), [behind], SUN), tmp_path / "e.exr",
+                              {"rgba", "index", "shadow_catcher"})
+        dt = time.perf_counter() - t0
+        assert info["skipped"] and info["amodal_px"] == {} and dt < 0.15
+        p = read_passes(tmp_path / "e.exr")
+        assert p["rgba"].max() == 0 and p["index"].max() == 0 and p["shadow_catcher"].min() == 1
+        assert p["index"].shape == (180, 320)
+    finally:
+        s.close()
+
+
+def test_objects_reused_and_memory_blocks_flat(tmp_path):
+    import bpy
+
+    cam = Camera.from_hfov(96, 54, 70)
+    s = session(cam, samples=1)
+    try:
+        counts = []
+        for f in range(12):
+            objs = [PlacedObject(1, "car", (12.0 + 0.5 * f, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5)),
+                    # a new object every frame: built, then removed with all its data blocks
+                    PlacedObject(100 + f, "person", (9.0, -1.5, 0.0), 0.0, (0.5, 0.6, 1.8),
+                                 variant={"color": [0.8, 0.1, 0.1], "seed": f})]
+            info = s.render_frame(FramePlan(f"f{f}", f * 0.1, T.tolist(), objs, SUN), tmp_path / "m.exr",
+                                  {"index"})
+            if f:
+                assert info["objects"] == {"built": 1, "reused": 1, "removed": 1, "hidden": 0}
+            counts.append((len(bpy.data.objects), len(bpy.data.meshes), len(bpy.data.materials)))
+        assert counts[-1] == counts[1]
+    finally:
+        s.close()
+
+
+def test_motion_blur_when_an_object_moves_fast(tmp_path):
+    cam = Camera.from_hfov(160, 90, 70)
+    s = session(cam, samples=16, shutter_s=1 / 30)
+    try:
+        still = PlacedObject(1, "car", (12.0, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5))
+        fast = PlacedObject(1, "car", (12.0, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5), velocity=(0.0, 15.0, 0.0))
+        r0 = s.render_frame(FramePlan("a", 0, T.tolist(), [still], SUN), tmp_path / "a.exr", {"rgba"})
+        r1 = s.render_frame(FramePlan("b", 0, T.tolist(), [fast], SUN), tmp_path / "b.exr", {"rgba"})
+        assert r0["decisions"]["motion_blur"]["value"] is False
+        assert r1["decisions"]["motion_blur"]["value"] is True
+        a0, a1 = (read_passes(tmp_path / n)["rgba"][..., 3] for n in ("a.exr", "b.exr"))
+        partial = lambda a: np.count_nonzero((a > 0.05) & (a < 0.95))  # noqa: E731
+        assert partial(a1) > 2 * partial(a0)                  # smeared edges
+        assert abs(a1.sum() - a0.sum()) < 0.1 * a0.sum()      # same object, same coverage
+        assert not s.scene.render.use_motion_blur             # cleaned up for the next frame
+    finally:
+        s.close()
+
+
+def test_render_background_png(tmp_path):
+    import cv2
+
+    cam = Camera.from_hfov(160, 90, 70)
+    s = session(cam)
+    try:
+        info = s.render_background(T, SUN, tmp_path / "bg.png", 4)
+        img = cv2.imread(str(tmp_path / "bg.png"), cv2.IMREAD_UNCHANGED)
+        assert img.shape == (90, 160, 3) and img.dtype == np.uint8
+        assert img[:30].mean() > img[-20:].mean()  # sky above a darker road
+        assert info["timings"]["render"] > 0
+    finally:
+        s.close()

@@ -1,0 +1,202 @@
+"""Render driver, bpy-free parts: effect decisions, camera maths, rasteriser, EXR I/O."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from blendgen.errors import UserError
+from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
+from blendgen.job.schema import Render
+from blendgen.render import effects as fx
+from blendgen.render.exr import empty_passes, read_passes, write_passes
+from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
+from blendgen.render.raster import fill_triangles, rasterize_mask
+from blendgen.scene.plan import FramePlan, PlacedObject
+
+CAM = Camera.from_hfov(640, 360, 70)
+T = make_pose(R_world_cam_from_ypr(0.0), [0, 0, 1.5])  # looking along +x from 1.5 m
+SUN = {"sun_direction": [0.3, 0.3, 0.9], "sun_strength": 3.0, "sun_color": [1, 1, 1], "sun_angle_deg": 0.5,
+       "sky_color": [0.5, 0.6, 0.8], "sky_strength": 1.0, "sun_visible": True}
+OVERCAST = {**SUN, "sun_strength": 0.0, "sun_visible": False}
+
+
+def car(i, x, y, yaw=0.0, v=(0, 0, 0)):
+    return PlacedObject(i, "car", (x, y, 0.0), yaw, (4.5, 1.8, 1.5), velocity=v)
+
+
+def plan_of(*objs, lighting=SUN):
+    return FramePlan("f000001", 0.0, T.tolist(), list(objs), lighting)
+
+
+def test_bpy_free_modules_do_not_import_bpy():
+    code = ("import sys, blendgen.render.exr, blendgen.render.effects, blendgen.render.projection, "
+            "blendgen.render.raster; assert 'bpy' not in sys.modules, 'bpy imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_passes_follow_outputs():
+    assert fx.decide_passes({"index"}).value == ["index"]
+    full = fx.decide_passes(set(fx.OUTPUTS)).value
+    assert full[:4] == ["rgba", "index", "depth", "shadow_catcher"] and "glossy_color" in full
+    with pytest.raises(ValueError, match="unknown render outputs"):
+        fx.decide_passes({"rgba", "normals"})
+
+
+def test_culling_keeps_visible_and_offscreen_shadow_casters():
+    ahead, behind, far_left = car(1, 15, 0), car(2, -10, 0), car(3, 15, 60)
+    kept, culled = fx.cull_objects(plan_of(ahead, behind, far_left), CAM, fx.sun_direction(SUN))
+    assert [o.id for o in kept] == [1]
+    assert "behind the camera" in culled[2] and "left of" in culled[3]
+    # Just outside the left edge, its shadow (sun on the left: cast toward -y, into the view) keeps it.
+    edge = car(4, 10, 10.5)
+    Xc = fx._to_cam(T, edge.box_corners_world())
+    assert fx.outside_frustum(CAM, Xc) is not None
+    kept, _ = fx.cull_objects(plan_of(edge), CAM, np.array([0.0, 0.8, 0.6]))
+    assert [o.id for o in kept] == [4]
+
+
+def test_motion_blur_only_above_half_a_pixel():
+    slow, fast = car(1, 20, 0, v=(0, 0.2, 0)), car(2, 20, 3, v=(0, 20.0, 0))
+    r = Render()
+    d, px = fx.decide_motion_blur([slow], CAM, T, r.shutter_s, "auto")
+    assert d.value is False and px[1] < 0.5
+    d, px = fx.decide_motion_blur([slow, fast], CAM, T, r.shutter_s, "auto")
+    assert d.value is True and px[2] > 0.5 and "2" in d.reason
+    assert fx.decide_motion_blur([fast], CAM, T, r.shutter_s, "off")[0].value is False
+    assert fx.decide_motion_blur([car(3, 20, 0)], CAM, T, r.shutter_s, "on")[0].value is False
+
+
+def test_shadow_catcher_only_with_a_visible_sun():
+    out = {"rgba", "shadow_catcher"}
+    assert fx.decide_shadow_catcher(SUN, out).value is True
+    assert fx.decide_shadow_catcher(OVERCAST, out).value is False
+    assert fx.decide_shadow_catcher({**SUN, "sun_direction": [1, 0, -0.1]}, out).value is False
+    assert fx.decide_shadow_catcher(SUN, {"rgba"}).value is False
+
+
+def test_region_covers_object_and_its_shadow():
+    obj = car(1, 15, 0)
+    no_sun = fx.decide_region(plan_of(obj), [obj], CAM, None, True).value
+    low_sun = np.array([-0.8, 0.0, 0.3]) / np.linalg.norm([-0.8, 0.0, 0.3])  # shadow away from camera
+    with_shadow = fx.decide_region(plan_of(obj), [obj], CAM, low_sun, True).value
+    uv, _ = CAM.project_world(T, obj.box_corners_world())
+    x0, y0, x1, y1 = no_sun
+    assert x0 <= uv[:, 0].min() and x1 >= uv[:, 0].max() and y0 <= uv[:, 1].min() and y1 >= uv[:, 1].max()
+    assert (x1 - x0) * (y1 - y0) < 0.2 * CAM.width * CAM.height
+    # The shadow lies farther away: it reaches up toward the horizon, above the car's base.
+    shadow = fx.shadow_points(obj.box_corners_world(), low_sun, 0.0)
+    suv, _ = CAM.project_world(T, shadow)
+    assert with_shadow[1] <= suv[:, 1].min() and with_shadow[1] <= no_sun[1]
+    assert fx.decide_region(plan_of(obj), [obj], CAM, None, False).value is None
+    near = PlacedObject(2, "truck", (4.5, 0, 0), 0.0, (8.0, 2.5, 3.5))  # fills the view: full frame
+    assert fx.decide_region(plan_of(near), [near], CAM, None, True).value is None
+    assert fx.border_fractions((64, 36, 320, 180), 640, 360) == (0.1, 0.5, 0.5, 0.9)
+
+
+def test_empty_frame_is_skipped_and_decisions_serialise():
+    import json
+
+    eff = fx.decide_effects(plan_of(car(1, -20, 0)), CAM, Render(), {"rgba", "index"})
+    assert eff.skip_render.value is True and eff.objects.value == []
+    eff = fx.decide_effects(plan_of(car(1, 15, 0)), CAM, Render(samples=32, denoise=False), {"rgba", "index"})
+    d = json.loads(json.dumps(eff.to_dict()))
+    assert d["skip_render"]["value"] is False and d["sampling"]["value"]["samples"] == 32
+    assert all(d[k]["reason"] for k in d)
+
+
+def test_blender_intrinsics_match_the_viewplane_formula():
+    for cam in (Camera(320, 180, 230.0, 240.0, 150.3, 95.7), Camera(180, 320, 250.0, 250.0, 92.0, 150.0),
+                Camera(320, 180, 250.0, 230.0, 170.0, 80.0)):
+        b = blender_intrinsics(cam)
+        ax, ay = b["pixel_aspect"]
+        ycor = ay / ax
+        viewfac = cam.width if b["sensor_fit"] == "HORIZONTAL" else ycor * cam.height
+        fx_ = viewfac * b["lens"] / b["sensor_width"]
+        # Blender's viewplane (BKE_camera_params_compute_viewplane), back to OpenCV numbers.
+        assert fx_ == pytest.approx(cam.fx) and fx_ / ycor == pytest.approx(cam.fy)
+        assert (cam.width - 1) / 2 - b["shift_x"] * viewfac == pytest.approx(cam.cx)
+        assert (cam.height - 1) / 2 + b["shift_y"] * viewfac / ycor == pytest.approx(cam.cy)
+    M = blender_matrix_world(T)
+    assert np.allclose(M[:3, 2], -T[:3, 2])  # Blender looks down its -z
+
+
+def test_distortion_canvas_maps_agree_with_projection():
+    cam = Camera(320, 180, 200.0, 200.0, 161.0, 88.0, [-0.25, 0.08, 0.001, -0.0005, 0.0])
+    cv = make_canvas(cam)
+    assert cv.remapped and cv.pinhole.width > cam.width and not cv.pinhole.distorted
+    rng = np.random.default_rng(1)
+    X = np.c_[rng.uniform(-0.6, 0.6, 50), rng.uniform(-0.35, 0.35, 50), np.ones(50)]
+    uv_out, _ = cam.project(X)
+    uv_pin, _ = cv.pinhole.project(X)
+    ok = (uv_out[:, 0] > 1) & (uv_out[:, 0] < 318) & (uv_out[:, 1] > 1) & (uv_out[:, 1] < 178)
+    # Bilinear lookup of the maps at the distorted pixel gives the pinhole pixel.
+    import cv2
+
+    mx = cv2.remap(cv.map_x, uv_out[ok, 0].astype(np.float32)[None], uv_out[ok, 1].astype(np.float32)[None],
+                   cv2.INTER_LINEAR)[0]
+    my = cv2.remap(cv.map_y, uv_out[ok, 0].astype(np.float32)[None], uv_out[ok, 1].astype(np.float32)[None],
+                   cv2.INTER_LINEAR)[0]
+    assert np.max(np.hypot(mx - uv_pin[ok, 0], my - uv_pin[ok, 1])) < 0.05
+    assert np.all(np.isfinite(cv.map_x)) and np.all(np.isfinite(cv.map_y))
+    plain = make_canvas(Camera.from_hfov(64, 36, 60))
+    img = np.arange(64 * 36, dtype=np.float32).reshape(36, 64)
+    assert not plain.remapped and plain.to_output(img) is img
+
+
+def test_rasteriser_counts_pixel_centres():
+    mask = np.zeros((20, 20), np.uint8)
+    # Axis-aligned square [2.5, 12.5]^2 as two triangles: exactly the centres 3..12 -> 100 px.
+    sq = np.array([[[2.5, 2.5], [12.5, 2.5], [12.5, 12.5]], [[2.5, 2.5], [12.5, 12.5], [2.5, 12.5]]])
+    fill_triangles(mask, sq)
+    assert mask.sum() == 100 and mask[3:13, 3:13].all()
+    # Overlapping and opposite-winding triangles do not cancel (no even-odd rule).
+    mask2 = np.zeros((20, 20), np.uint8)
+    fill_triangles(mask2, np.concatenate([sq, sq[:, ::-1]]))
+    assert mask2.sum() == 100
+    # A 1 m square facing the camera at 10 m; and the same square straddling the camera plane.
+    cam = Camera(200, 200, 100.0, 100.0, 99.5, 99.5)
+    v = np.array([[-0.5, -0.5, 10], [0.5, -0.5, 10], [0.5, 0.5, 10], [-0.5, 0.5, 10]])
+    m = rasterize_mask(cam, np.eye(4), v, np.array([[0, 1, 2], [0, 2, 3]]))
+    assert m.sum() == 100
+    v2 = np.array([[-1, 0.2, -1.0], [1, 0.2, -1.0], [1, 0.2, 5.0], [-1, 0.2, 5.0]])  # floor strip under the camera
+    m2 = rasterize_mask(cam, np.eye(4), v2, np.array([[0, 1, 2], [0, 2, 3]]))
+    assert m2[-1].any() and not m2[:100].any()
+
+
+def test_exr_round_trip_full_frame(tmp_path):
+    H, W = 24, 40
+    rng = np.random.default_rng(0)
+    passes = {"rgba": rng.random((H, W, 4), dtype=np.float32), "index": np.full((H, W), 3, np.float32),
+              "depth": rng.random((H, W), dtype=np.float32) * 50, "shadow_catcher": np.ones((H, W, 3), np.float32),
+              "diffuse_direct": rng.random((H, W, 3), dtype=np.float32)}
+    write_passes(tmp_path / "a.exr", passes)
+    back = read_passes(tmp_path / "a.exr")
+    assert set(back) == set(passes)
+    assert back["index"].dtype == np.int32 and (back["index"] == 3).all()
+    for k in passes:
+        assert np.allclose(back[k], passes[k]), k
+    e = empty_passes(W, H, ["rgba", "shadow_catcher", "depth"])
+    assert e["rgba"].max() == 0 and e["shadow_catcher"].min() == 1
+
+
+def test_exr_bad_files_name_the_file(tmp_path):
+    with pytest.raises(UserError, match="missing.exr"):
+        read_passes(tmp_path / "missing.exr")
+    bad = tmp_path / "bad.exr"
+    bad.write_bytes(b"v/1\x01 not an exr at all")
+    with pytest.raises(UserError, match="bad.exr"):
+        read_passes(bad)
+
+
+def test_exr_data_window_is_padded_to_the_display_window(tmp_path):
+    import OpenEXR
+
+    data = np.full((4, 5), 7.0, np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "dataWindow": (np.array([3, 2], np.int32), np.array([7, 5], np.int32)),
+              "displayWindow": (np.array([0, 0], np.int32), np.array([15, 9], np.int32))}
+    OpenEXR.File(header, {"ViewLayer.Object Index.X": data}).write(str(tmp_path / "w.exr"))
+    idx = read_passes(tmp_path / "w.exr")["index"]
+    assert idx.shape == (10, 16) and idx[2:6, 3:8].min() == 7 and idx.sum() == 7 * 20

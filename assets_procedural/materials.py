@@ -15,7 +15,8 @@ def _new(name: str):
     if m is not None:
         return m, False
     m = bpy.data.materials.new(name)
-    m.use_nodes = True
+    if m.node_tree is None:  # bpy < 5 needs node trees switched on (deprecated in 5.0)
+        m.use_nodes = True
     return m, True
 
 

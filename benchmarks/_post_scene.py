@@ -125,8 +125,27 @@ def stand_in(cls: str, colour, name: str):
 def place(root, pos, yaw, pass_index):
     root.location = pos
     root.rotation_euler[2] = yaw
-    for ch in root.children_recursive:
+    for ch in [root, *root.children_recursive]:
         ch.pass_index = pass_index
+
+
+def built_object(o):
+    """The project's class model (assets_procedural.objects), or None where it is unavailable."""
+    try:
+        import numpy as np
+
+        sys.path.insert(0, str(ROOT))
+        from assets_procedural.objects import build_object
+        from blendgen.scene.catalog import sample_variant
+        from blendgen.scene.plan import PlacedObject
+    except Exception as e:  # the stand-ins below still give a real render
+        print(f"build_object unavailable ({e}); using stand-ins", flush=True)
+        return None
+    variant, dims = sample_variant(o["cls"], np.random.default_rng(o.get("seed", o["id"])))
+    obj = PlacedObject(id=o["id"], cls=o["cls"], position=tuple(o["position"]),
+                       yaw=math.radians(o.get("yaw_deg", 0.0)), dims=tuple(dims), variant=variant,
+                       state=o.get("state"))
+    return build_object(obj)
 
 
 def build(spec):
@@ -172,7 +191,9 @@ def build(spec):
             buildings.append(box(f"bld{i}", (sx, sy, h), (x, y, h / 2), material(f"bm{i}", cols[i % 4], 0.8)))
     objects = []
     for i, o in enumerate(spec.get("objects", [])):
-        root = stand_in(o["cls"], tuple(o["colour"]), f"obj{i}")
+        root = built_object(o) if spec.get("builder", False) else None
+        if root is None:
+            root = stand_in(o["cls"], tuple(o["colour"]), f"obj{i}")
         place(root, tuple(o["position"]), math.radians(o.get("yaw_deg", 0.0)), o["id"])
         objects.append(root)
 
@@ -217,7 +238,10 @@ def render(env, job):
     for m in env["markings"]:
         m.hide_render = obj_mode  # the catcher is flat grey; markings would print into its pass
     for b in env["buildings"]:
+        # The twin's structures are in the real frame already, shadows included: as holdouts
+        # they must not print their own shadow / sky occlusion into the catcher pass again.
         b.is_holdout = obj_mode
+        b.visible_shadow = not obj_mode
     sc.render.film_transparent = obj_mode
     s = sc.render.image_settings
     if obj_mode:

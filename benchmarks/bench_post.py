@@ -30,7 +30,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -98,6 +97,9 @@ def lightings(n_per_kind: int, seed: int = 0) -> list[tuple[str, dict]]:
 
 
 def run_blender(spec: dict, workdir: Path) -> None:
+    spec = {**spec, "renders": [r for r in spec["renders"] if not Path(r["out"]).is_file()]}
+    if not spec["renders"]:
+        return
     path = workdir / f"spec_{time.time_ns()}.json"
     path.write_text(json.dumps(spec))
     # A clean environment: this process must not leak sys.path into the bpy child.
@@ -141,9 +143,7 @@ def ground_truth_benchmark(args, work: Path):
     estimates, renders = [], []
     for i, (_, L) in enumerate(Ls):
         bg = cv2.imread(str(work / f"bg{i}.png"))
-        est = estimate_illumination(bg)
-        est = replace(est, sun_direction=tuple(L["sun_direction"]), sun_elevation_deg=L["_el"],
-                      sun_azimuth_deg=L["_az"], sun_direction_source="ephemeris")
+        est = estimate_illumination(bg, sun_az_el=(L["_az"], L["_el"]))
         estimates.append(est)
         renders.append({"mode": "object", "out": str(work / f"env{i}.exr"), "lighting": est.to_lighting()})
     run_blender({**base, "renders": renders}, work)
@@ -187,7 +187,8 @@ def ground_truth_benchmark(args, work: Path):
             p = def_b if which == "default" else env_b
             for rep in range(3):
                 t = time.perf_counter()
-                est = estimate_illumination(bg_b) if which == "env" else None
+                est = estimate_illumination(bg_b, sun_az_el=(Ls[i][1]["_az"], Ls[i][1]["_el"])) \
+                    if which == "env" else None
                 composite_frame(bg_b, p, settings=settings, illumination=est, seed=rep)
                 timing[m].append(time.perf_counter() - t)
     # Full post as the pipeline runs it (estimate + reinhard + relight + shadows + sensor matching).
@@ -196,7 +197,7 @@ def ground_truth_benchmark(args, work: Path):
         bg_b, env_b = upscale(cv2.imread(str(work / f"bg{i}.png")), read_passes(work / f"env{i}.exr"))
         for rep in range(3):
             t = time.perf_counter()
-            est = estimate_illumination(bg_b)
+            est = estimate_illumination(bg_b, sun_az_el=(Ls[i][1]["_az"], Ls[i][1]["_el"]))
             composite_frame(bg_b, env_b, settings=Post(), illumination=est, seed=rep)
             full.append(time.perf_counter() - t)
     return Ls, rows, per_kind, timing, full, examples, est_log, render_s, res, samples
@@ -212,7 +213,7 @@ def real_photo_figure(work: Path, quick: bool):
         [("car", [0.5, 0.5, 0.52], [-3.6, 16, 0], 88), ("truck", [0.7, 0.1, 0.05], [3.7, 30, 0], 92),
          ("person", [0.1, 0.2, 0.5], [7.0, 12, 0], 180)],
         [("bus", [0.8, 0.55, 0.05], [-3.8, 28, 0], 90), ("bicycle", [0.05, 0.3, 0.1], [5.8, 13, 0], 90),
-         ("traffic light", [0.3, 0.3, 0.3], [8.5, 22, 0], 180)],
+         ("traffic light", [0.3, 0.3, 0.3], [6.5, 24, 4.2], 270)],
         [("motorcycle", [0.4, 0.02, 0.02], [1.2, 11, 0], 92), ("car", [0.75, 0.75, 0.78], [-3.4, 20, 0], 90),
          ("person", [0.45, 0.15, 0.3], [-8.0, 14, 0], 0)],
     ]
@@ -227,7 +228,7 @@ def real_photo_figure(work: Path, quick: bool):
         objs = [{"cls": c, "colour": col, "position": pos, "yaw_deg": yaw, "id": j + 1}
                 for j, (c, col, pos, yaw) in enumerate(layouts[k % len(layouts)])]
         spec = {"resolution": [W, H], "samples": 8 if quick else 16, "denoise": True, "hfov_deg": 60,
-                "pitch_deg": pitch, "buildings": False, "objects": objs,
+                "pitch_deg": pitch, "buildings": False, "objects": objs, "builder": True,
                 "renders": [{"mode": "object", "out": str(work / f"real{k}_default.exr"), "lighting": DEFAULT_LIGHTING},
                             {"mode": "object", "out": str(work / f"real{k}_env.exr"), "lighting": est.to_lighting()}]}
         run_blender(spec, work)
@@ -257,10 +258,12 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="10 lightings, smaller renders (~2 min)")
     ap.add_argument("--no-real", action="store_true", help="skip the real-photo figure")
+    ap.add_argument("--workdir", type=Path, help="keep renders here and reuse them (default: a temp folder)")
     args = ap.parse_args()
     cmd = "python benchmarks/bench_post.py" + (" --quick" if args.quick else "")
     with tempfile.TemporaryDirectory(prefix="bench_post_") as tmp:
-        work = Path(tmp)
+        work = Path(tmp) if args.workdir is None else args.workdir
+        work.mkdir(parents=True, exist_ok=True)
         (Ls, rows, per_kind, timing, full, examples, est_log, render_s, res,
          samples) = ground_truth_benchmark(args, work)
         infos = None if args.no_real else real_photo_figure(work, args.quick)
@@ -300,7 +303,8 @@ def main():
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
     names = [t[0] for t in table]
     data = [[r[0] for r in rows[m]] for m in names]
-    ax[0].boxplot(data, labels=names, showfliers=True)
+    ax[0].boxplot(data, showfliers=True)
+    ax[0].set_xticks(range(1, len(names) + 1), names)
     ax[0].set_yscale("log")
     ax[0].set_ylabel("fMSE over object pixels (8-bit, log)")
     ax[0].set_title(f"{len(Ls)} lightings, {res[0]}x{res[1]}, {samples} spp")

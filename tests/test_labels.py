@@ -1,8 +1,5 @@
 """Labels: instances from the id image, the per-frame file, and COCO / YOLO / KITTI round-trips."""
 
-import json
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest

@@ -144,7 +144,9 @@ def test_exr_passes_present_and_finite(tmp_path):
         x0, y0, x1, y1 = info["region"]
         sc = p["shadow_catcher"]
         assert sc[:y0].min() == 1.0 and sc[:, x1:].min() == 1.0     # neutral outside the region
-        assert p["depth"][:y0].max() == 0 and p["depth"][y1 - 1, x0:x1].min() > 3  # road in the region
+        assert p["depth"][:y0].max() == 0                            # nothing rendered outside
+        catcher = (sc[..., 0] < 0.9) & ~on
+        assert catcher.sum() > 20 and p["depth"][catcher].min() > 3  # the shadow lies on the road patch
         assert sc[y0:y1, x0:x1].min() < 0.6                          # the car's shadow on the road
         assert (x1 - x0) * (y1 - y0) < 0.5 * cam.width * cam.height
     finally:
@@ -164,6 +166,21 @@ def test_frame_without_visible_objects_costs_almost_nothing(tmp_path):
         p = read_passes(tmp_path / "e.exr")
         assert p["rgba"].max() == 0 and p["index"].max() == 0 and p["shadow_catcher"].min() == 1
         assert p["index"].shape == (180, 320)
+    finally:
+        s.close()
+
+
+def test_bad_plan_is_a_user_error_naming_the_frame(tmp_path):
+    from blendgen.errors import UserError
+
+    s = session(Camera.from_hfov(64, 36, 70))
+    try:
+        bad = FramePlan("f000042", 0.0, np.full((4, 4), np.nan).tolist(), [], SUN)
+        with pytest.raises(UserError, match="f000042.*T_world_cam"):
+            s.render_frame(bad, tmp_path / "x.exr", {"rgba"})
+        with pytest.raises(UserError, match="unknown render outputs"):
+            s.render_frame(FramePlan("f1", 0.0, T.tolist(), [], SUN), tmp_path / "x.exr", {"normals"})
+        assert not (tmp_path / "x.exr").exists()
     finally:
         s.close()
 
@@ -220,5 +237,43 @@ def test_render_background_png(tmp_path):
         assert img.shape == (90, 160, 3) and img.dtype == np.uint8
         assert img[:30].mean() > img[-20:].mean()  # sky above a darker road
         assert info["timings"]["render"] > 0
+    finally:
+        s.close()
+
+
+def test_real_twin_and_objects(tmp_path):
+    """Through assets_procedural: the demo town as holdouts/catchers, procedural objects."""
+    pytest.importorskip("assets_procedural.objects")
+    pytest.importorskip("assets_procedural.twin_builder")
+    from blendgen.job.schema import BUILTIN_TWINS_DIR
+    from blendgen.render.session import RenderSession
+
+    twin_path = BUILTIN_TWINS_DIR / "demo_town.yaml"
+    if not twin_path.is_file():
+        pytest.skip(f"needs {twin_path}")
+    from blendgen.scene.twin import load_twin
+
+    route = load_twin(twin_path).ego_route(30.0, 1)
+    fwd = (route[5] - route[0]) / np.linalg.norm(route[5] - route[0])
+    left = np.array([-fwd[1], fwd[0]])
+    yaw = float(np.arctan2(fwd[1], fwd[0]))
+    T_town = make_pose(R_world_cam_from_ypr(yaw), [route[0][0], route[0][1], 1.5])
+    cam = Camera.from_hfov(160, 90, 70)
+    s = RenderSession(twin_path, None, Render(samples=4, denoise=False), cam)
+    try:
+        roles = set(s._roles.values())
+        assert {"road", "structure"} <= roles
+        objs = [PlacedObject(3, "car", (*(route[0] + 14 * fwd), 0.0), yaw, (4.4, 1.8, 1.5)),
+                PlacedObject(4, "person", (*(route[0] + 9 * fwd + 2.5 * left), 0.0), 0.0, (0.5, 0.6, 1.75))]
+        info = s.render_frame(FramePlan("t", 0.0, T_town.tolist(), objs, SUN), tmp_path / "t.exr",
+                              {"rgba", "index", "shadow_catcher"})
+        p = read_passes(tmp_path / "t.exr")
+        assert set(np.unique(p["index"])) == {0, 3, 4}
+        for i in (3, 4):  # unoccluded: the rasterised silhouette is the index mask
+            n = np.count_nonzero(p["index"] == i)
+            assert abs(info["amodal_px"][i] - n) <= max(2, 0.02 * n), (i, info["amodal_px"][i], n)
+        assert p["shadow_catcher"].min() < 0.7 and np.all(np.isfinite(p["rgba"]))
+        bg = s.render_background(T_town, SUN, tmp_path / "town.png", 2)
+        assert (tmp_path / "town.png").stat().st_size > 1000 and bg["samples"] == 2
     finally:
         s.close()

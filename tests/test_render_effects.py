@@ -92,7 +92,14 @@ def test_region_covers_object_and_its_shadow():
     assert fx.decide_region(plan_of(obj), [obj], CAM, None, False).value is None
     near = PlacedObject(2, "truck", (4.5, 0, 0), 0.0, (8.0, 2.5, 3.5))  # fills the view: full frame
     assert fx.decide_region(plan_of(near), [near], CAM, None, True).value is None
-    assert fx.border_fractions((64, 36, 320, 180), 640, 360) == (0.1, 0.5, 0.5, 0.9)
+    # The catcher patch holds the footprint and the whole shadow.
+    import cv2
+
+    patch = fx.catcher_patches([obj], low_sun)[0]
+    for p in np.concatenate([obj.box_corners_world(), shadow])[:, :2]:
+        assert cv2.pointPolygonTest(patch[:, :2].astype(np.float32), tuple(map(float, p)), True) > 0.3
+    assert np.allclose(patch[:, 2], 0.0)
+    assert fx.border_fractions((64, 36, 320, 180), 640, 360) == pytest.approx((0.1, 0.5, 0.5, 0.9), abs=1e-5)
 
 
 def test_empty_frame_is_skipped_and_decisions_serialise():
@@ -177,6 +184,10 @@ def test_exr_round_trip_full_frame(tmp_path):
     assert back["index"].dtype == np.int32 and (back["index"] == 3).all()
     for k in passes:
         assert np.allclose(back[k], passes[k]), k
+    write_passes(tmp_path / "w.exr", passes, window=(5, 4, 20, 10))
+    win = read_passes(tmp_path / "w.exr")
+    assert win["rgba"].shape == (H, W, 4) and np.allclose(win["rgba"][4:10, 5:20], passes["rgba"][4:10, 5:20])
+    assert win["rgba"][:4].max() == 0 and win["index"][:, :5].max() == 0 and win["shadow_catcher"][:4].min() == 1
     e = empty_passes(W, H, ["rgba", "shadow_catcher", "depth"])
     assert e["rgba"].max() == 0 and e["shadow_catcher"].min() == 1
 
@@ -200,3 +211,22 @@ def test_exr_data_window_is_padded_to_the_display_window(tmp_path):
     OpenEXR.File(header, {"ViewLayer.Object Index.X": data}).write(str(tmp_path / "w.exr"))
     idx = read_passes(tmp_path / "w.exr")["index"]
     assert idx.shape == (10, 16) and idx[2:6, 3:8].min() == 7 and idx.sum() == 7 * 20
+
+
+def test_bad_plans_are_rejected_with_the_field_named():
+    bad_T = FramePlan("f9", 0.0, np.full((4, 4), np.nan).tolist(), [car(1, 15, 0)], SUN)
+    with pytest.raises(ValueError, match="T_world_cam"):
+        fx.decide_effects(bad_T, CAM, Render(), {"rgba"})
+    o = car(2, 15, 0)
+    o.position = (15.0, float("nan"), 0.0)
+    with pytest.raises(ValueError, match="object 2"):
+        fx.decide_effects(plan_of(o), CAM, Render(), {"rgba"})
+    with pytest.raises(ValueError, match="lighting.sun_strength"):
+        fx.decide_effects(plan_of(car(3, 15, 0), lighting={**SUN, "sun_strength": float("inf")}), CAM,
+                          Render(), {"rgba"})
+    # Degenerate but valid: sun exactly overhead, object straddling the camera plane.
+    overhead = {**SUN, "sun_direction": [0, 0, 1]}
+    eff = fx.decide_effects(plan_of(car(4, 1.0, 0), lighting=overhead), CAM, Render(), {"rgba", "shadow_catcher"})
+    assert eff.region.value is None or all(np.isfinite(eff.region.value))
+    patches = fx.catcher_patches([car(4, 1.0, 0)], np.array([0.0, 0.0, 1.0]))
+    assert len(patches) == 1 and np.all(np.isfinite(patches[0]))

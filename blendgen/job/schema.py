@@ -117,6 +117,9 @@ class Post(Section):
     shadows: bool = True
     sensor_match: bool = True
     relight: bool = True  # re-weight the EXR lighting passes toward the estimate
+    # How far colour transfer moves an object toward its background's statistics (0..1);
+    # None: 0.1 after environment-light matching, 0.3 without (docs/post.md, measured).
+    color_strength: Annotated[float, Field(ge=0, le=1)] | None = None
 
 
 class Export(Section):

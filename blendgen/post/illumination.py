@@ -30,9 +30,11 @@ import numpy as np
 from blendgen.errors import UserError
 from blendgen.post.colorspace import LUMA_BGR, srgb_u8_to_linear
 
-GROUND_ALBEDO = 0.18  # the exposure-metering assumption: the road is mid-grey on average
+# Prior for the road's albedo: aged asphalt is 0.10-0.15 (new asphalt ~0.05, concrete ~0.3).
+# Exposure is read off the road, so an error here scales the estimated light by the same factor.
+GROUND_ALBEDO = 0.12
 SHADES_OF_GREY_P = 6.0
-CLEAR_SKY_SUN_FRACTION = 0.7  # sun share of the ground irradiance under a clear sky (no shadow seen)
+CLEAR_SKY_SUN_FRACTION = 0.8  # asymptotic sun share of the ground irradiance under a clear sky
 MIN_SHADOW_RATIO = 1.8  # lit/shadow road luminance ratio above which the sun is called visible
 DEFAULT_SUN_ELEVATION_DEG = 45.0
 WORK_WIDTH = 192  # statistics run on a downsampled copy: they are global, this keeps them ~2 ms
@@ -53,7 +55,7 @@ class Illumination:
     sun_direction: tuple[float, float, float]  # world frame, toward the sun
     sun_elevation_deg: float
     sun_azimuth_deg: float  # clockwise from north
-    sun_direction_source: str  # "ephemeris" | "default"
+    sun_direction_source: str  # "ephemeris" | "given" | "default"
     sun_visible: bool
     sun_fraction: float  # share of the ground irradiance that comes from the sun
     shadow_ratio: float  # lit / shadowed road luminance (1: no shadow measured)
@@ -70,9 +72,6 @@ class Illumination:
         f = self.sun_fraction if self.sun_visible else 0.0
         ill = np.asarray(self.illuminant_rgb, dtype=float)
         sky_c = _unit_luma(np.asarray(self.sky_rgb, float)) if self.sky_rgb is not None else ill
-        # Sky light reaching the ground is bluer than the average illuminant, but a camera's
-        # sky pixels overstate that (and saturate): pull the sky chroma halfway to the illuminant.
-        sky_c = _unit_luma(0.5 * sky_c + 0.5 * ill)
         if f > 0.05:
             sun_c = (ill - (1 - f) * sky_c) / f  # total light = f * sun + (1 - f) * sky
             sun_c = _unit_luma(np.clip(sun_c, 0.05 * ill.max(), None))
@@ -92,8 +91,14 @@ class Illumination:
 
 
 def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: datetime | None = None,
-                          latlon: tuple[float, float] | None = None) -> Illumination:
-    """Estimate the light of a real 8-bit BGR frame (see the module docstring)."""
+                          latlon: tuple[float, float] | None = None,
+                          sun_az_el: tuple[float, float] | None = None) -> Illumination:
+    """Estimate the light of a real 8-bit BGR frame (see the module docstring).
+
+    The sun's position comes from ``when_utc`` + ``latlon`` (pvlib), or directly from
+    ``sun_az_el`` = (azimuth clockwise from north, elevation), degrees, when it is known
+    otherwise (a synthetic scene); without either it is a default.
+    """
     if not isinstance(real_bgr, np.ndarray) or real_bgr.ndim != 3 or real_bgr.shape[2] != 3 \
             or real_bgr.dtype != np.uint8 or min(real_bgr.shape[:2]) < 2:
         raise UserError(f"expected an HxWx3 uint8 BGR frame, got {getattr(real_bgr, 'dtype', None)} "
@@ -160,7 +165,10 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     ratio, shadow_share = _shadow_ratio(small, Y, ground)
 
     # Sun direction.
-    if when_utc is not None and latlon is not None:
+    if sun_az_el is not None:
+        az, el = float(sun_az_el[0]), float(sun_az_el[1])
+        source = "given"
+    elif when_utc is not None and latlon is not None:
         el, az = sun_position(when_utc, latlon[0], latlon[1])
         source = "ephemeris"
     else:
@@ -175,7 +183,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     elif ratio >= MIN_SHADOW_RATIO:
         visible, f, cue = True, float(np.clip(1.0 - 1.0 / ratio, 0.0, 0.95)), "shadows"
     elif sky_bgr is not None and _clear_blue(sky_bgr, sky_lum, ground_lum):
-        visible, f, cue = True, CLEAR_SKY_SUN_FRACTION, "clear_sky"
+        visible, f, cue = True, clear_sky_sun_fraction(el), "clear_sky"
     else:
         visible, f, cue = False, 0.0, "overcast"
 
@@ -279,9 +287,17 @@ def _shadow_ratio(small: np.ndarray, Y: np.ndarray, ground: np.ndarray) -> tuple
     return float(np.median(bright) / max(np.median(dark), 1e-4)), share
 
 
+def clear_sky_sun_fraction(el_deg: float) -> float:
+    """Direct share of the horizontal irradiance under a clear sky: ~0.7 at high sun, ~0.5 at
+    15 deg, ~0.25 at 4 deg (the sun's horizontal irradiance falls with sin(el), the sky's much less)."""
+    s = max(math.sin(math.radians(el_deg)), 0.0)
+    return CLEAR_SKY_SUN_FRACTION * s / (s + 0.15)
+
+
 def _clear_blue(sky_bgr: np.ndarray, sky_lum: float, ground_lum: float) -> bool:
+    """A blue sky that is not darker than the road: a clear sky, so the sun is out."""
     b, g, r = (float(v) for v in sky_bgr)
-    return b > 1.15 * r and sky_lum > 1.5 * max(ground_lum, 1e-4)
+    return b > 1.15 * r and sky_lum > 0.8 * max(ground_lum, 1e-4)
 
 
 def _unit_luma_bgr(c_bgr: np.ndarray) -> np.ndarray:

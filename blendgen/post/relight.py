@@ -1,20 +1,20 @@
 """Re-weight a render's lighting passes toward the estimated illumination.
 
 Cycles splits the object's light into passes: Combined = Dcol*(Ddir + Dind) +
-Gcol*(Gdir + Gind) + (transmission, emission, ...). Direct light is the sun, indirect the
-sky and bounces. After rendering we change only those terms:
-- sun/sky balance: when the estimate says the sun is hidden (overcast, dusk) but the render
-  had a sun, the direct term is removed and the indirect term scaled up so the object keeps
-  its brightness (soft, shadowless shading instead of hard sun shading);
-- colour: per-channel gains bring the chroma of the object's direct light to the estimated
-  sun colour and of its indirect light to the estimated sky colour.
-Everything else in Combined (emission, transmission) is kept as rendered.
+Gcol*(Gdir + Gind) + (transmission, emission, ...), where "direct" is light from lamps *and
+the world* after one bounce and "indirect" the rest. Direct/indirect therefore do not
+separate sun from sky (that needs light groups); the sun/sky balance is set before
+rendering, from the same estimate, through the lighting dict. After rendering we correct
+what the render cannot know exactly: per-channel gains bring the chroma of the object's
+light (direct + indirect, diffuse and glossy) to the illuminant measured in the real frame
+(shades of grey), at unchanged luminance. Emission and transmission stay as rendered.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from blendgen.post.colorspace import finite
 from blendgen.post.illumination import Illumination
 
 LUMA_RGB = np.array([0.2126, 0.7152, 0.0722])
@@ -39,24 +39,16 @@ def relight(rgb: np.ndarray, passes: dict, mask: np.ndarray, illumination: Illum
                   for k in ("glossy_direct", "glossy_indirect", "glossy_color"))
     D = dd.mean(0).astype(np.float64)
     I = di.mean(0).astype(np.float64)
-    lum_d, lum_i = float(D @ LUMA_RGB), float(I @ LUMA_RGB)
-    if lum_d + lum_i < 1e-6:
+    if float((D + I) @ LUMA_RGB) < 1e-6:
         return rgb, {"relight": "skipped", "reason": "object receives no light in the render"}
-    light = illumination.to_lighting()
-    rendered_sun_share = lum_d / (lum_d + lum_i)
-    w_d, w_i = 1.0, 1.0
-    if not light["sun_visible"] and rendered_sun_share > 0.1 and lum_i > 1e-6:
-        w_d, w_i = 0.0, min((lum_d + lum_i) / lum_i, 10.0)
-    g_d = _gains(D, np.asarray(light["sun_color"])) * w_d
-    g_i = _gains(I, np.asarray(light["sky_color"])) * w_i
-    delta = dc * ((g_d - 1.0) * dd + (g_i - 1.0) * di)
+    target = np.asarray(illumination.illuminant_rgb, dtype=float)
+    g = _gains(D + I, target)
+    delta = dc * ((g - 1.0) * (dd + di))
     if gd is not None and gi is not None and gc is not None:
-        delta += gc * ((g_d - 1.0) * gd + (g_i - 1.0) * gi)
+        delta += gc * ((g - 1.0) * (gd + gi))
     out = rgb.copy()
     out[mask] = np.maximum(rgb[mask] + delta, 0.0)
-    return out, {"relight": "applied", "rendered_sun_share": round(rendered_sun_share, 4),
-                 "direct_gain_rgb": [round(float(v), 4) for v in g_d],
-                 "indirect_gain_rgb": [round(float(v), 4) for v in g_i]}
+    return out, {"relight": "applied", "light_gain_rgb": [round(float(v), 4) for v in g]}
 
 
 def _gains(rendered: np.ndarray, target_chroma: np.ndarray) -> np.ndarray:
@@ -71,4 +63,4 @@ def _gains(rendered: np.ndarray, target_chroma: np.ndarray) -> np.ndarray:
 def _clean(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a, dtype=np.float32)
     a = a[..., :3] if a.ndim == 2 and a.shape[1] >= 3 else np.repeat(a.reshape(-1, 1), 3, axis=1)
-    return np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+    return finite(a)

@@ -22,7 +22,7 @@ NOISE_MIN_SIGMA = 1.5  # 8-bit levels (quantisation and fine texture read as ~1)
 BLUR_MIN_DELTA = 0.03  # re-blur metric above the render's
 BLOCKINESS_MIN = 1.12  # boundary / interior gradient ratio
 VIGNETTE_MIN_K = 0.08  # 8% darker at the corner radius
-BLUR_SIGMAS = (0.0, 0.5, 0.8, 1.1, 1.5, 2.0, 2.6)
+BLUR_SIGMAS = (0.0, 0.6, 1.0, 1.5, 2.2)
 GHOST_QUALITIES = (30, 40, 50, 60, 70, 80, 90)
 
 
@@ -134,7 +134,7 @@ def vignette_k(gray: np.ndarray) -> float:
     rmax2 = cx * cx + cy * cy
     r2 = ((xs - cx) ** 2 + (ys - cy) ** 2) / rmax2
     band = np.abs(xs - cx) < w * 0.1
-    centre = np.array([np.median(small[y][band[y]]) for y in range(h)])
+    centre = np.median(small[:, band[0]], axis=1)
     ok = (small > 8) & (small < 247) & (centre[:, None] > 8)
     rel = np.log(np.maximum(small, 1) / np.maximum(centre[:, None], 1))
     dr = r2 - (((ys - cy) ** 2) / rmax2)  # extra r^2 relative to the row's centre
@@ -160,7 +160,10 @@ def apply(obj_bgr: np.ndarray, alpha: np.ndarray, profile: SensorProfile, *, ori
     inside = alpha > 0.5
     if inside.sum() >= 16:
         real_blur = profile.blur_metric
-        g = cv2.cvtColor(np.clip(out * 255, 0, 255).astype(np.uint8), cv2.COLOR_BGR2GRAY)
+        rows, cols = np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0))
+        box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # measure on the object only
+        inside = inside[box]
+        g = cv2.cvtColor(np.clip(out[box] * 255, 0, 255).astype(np.uint8), cv2.COLOR_BGR2GRAY)
         own = blur_metric(g, inside)
         if real_blur - own > BLUR_MIN_DELTA:
             best, best_err = 0.0, abs(real_blur - own)

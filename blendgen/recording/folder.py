@@ -40,7 +40,8 @@ def read_recording(root: str | Path, *, require_frames: bool = False) -> Recordi
                         where=str(root / "frames.csv"))
     imu_path = root / "imu.csv"
     if imu_path.exists():
-        rec.imu = _read_numeric_csv(imu_path, IMU_COLUMNS)
+        rec.imu = _drop_nan_rows(_read_numeric_csv(imu_path, IMU_COLUMNS, allow_nan=set(IMU_COLUMNS[1:])),
+                                 imu_path, rec, "IMU")
         _check_times(rec.imu[:, 0], imu_path, rec, gaps=True)
     gnss_path = root / "gnss.csv"
     if gnss_path.exists():
@@ -50,7 +51,8 @@ def read_recording(root: str | Path, *, require_frames: bool = False) -> Recordi
             raise UserError(f"missing column(s) {missing}; expected t, lat, lon, alt[, heading_deg][, h_std_m]",
                             where=str(gnss_path))
         cols = GNSS_REQUIRED + [c for c in GNSS_OPTIONAL if c in header]
-        rec.gnss = _read_numeric_csv(gnss_path, cols, allow_nan=set(GNSS_OPTIONAL))
+        rec.gnss = _read_numeric_csv(gnss_path, cols, allow_nan=set(GNSS_OPTIONAL) | {"lat", "lon", "alt"})
+        rec.gnss = _drop_nan_rows(rec.gnss, gnss_path, rec, "GNSS", check=[1, 2, 3])
         rec.gnss_columns = cols
         _check_times(rec.gnss[:, 0], gnss_path, rec)
         lat, lon = rec.gnss[:, 1], rec.gnss[:, 2]
@@ -67,6 +69,11 @@ def read_recording(root: str | Path, *, require_frames: bool = False) -> Recordi
         if bad.size:
             raise UserError(f"row {bad[0] + 2}: quaternion is not unit length (|q| = {norms[bad[0]]:.4f})",
                             where=str(gt_path))
+    # calibration only matters for the sensors that are there
+    if len(rec.imu) == 0:
+        rec.issues = [i for i in rec.issues if "missing imu noise" not in i]
+    if len(rec.imu) == 0 or rec.n_frames == 0:
+        rec.issues = [i for i in rec.issues if "missing T_cam_imu" not in i]
     if rec.n_frames == 0 and len(rec.imu) == 0 and len(rec.gnss) == 0:
         raise UserError("recording has no frames, no IMU and no GNSS: nothing to use", where=str(root))
     return rec
@@ -86,6 +93,11 @@ def _read_calib(root: Path) -> Recording:
     if "camera" in data and data["camera"] is not None:
         camera = _parse_camera(data["camera"], path)
     T = np.eye(4)
+    missing_calib = []
+    if "T_cam_imu" not in data:
+        missing_calib.append("T_cam_imu (identity assumed: camera and IMU axes coincide)")
+    if "imu" not in data:
+        missing_calib.append("imu noise (Kalibr defaults of an automotive MEMS IMU assumed)")
     if "T_cam_imu" in data:
         T = np.asarray(data["T_cam_imu"], dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or abs(np.linalg.det(T[:3, :3]) - 1) > 1e-3:
@@ -98,9 +110,14 @@ def _read_calib(root: Path) -> Recording:
             raise UserError(f"imu.{k}: expected a positive number, got {v!r}", where=str(path))
         setattr(noise, k, float(v))
     known = {"camera", "T_cam_imu", "imu", "timeshift_cam_imu"}
-    return Recording(root=root, camera=camera, T_cam_imu=T, imu_noise=noise,
+    ts = data.get("timeshift_cam_imu", 0.0)
+    if not isinstance(ts, (int, float)) or not np.isfinite(ts):
+        raise UserError(f"timeshift_cam_imu: expected a number of seconds, got {ts!r}", where=str(path))
+    rec = Recording(root=root, camera=camera, T_cam_imu=T, imu_noise=noise,
                      time_offset_cam_imu=float(data.get("timeshift_cam_imu", 0.0)),
                      extra={k: v for k, v in data.items() if k not in known})
+    rec.issues.extend(f"{path.name}: missing {m}" for m in missing_calib)
+    return rec
 
 
 def _parse_camera(cam: dict, path: Path) -> Camera:
@@ -265,6 +282,25 @@ def _read_numeric_csv(path: Path, columns: list[str], allow_nan: set[str] = froz
             raise UserError(f"row {bad[0] + 2}: column {c} is {out[bad[0], k]} (NaN/inf/empty); "
                             "remove or fill the row", where=str(path))
     return out
+
+
+NAN_ROWS_MAX_FRACTION = 0.05  # more NaN rows than this is a broken file, not a dropout
+
+
+def _drop_nan_rows(arr: np.ndarray, path: Path, rec: Recording, what: str, check=None) -> np.ndarray:
+    """Drop rows with NaN sensor values (a logger's missed sample) and report them; too many
+    is a UserError. The time column must always be finite (checked by the caller)."""
+    cols = check if check is not None else list(range(1, arr.shape[1]))
+    bad = ~np.all(np.isfinite(arr[:, cols]), axis=1)
+    if not bad.any():
+        return arr
+    rows = np.flatnonzero(bad)
+    if bad.mean() > NAN_ROWS_MAX_FRACTION:
+        raise UserError(f"{bad.sum()} of {len(arr)} rows hold NaN/empty {what} values (first: row {rows[0] + 2}); "
+                        f"more than {NAN_ROWS_MAX_FRACTION:.0%} means a broken export: fix the file", where=str(path))
+    rec.issues.append(f"{path.name}: dropped {bad.sum()} row(s) with NaN {what} values "
+                      f"(rows {', '.join(str(r + 2) for r in rows[:5])}{'...' if len(rows) > 5 else ''})")
+    return arr[~bad]
 
 
 def _check_times(t: np.ndarray, path: Path, rec: Recording, gaps: bool = False) -> None:

@@ -174,7 +174,8 @@ def blur_px(obj: PlacedObject, cam: Camera, T_world_cam, shutter_s: float) -> fl
     return float(np.max(np.hypot(du, dv)))
 
 
-def decide_motion_blur(objects, cam: Camera, T_world_cam, shutter_s: float, mode: str) -> tuple[Decision, dict[int, float]]:
+def decide_motion_blur(objects, cam: Camera, T_world_cam, shutter_s: float,
+                       mode: str) -> tuple[Decision, dict[int, float]]:
     px = {int(o.id): round(blur_px(o, cam, T_world_cam, shutter_s), 3) for o in objects}
     worst = max(px.values(), default=0.0)
     if mode == "off":
@@ -267,7 +268,10 @@ def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | N
 def border_fractions(region, width: int, height: int) -> tuple[float, float, float, float]:
     """Pixel box (top-left origin) -> Blender border min_x, max_x, min_y, max_y (bottom-left)."""
     x0, y0, x1, y1 = region
-    return x0 / width, x1 / width, 1.0 - y1 / height, 1.0 - y0 / height
+    # Blender truncates border * size to whole pixels: nudge by 1e-4 px so that float
+    # rounding cannot lose a pixel row or column.
+    e = 1e-4
+    return (x0 + e) / width, (x1 + e) / width, (height - y1 + e) / height, (height - y0 + e) / height
 
 
 # ---------------------------------------------------------------- sampling
@@ -299,8 +303,28 @@ def decide_sampling(render, passes: list[str]) -> Decision:
 
 
 # ---------------------------------------------------------------- everything
+def check_plan(plan: FramePlan) -> None:
+    """ValueError naming the field when a plan cannot be rendered (NaN poses, bad sizes)."""
+    T = np.asarray(plan.T_world_cam, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"T_world_cam: expected a finite 4x4 matrix, got shape {T.shape}"
+                         + ("" if T.shape != (4, 4) else " with non-finite values"))
+    if abs(np.linalg.det(T[:3, :3]) - 1.0) > 1e-3:
+        raise ValueError("T_world_cam: the rotation part is not a rotation (det != 1)")
+    for o in plan.objects:
+        if not (np.all(np.isfinite(o.position)) and np.isfinite(o.yaw) and np.all(np.isfinite(o.velocity))):
+            raise ValueError(f"object {o.id}: position, yaw and velocity must be finite")
+        if not all(np.isfinite(d) and d > 0 for d in o.dims):
+            raise ValueError(f"object {o.id}: dims must be positive, got {tuple(o.dims)}")
+    for k, v in (plan.lighting or {}).items():
+        vals = np.atleast_1d(np.asarray(v, dtype=float)) if not isinstance(v, (bool, str)) else np.zeros(1)
+        if not np.all(np.isfinite(vals)):
+            raise ValueError(f"lighting.{k}: expected finite numbers, got {v!r}")
+
+
 def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str]) -> FrameEffects:
     """All per-frame decisions. `cam` is the pinhole canvas that Blender renders."""
+    check_plan(plan)
     passes = decide_passes(set(outputs))
     catcher = decide_shadow_catcher(plan.lighting, set(outputs))
     # Shadows matter for culling/region only when they are rendered.

@@ -45,8 +45,8 @@ def _split(name: str) -> tuple[str, str]:
     return parts[0], ""
 
 
-def _full_frame(arr: np.ndarray, header: dict) -> np.ndarray:
-    """Pad a data-window array into the display window (zeros outside)."""
+def _full_frame(arr: np.ndarray, header: dict, fill: float = 0.0) -> np.ndarray:
+    """Pad a data-window array into the display window (`fill` outside)."""
     dw, disp = header.get("dataWindow"), header.get("displayWindow")
     if dw is None or disp is None:
         return arr
@@ -55,7 +55,7 @@ def _full_frame(arr: np.ndarray, header: dict) -> np.ndarray:
     W, H = int(px1 - px0 + 1), int(py1 - py0 + 1)
     if arr.shape[:2] == (H, W) and (dx0, dy0) == (px0, py0):
         return arr
-    out = np.zeros((H, W) + arr.shape[2:], dtype=arr.dtype)
+    out = np.full((H, W) + arr.shape[2:], fill, dtype=arr.dtype)
     x0, y0 = int(dx0 - px0), int(dy0 - py0)
     xs0, ys0 = max(0, -x0), max(0, -y0)
     xe, ye = min(W, x0 + arr.shape[1]), min(H, y0 + arr.shape[0])
@@ -68,6 +68,7 @@ def read_passes(path: str | Path) -> dict[str, np.ndarray]:
 
     rgba (H,W,4) float32 linear premultiplied; index (H,W) int32 (0 = background);
     depth (H,W) float32 metres along the optical axis (0 = no hit); the rest (H,W,3) float32.
+    Full frame: outside a file's data window every pass is 0, except shadow_catcher (1).
     """
     import OpenEXR
 
@@ -92,7 +93,8 @@ def read_passes(path: str | Path) -> dict[str, np.ndarray]:
                 arr = np.asarray(ch.pixels)
             except Exception as e:
                 raise UserError(f"cannot decode channel {name!r} ({e})", where=str(path)) from None
-            arr = _full_frame(arr, header)
+            # Outside the rendered window: nothing there, so no shadow (catcher factor 1).
+            arr = _full_frame(arr, header, 1.0 if key == "shadow_catcher" else 0.0)
             if key == "index":
                 arr = np.rint(arr.reshape(arr.shape[:2])).astype(np.int32)
             elif key == "depth":
@@ -109,20 +111,33 @@ def read_passes(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
-def write_passes(path: str | Path, passes: dict[str, np.ndarray]) -> None:
-    """Write {key: array} as one multilayer EXR (atomically) in Blender's channel naming."""
+def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None) -> None:
+    """Write full-frame {key: array} as one multilayer EXR (atomically) in Blender's naming.
+
+    `window` (x0, y0, x1, y1), exclusive ends: store only that part (the EXR data window);
+    `read_passes` restores the full frame. Rendering a border region leaves nothing outside
+    it, so storing it would only cost compression time and disk.
+    """
     import OpenEXR
+
+    H, W = next(iter(passes.values())).shape[:2]
+    x0, y0, x1, y1 = window if window is not None else (0, 0, W, H)
+    x0, y0, x1, y1 = max(0, int(x0)), max(0, int(y0)), min(W, int(x1)), min(H, int(y1))
+    if x1 <= x0 or y1 <= y0:
+        x0, y0, x1, y1 = 0, 0, 1, 1  # EXR needs a non-empty data window
 
     channels = {}
     for key, arr in passes.items():
         if key not in KEY_PASSES:
             raise ValueError(f"unknown pass key {key!r}; expected one of {sorted(KEY_PASSES)}")
         name = f"ViewLayer.{KEY_PASSES[key]}"
-        a = np.ascontiguousarray(arr, dtype=np.float32)
+        a = np.ascontiguousarray(np.asarray(arr)[y0:y1, x0:x1], dtype=np.float32)
         if a.ndim == 2:
             name += ".X" if key == "index" else ".Z" if key == "depth" else ".V"
         channels[name] = a
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "dataWindow": (np.array([x0, y0], np.int32), np.array([x1 - 1, y1 - 1], np.int32)),
+              "displayWindow": (np.array([0, 0], np.int32), np.array([W - 1, H - 1], np.int32))}
     with atomic_path(path) as tmp:
         OpenEXR.File(header, channels).write(str(tmp))
 

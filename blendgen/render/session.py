@@ -58,11 +58,17 @@ class _Placed:
 
 
 class RenderSession:
-    """See docs/render.md. `object_builder`/`twin_builder` default to assets_procedural's."""
+    """See docs/render.md. `object_builder`/`twin_builder` default to assets_procedural's.
+
+    One Blender scene per process: a new session resets it, so the previous session of the
+    same process stops working (it raises instead of rendering a foreign scene).
+    """
+
+    _current: "RenderSession | None" = None
 
     def __init__(self, twin_path: Path | None, ground_plane, render, camera: Camera, *,
                  object_builder: Callable[[PlacedObject], object] | None = None,
-                 twin_builder: Callable[[], object] | None = None):
+                 twin_builder: Callable[[], object] | None = None, catch_shadows_on: str = "patches"):
         t0 = time.perf_counter()
         self.render = render
         if render.resolution is not None and tuple(render.resolution) != (camera.width, camera.height):
@@ -70,11 +76,16 @@ class RenderSession:
         self.camera = camera
         self.canvas = make_canvas(camera)
         self._object_builder = object_builder
+        if catch_shadows_on not in ("patches", "ground"):
+            raise ValueError(f"catch_shadows_on: expected 'patches' or 'ground', got {catch_shadows_on!r}")
+        # "ground" (the whole road catches shadows) is the naive baseline the benchmark measures.
+        self.catch_shadows_on = catch_shadows_on
         self._placed: dict[int, _Placed] = {}
         self._tmp = Path(tempfile.mkdtemp(prefix="blendgen_render_"))
         self._frames = 0
 
         bpy.ops.wm.read_factory_settings(use_empty=True)
+        RenderSession._current = self
         self.scene = sc = bpy.context.scene
         self.view_layer = sc.view_layers[0]
         self._setup_render()
@@ -108,7 +119,7 @@ class RenderSession:
             sc.render.threads = int(r.threads)
         sc.render.use_persistent_data = True  # keep the BVH and shaders between frames
         sc.render.resolution_percentage = 100
-        sc.render.use_crop_to_border = False
+        sc.render.use_crop_to_border = True  # Blender writes only the region; we place it
         sc.render.film_transparent = True
         sc.view_settings.view_transform = "Standard"  # PNG previews in plain sRGB
         cy.use_light_tree = False
@@ -118,11 +129,13 @@ class RenderSession:
         cy.denoising_prefilter = "FAST"
         cy.denoising_quality = "BALANCED"
         cy.seed = 0
+        # Motion-blur keys must interpolate linearly (constant velocity over the shutter).
+        bpy.context.preferences.edit.keyframe_new_interpolation_type = "LINEAR"
         ims = sc.render.image_settings
         ims.media_type = "MULTI_LAYER_IMAGE"
         ims.file_format = "OPEN_EXR_MULTILAYER"
         ims.color_depth = "32"
-        ims.exr_codec = "ZIP"
+        ims.exr_codec = "NONE"  # a temp file read back at once: compressing it costs time only
         self.view_layer.use_pass_combined = True
 
     def _enable_gpu(self) -> str:
@@ -233,12 +246,17 @@ class RenderSession:
             role = self._roles.get(ob.name)
             if mode == "background":
                 ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = False, False, False
-                ob.visible_shadow = True
+                ob.visible_shadow = ob.visible_camera = True
                 continue
-            if role in GROUND_ROLES:
+            if role in GROUND_ROLES and self.catch_shadows_on == "ground":
+                ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = False, catcher, not catcher
+                ob.visible_camera = True
+            elif role in GROUND_ROLES:
                 # Shadows are caught by per-frame patches where they can fall (catcher_patches);
-                # the rest of the ground would only cost shadow-catcher samples.
-                ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = False, False, True
+                # camera rays on the rest of the ground would only cost shadow-catcher samples.
+                # The ground stays for the light it bounces onto the objects (and reflections).
+                ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = False, False, not catcher
+                ob.visible_camera = False
             elif role in HOLDOUT_ROLES:
                 ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = True, False, False
                 # Real structures already shadow the real road; do not darken it twice.
@@ -262,7 +280,8 @@ class RenderSession:
         verts, faces = [], []
         for poly in polygons:
             faces.append(tuple(range(len(verts), len(verts) + len(poly))))
-            verts.extend(map(tuple, poly))
+            # 2 mm above the ground it covers, so camera rays meet the patch, not both.
+            verts.extend((float(x), float(y), float(z) + 0.002) for x, y, z in poly)
         me.from_pydata(verts, [], faces)
         me.update()
         self._catcher.hide_render = False
@@ -359,9 +378,6 @@ class RenderSession:
             for frame, sign in ((0, -1.0), (2, 1.0)):
                 p.root.location = tuple(pos + sign * v * shutter_s)
                 p.root.keyframe_insert("location", frame=frame)
-            for fc in p.root.animation_data.action.fcurves if hasattr(p.root.animation_data.action, "fcurves") else []:
-                for kp in fc.keyframe_points:
-                    kp.interpolation = "LINEAR"
         sc.frame_set(1)
         sc.render.use_motion_blur = True
         sc.render.motion_blur_shutter = 1.0
@@ -459,7 +475,12 @@ class RenderSession:
         return out
 
     # ------------------------------------------------------------------ public API
+    def _check_current(self):
+        if RenderSession._current is not self:
+            raise StageError("this RenderSession was closed or replaced by a newer one in this process")
+
     def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str]) -> dict:
+        self._check_current()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
         outputs = set(outputs)
@@ -475,12 +496,12 @@ class RenderSession:
         W, H = self.camera.width, self.camera.height
         info = {"frame_id": plan.frame_id, "decisions": eff.to_dict(), "lighting": lighting_src,
                 "device": self.device, "canvas": [self.canvas.pinhole.width, self.canvas.pinhole.height],
-                "amodal_method": "mesh rasterisation with OpenCV (no render)"}
+                "amodal_method": "mesh triangles rasterised at pixel centres in NumPy (no render)"}
         if eff.skip_render.value:
             t1 = time.perf_counter()
             kept = set()
             self._sync_objects(plan, kept)  # hide culled objects that exist
-            write_passes(out_exr, empty_passes(W, H, keys))
+            write_passes(out_exr, empty_passes(W, H, keys), window=(0, 0, 1, 1))
             timings["write"] = time.perf_counter() - t1
             timings["total"] = time.perf_counter() - t0
             info.update(region=None, amodal_px={}, skipped=True,
@@ -493,12 +514,13 @@ class RenderSession:
         self._set_camera(plan.T_world_cam)
         self._apply_lighting(lighting, background=False)
         self._set_twin_mode("composite", catcher=bool(eff.shadow_catcher.value))
-        if self._ground is not None:
-            self._ground.hide_render = True
         by_id = {int(o.id): o for o in plan.objects}
         patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.sun_direction(lighting))
-                   if eff.shadow_catcher.value else None)
+                   if eff.shadow_catcher.value and self.catch_shadows_on == "patches" else None)
         self._set_catcher(patches)
+        if patches is not None:
+            info["decisions"]["shadow_catcher"]["reason"] += (
+                f"; caught on {len(patches)} ground patches (footprint + shadow of each object)")
         self.scene.render.film_transparent = True
         self._set_passes(keys)
         self._set_sampling(eff.sampling.value)
@@ -519,9 +541,10 @@ class RenderSession:
         timings["render"] = time.perf_counter() - t2
 
         t3 = time.perf_counter()
-        raw = read_passes(tmp)
+        raw = self._uncrop(read_passes(tmp), eff.region.value)
         passes = self._finish_passes(raw, keys, eff.region.value)
-        write_passes(out_exr, passes)
+        out_region = self.canvas.region_to_output(eff.region.value) if eff.region.value else None
+        write_passes(out_exr, passes, window=out_region)
         tmp.unlink(missing_ok=True)
         timings["write"] = time.perf_counter() - t3
 
@@ -530,10 +553,27 @@ class RenderSession:
         timings["amodal"] = time.perf_counter() - t4
         self._frames += 1
         timings["total"] = time.perf_counter() - t0
-        info.update(region=list(self.canvas.region_to_output(eff.region.value)) if eff.region.value else None,
+        info.update(region=list(out_region) if out_region else None,
                     amodal_px=amodal, skipped=False,
                     timings={k: round(v, 4) for k, v in timings.items()}, rss_mb=round(_rss_mb(), 1))
         return info
+
+    def _uncrop(self, raw: dict, region) -> dict:
+        """Blender's cropped region -> canvas-size arrays (0 outside, shadow catcher 1)."""
+        if region is None:
+            return raw
+        pin = self.canvas.pinhole
+        x0, y0, x1, y1 = region
+        out = {}
+        for k, a in raw.items():
+            if a.shape[:2] != (y1 - y0, x1 - x0):
+                raise StageError(f"Blender rendered a {a.shape[1]}x{a.shape[0]} region for the "
+                                 f"{x1 - x0}x{y1 - y0} border {region} (pass {k})")
+            full = np.full((pin.height, pin.width) + a.shape[2:], 1.0 if k == "shadow_catcher" else 0,
+                           dtype=a.dtype)
+            full[y0:y1, x0:x1] = a
+            out[k] = full
+        return out
 
     def _finish_passes(self, raw: dict, keys: list[str], region) -> dict:
         """Blender's passes -> the contract: requested keys only, outside-region values
@@ -567,6 +607,7 @@ class RenderSession:
 
     def render_background(self, T_world_cam, lighting: dict | None, out_png: Path, samples: int) -> dict:
         """The twin itself, opaque, under a sky: an 8-bit sRGB PNG (synthetic recordings)."""
+        self._check_current()
         t0 = time.perf_counter()
         lighting = lighting or fx.DEFAULT_LIGHTING
         sc = self.scene
@@ -613,7 +654,9 @@ class RenderSession:
                 "rss_mb": round(_rss_mb(), 1)}
 
     def close(self):
-        for p in list(self._placed.values()):
-            self._remove(p)
+        if RenderSession._current is self:
+            for p in list(self._placed.values()):
+                self._remove(p)
+            RenderSession._current = None
         self._placed.clear()
         shutil.rmtree(self._tmp, ignore_errors=True)

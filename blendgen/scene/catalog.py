@@ -1,9 +1,10 @@
 """The object catalog (bpy-free): a seeded sampler of builder parameters and real-world
 dimensions per class, so the planner knows each object's box before Blender builds it.
 
-`assets_procedural.objects.build_object` builds exactly these parameters and scales the
-result so its tight box equals `dims` (length x, width y, height z; metres). Ranges are
-typical European/North-American figures for each body type.
+Target sizes are drawn from typical European/North-American ranges per body type; the
+returned dims (length x, width y, height z; metres) are the tight box of the geometry that
+`assets_procedural.shapes` (NumPy, bpy-free) builds for the variant, and
+`assets_procedural.objects.build_object` builds exactly that geometry in Blender.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ def _person(rng, *, height=None, pose=None) -> tuple[dict, tuple]:
     build = _pick(rng, ["slim", "medium", "broad"])
     shoulder = {"slim": 0.23, "medium": 0.25, "broad": 0.28}[build] * h  # shoulder breadth
     pose = pose or _pick(rng, ["standing", "walking", "walking"])
-    stride = _u(rng, (0.25, 0.45)) if pose == "walking" else 0.0  # hip swing (rad)
+    stride = _u(rng, (0.2, 0.38)) if pose == "walking" else 0.0  # hip swing (rad)
     leg = 0.47 * h
     depth = max(0.28 * h / 1.75, 2 * leg * np.sin(stride) + 0.26)
     width = shoulder + 0.12 * h / 1.75
@@ -133,5 +134,18 @@ def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[floa
         v = {"kind": kind, "housing": _pick(rng, [(0.02, 0.02, 0.02), (0.03, 0.05, 0.03), (0.5, 0.42, 0.05)]),
              "mount_height_m": _u(rng, (2.4, 3.0))}
     v["seed"] = seed
+    # The builder proportions the shape from these target dims; the object's dims are the
+    # tight box of exactly that geometry (NumPy only, no bpy), so the render-time fit is 1:1.
+    v["shape_dims"] = [round(float(L), 4), round(float(W), 4), round(float(H), 4)]
     v = json.loads(json.dumps(v))  # plain JSON data (lists, not tuples): plans round-trip exactly
-    return v, (round(float(L), 4), round(float(W), 4), round(float(H), 4))
+    return v, shape_extent(cls, v)
+
+
+def shape_extent(cls: str, variant: dict) -> tuple[float, float, float]:
+    """Tight box (L, W, H) of the geometry `assets_procedural.shapes` builds for a variant."""
+    from assets_procedural.meshkit import MeshBuilder
+    from assets_procedural.shapes import BUILDERS, natural_extent
+
+    mb = MeshBuilder()
+    BUILDERS[cls](mb, variant, *variant["shape_dims"])
+    return tuple(round(float(x), 4) for x in natural_extent(mb))

@@ -184,8 +184,9 @@ class Planner:
             for j in np.nonzero(close)[0]:
                 if convex_overlap(tr.corners[a - tr.k0 + j], o.corners[a - o.k0 + j], CLEARANCE_M):
                     return True
-        # structures: check where the footprint comes near one
-        if len(self.twin.structures):
+        # structures: check where the footprint comes near one (a signal head is mounted
+        # on its pole above head height, so it is exempt)
+        if len(self.twin.structures) and tr.cls != "traffic light":
             d = np.linalg.norm(tr.xy[:, None, :] - self.twin._st_center[None], axis=2)
             hit = d < self.twin._st_radius[None] + tr.radius + 0.1
             for i, s in zip(*np.nonzero(hit)):
@@ -353,10 +354,13 @@ class Planner:
             return None
         sl = slots[int(self.rng.integers(len(slots)))]
         z = self.twin.ground_height(sl.x, sl.y) + variant["mount_height_m"]
+        # the head hangs in front of the slot's signal pole (radius 0.07 m), facing the traffic
+        off = dims[0] / 2 + 0.09
+        xy = (sl.x + off * math.cos(sl.yaw), sl.y + off * math.sin(sl.yaw))
         tt = self.times[k:] if self.inject.sequences else self.times[k:k + 1]
         offset = float(self.rng.uniform(0, sum(d for _, d in SIGNAL_CYCLE)))
         states = [signal_state(t + offset) for t in tt]
-        return self.static_track(k, "traffic light", variant, dims, (sl.x, sl.y), sl.yaw, z, states=states)
+        return self.static_track(k, "traffic light", variant, dims, xy, sl.yaw, z, states=states)
 
     # ------------------------------------------------------------ scenarios
     def stage_scenario(self, name: str, k: int) -> list[Track]:

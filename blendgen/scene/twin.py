@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import yaml
@@ -24,10 +25,12 @@ from blendgen.scene.geom2d import Polyline, convex_overlap, point_in_convex, rec
 from blendgen.scene.twin_schema import Road, TwinSpec
 
 STEP_M = 1.0  # centre-line sampling
+SIGNAL_POLE_M = 4.2  # height of the signal poles built at intersection signal slots
 
 
-@dataclass(frozen=True)
-class Georef:
+class Georef(NamedTuple):
+    """The twin's geodetic origin; a tuple (lat0, lon0, alt0) with ENU conversions."""
+
     lat0: float
     lon0: float
     alt0: float
@@ -268,6 +271,8 @@ class Twin:
             out.append(Structure("barrier", rect((a + e) / 2, max(length, 0.1), w,
                                                  math.atan2(*(e - a)[::-1])), b.height_m))
         out += [Structure("tree", rect(t.position, 0.6, 0.6, 0.0), t.height_m) for t in sp.trees]
+        # signal poles stand at every signal slot; the planner mounts traffic-light heads on them
+        out += [Structure("signal_pole", rect((sl.x, sl.y), 0.3, 0.3, 0.0), SIGNAL_POLE_M) for sl in self.signal_slots]
         for rg in self.roads.values():
             if rg.spec.median_barrier and rg.spec.median_m > 0:
                 for s0 in np.arange(0.0, rg.length, 8.0):

@@ -32,7 +32,7 @@ class EkfConfig:
     gyro_noise: float = 1.7e-4    # rad/s/sqrt(Hz)
     acc_walk: float = 3.0e-3      # m/s^3/sqrt(Hz)
     gyro_walk: float = 2.0e-5     # rad/s^2/sqrt(Hz)
-    noise_inflation: float = 3.0  # datasheet densities are optimistic for vibrating vehicles
+    noise_inflation: float = 1.0  # >1 when calib.yaml gives raw datasheet densities (Kalibr advises inflating)
     max_imu_dt: float = 0.05      # a longer IMU interval is a gap: no integration across it
     gap_acc_std: float = 2.0      # m/s^2: how much the vehicle may accelerate unseen in a gap
     gap_gyro_std: float = 0.2     # rad/s: how much it may turn unseen in a gap
@@ -297,6 +297,21 @@ class ErrorStateEkf:
         H = np.zeros((1, N))
         H[0, ITH] = dyaw_df @ (-self.R @ so3.hat(forward_body))
         return self._update(kind, r, H, np.array([[std**2]]))
+
+    def update_no_sideslip(self, forward_body, std: float) -> bool:
+        """Non-holonomic constraint: a car does not slide sideways, so the velocity has no
+        component along the body's horizontal axis perpendicular to `forward_body`."""
+        up_b = self.R.T @ np.array([0.0, 0.0, 1.0])
+        lat = np.cross(up_b, forward_body)
+        n = np.linalg.norm(lat)
+        if n < 0.3:
+            return False
+        lat /= n
+        vb = self.R.T @ self.v
+        H = np.zeros((1, N))
+        H[0, IV] = lat @ self.R.T
+        H[0, ITH] = lat @ so3.hat(vb)
+        return self._update("nhc", np.array([-(lat @ vb)]), H, np.array([[std**2]]))
 
     def update_relative(self, R_c1c2, u_dir, R_bc, p_bc, rot_std: float, dir_std: float | None) -> bool:
         """VO between the clone (frame 1) and now (frame 2), in camera coordinates.

@@ -29,6 +29,8 @@ from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import OrbVo, VoConfig, VoResult
 
+ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
+
 POSES_COLUMNS = ["t", "x", "y", "z", "qw", "qx", "qy", "qz",
                  "var_x", "var_y", "var_z", "var_rx", "var_ry", "var_rz",
                  "vo_status", "vo_inliers", "vo_parallax_px", "flags", "frame_id"]
@@ -230,15 +232,17 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     fwd = _forward_axis(R_bc)
 
     # --- initial state
+    yaw0, v0, yaw_std = (_initial_heading(gt_t, g_xyz, g_yaw, t_start) if use_gnss else (None, np.zeros(3), None))
     if use_imu:
         head = imu[imu[:, 0] < imu[0, 0] + 1.0]
-        R0 = _gravity_level(head[:, 4:7].mean(axis=0))
+        f_mean = head[:, 4:7].mean(axis=0)
+        # a turning car feels a centripetal acceleration w x v: remove it before levelling
+        v_body = np.linalg.norm(v0) * fwd / np.linalg.norm(fwd)
+        R0 = _gravity_level(f_mean - np.cross(head[:, 1:4].mean(axis=0), v_body))
     else:
-        R0 = np.eye(3)
         # level camera: optical axis horizontal, image y down
         R_wc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
         R0 = R_wc @ R_bc.T
-    yaw0, v0, yaw_std = (_initial_heading(gt_t, g_xyz, g_yaw, t_start) if use_gnss else (None, np.zeros(3), None))
     f0 = R0 @ fwd
     if np.hypot(f0[0], f0[1]) < 0.3:  # camera looks up/down: steer by the body x axis instead
         fwd = np.array([1.0, 0, 0])
@@ -246,16 +250,41 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     if yaw0 is not None:
         R0 = so3.yaw_rotation(yaw0 - np.arctan2(f0[1], f0[0])) @ R0
     p0 = g_xyz[0].copy() if use_gnss else np.zeros(3)
+    # the levelling above cannot see the car's own longitudinal acceleration: start with a
+    # loose tilt prior, then (with the smoother) run again from the smoothed initial state
     P0 = np.concatenate([np.full(3, 4.0 if use_gnss else 1e-4), np.full(3, 4.0),
-                         [0.05**2, 0.05**2, (yaw_std or 0.05) ** 2],
-                         np.full(3, 0.01**2), np.full(3, 0.5**2)])
-    ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
+                         [0.15**2, 0.15**2, (yaw_std or 0.05) ** 2],
+                         np.full(3, 0.01**2), np.full(3, ACC_BIAS_PRIOR**2)])
     smooth = bool(getattr(settings, "smooth", True))
+    passes = 2 if (smooth and use_imu) else 1
+    vo_cache: dict[int, VoResult | None] = {}
+    x0 = (p0, v0, R0, np.zeros(3), np.zeros(3))
+    for k in range(passes):
+        last_pass = k == passes - 1
+        res, x0_s, var0 = _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids,
+                                       out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd,
+                                       imu, vo_cache, progress and k == 0)
+        if not last_pass:
+            x0 = x0_s
+            # second pass: start from the smoothed initial state, with its (inflated) uncertainty
+            P0 = np.maximum(var0 * 4.0, np.concatenate([np.full(3, 1e-4), np.full(3, 1e-4), np.full(3, 1e-6),
+                                                        np.full(3, 1e-8), np.full(3, 1e-6)]))
+    res.summary["passes"] = passes
+    return res
+
+
+def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
+                 gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, progress):
+    p0, v0, R0, bg0, ba0 = x0
+    ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
+    if use_imu:
+        ekf.bg, ekf.ba = bg0.copy(), ba0.copy()
     if smooth:
         ekf.history = []
-    marks = []
+    marks = [ekf.mark()] if smooth else []
 
     stationary = _stationary_imu(imu, cfg) if use_imu else np.zeros(0, bool)
+    next_nhc_t = -np.inf
 
     # --- event queue: (time, order, kind, index); order makes IMU come before others at equal t
     ev_t = [imu[1:, 0], gt_t if use_gnss else np.zeros(0), out_t]
@@ -267,8 +296,8 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     I = np.concatenate(ev_i)
     order = np.lexsort((K, T))
 
-    vo = OrbVo(rec.camera, _vo_config(settings)) if use_vo else None
-    frames = _frames(rec) if use_vo else None
+    vo = OrbVo(rec.camera, _vo_config(settings)) if use_vo and not vo_cache else None
+    frames = _frames(rec) if vo is not None else None
     poses, covs, quality = [], [], []
     pending = []  # flags since the last pose
     last_zupt_t = -np.inf
@@ -301,6 +330,14 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
             ok = ekf.update_position(g_xyz[i], (s, s, 2 * s), kind="gnss")
             pending.append("gnss" if ok else "gnss_rejected")
+            speed = float(np.linalg.norm(ekf.v[:2]))
+            if use_imu and not use_vo and speed > 2.0 and t >= next_nhc_t:
+                # weak prior that the camera looks along the direction of travel (a mount yaw
+                # of d degrees biases the heading by at most d); decisive only when nothing else
+                # observes the heading (straight drive at constant speed). VO measures the
+                # camera's direction of travel itself, so it replaces this prior.
+                ekf.update_no_sideslip(fwd, 0.1 + 0.05 * speed)
+                next_nhc_t = t + 1.0
             if not g_inside[i]:
                 pending.append("lut_outside")
             if not use_imu and not use_vo and np.isfinite(g_yaw[i]):
@@ -311,12 +348,17 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             pending = []
             res = None
             if use_vo:
-                fi, img = next(frames)
-                if img is None:
+                if vo is not None:
+                    fi, img = next(frames)
+                    if img is None:
+                        vo.reset()
+                        vo_cache[i] = None
+                    else:
+                        vo_cache[i] = vo.track(img)
+                res = vo_cache[i]
+                if res is None:
                     flags.append("decode_failed")
-                    vo.reset()
                 else:
-                    res = vo.track(img)
                     if res.has_rotation and ekf.has_clone:
                         rot_std = 0.004 if res.status == "ok" else 0.006
                         dir_std = 0.05 if res.has_direction else None
@@ -343,9 +385,12 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                 raise StageError(f"filter became numerically unstable at t={t:.3f}")
             bar.update(1)
     bar.close()
-    if smooth and poses:
+    x0_s, var0 = None, None
+    if smooth:
         T_bc = make_pose(R_bc, p_bc)
-        for k, ((p, v, R, bg, ba), var) in enumerate(ekf.smooth(marks)):
+        sm = ekf.smooth(marks)
+        x0_s, var0 = sm[0]
+        for k, ((p, v, R, bg, ba), var) in enumerate(sm[1:]):
             if np.all(np.isfinite(p)) and np.all(np.isfinite(R)):
                 poses[k] = (poses[k][0], poses[k][1], make_pose(R, p) @ T_bc)
                 covs[k] = np.concatenate([var[0:3], var[6:9]])
@@ -354,7 +399,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                "updates": dict(st.updates), "rejected": dict(st.rejected),
                "gyro_bias": ekf.bg.round(5).tolist(), "accel_bias": ekf.ba.round(4).tolist(),
                "vo_status": _count(q["vo_status"] for q in quality)}
-    return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary)
+    return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary), x0_s, var0
 
 
 def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
@@ -362,7 +407,7 @@ def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
     vo = OrbVo(rec.camera, _vo_config(settings))
     R_wc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # level, looking along +x
     T = make_pose(R_wc, np.zeros(3))
-    last_step = None
+    last_step, last_dir = None, None
     poses, covs, quality = [], [], []
     bar = _bar(progress, len(out_t_cam), "sync (VO only)")
     var_p, var_r = 0.0, 0.0
@@ -378,8 +423,12 @@ def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
         if res is not None and res.has_rotation and i > 0:
             if res.has_direction:
                 step = make_pose(res.R_c1c2, res.u_dir * settings.vo_speed_mps * dt)
-            else:
+                last_dir = res.u_dir
+            elif res.stationary or last_dir is None:
                 step = make_pose(res.R_c1c2, np.zeros(3))
+            else:  # no parallax while driving (far scene): keep the last direction of travel
+                step = make_pose(res.R_c1c2, last_dir * settings.vo_speed_mps * dt)
+                flags.append("vo_direction_held")
             last_step = step
         elif i > 0:
             flags.append("vo_failed")

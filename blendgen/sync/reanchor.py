@@ -6,8 +6,9 @@ height offset (yaw dpsi, translation b): the robust mean of the fix residuals in
 using future fixes as well as past ones (which the causal filter could not). The yaw part is
 kept only when it is statistically significant (> 3 sigma given the fix noise and the
 segment's extent), because a short noisy segment would otherwise rotate a good trajectory.
-Between anchor times the (dpsi, b) parameters are interpolated linearly, so the corrected
-trajectory is continuous (C0 in pose, no step at segment borders).
+Between anchors the (dpsi, b) parameters are interpolated linearly in distance travelled, so
+the corrected trajectory is continuous (no step at segment borders) and a parked vehicle is
+not made to creep.
 """
 
 from __future__ import annotations
@@ -67,8 +68,14 @@ def reanchor(result, fix_t, fix_xyz, fix_inside, fix_std, every_s: float, T_imu_
     ta = np.array([a[0] for a in anchors])
     psi = np.array([a[1] for a in anchors])
     bv = np.array([a[2] for a in anchors])
-    psi_t = np.interp(t, ta, psi)
-    b_t = _interp_positions(t, ta, bv)
+    # spread along the distance travelled, not time: a parked car gets a constant correction
+    # (so it does not creep), a moving one a gradual one. The small time term keeps the
+    # parameter strictly increasing through standstills.
+    step = np.linalg.norm(np.diff(body, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(step)]) + 1e-3 * (t - t[0])
+    sa = np.interp(ta, t, s)
+    psi_t = np.interp(s, sa, psi)
+    b_t = _interp_positions(s, sa, bv)
     for k, (fid, tk, T) in enumerate(result.poses):
         Rz = so3.yaw_rotation(psi_t[k])
         T2 = T.copy()

@@ -170,8 +170,11 @@ class OrbVo:
                 return res
             t = None
         res.n_inliers = int(inl.sum())
-        # parallax: what is left of the motion once the rotation is taken out
-        q1r = (R21 @ q1[inl].T).T
+        # parallax: what is left of the motion once the best pure rotation is taken out (the
+        # E decomposition's own R is arbitrary when there is no translation)
+        R_rot = so3.orthonormalize(_kabsch(q1[inl] / np.linalg.norm(q1[inl], axis=1, keepdims=True),
+                                           q2[inl] / np.linalg.norm(q2[inl], axis=1, keepdims=True)))
+        q1r = (R_rot @ q1[inl].T).T
         q1r = q1r[:, :2] / q1r[:, 2:]
         res.parallax_px = float(np.median(np.linalg.norm(q1r - n2[inl], axis=1)) * self.f)
         if t is None or res.parallax_px < self.cfg.min_parallax_px:

@@ -1,0 +1,107 @@
+"""Blender objects for the seven classes, built from a PlacedObject (bpy).
+
+`build_object(obj)` builds the geometry of `assets_procedural.shapes` for `obj.variant`
+(fitted to `obj.dims`, the tight box), assigns PBR materials and returns a single mesh
+object: origin at the centre of the bottom face, placed at `obj.position` turned by `obj.yaw`,
+`pass_index = obj.id`. A traffic light is the signal head only (labels box the head, as
+COCO does); it is mounted on the signal pole the twin builds at each intersection slot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import bpy
+
+from assets_procedural import materials as M
+from assets_procedural.shapes import LAMP_COLORS, build_shape
+from blendgen.scene.catalog import sample_variant
+from blendgen.scene.plan import PlacedObject
+
+LIT_STRENGTH = 10.0  # emission of a lit signal lamp: bright, still saturated in colour
+
+
+def _materials(obj: PlacedObject, slots: list[str]) -> dict:
+    v = obj.variant
+    rider = v.get("rider", {})
+    paint = v.get("paint", (0.5, 0.5, 0.5))
+    out = {}
+    for s in slots:
+        if s == "paint":
+            out[s] = M.paint(paint)
+        elif s == "cargo":
+            out[s] = M.principled(M._key("cargo", v.get("cargo", (0.8, 0.8, 0.78))), v.get("cargo", (0.8, 0.8, 0.78)),
+                                  roughness=0.5, coat=0.3)
+        elif s == "glass":
+            out[s] = M.glass()
+        elif s == "rubber":
+            out[s] = M.rubber()
+        elif s == "chrome":
+            out[s] = M.chrome()
+        elif s == "alloy":
+            out[s] = M.alloy()
+        elif s in ("plastic", "saddle"):
+            out[s] = M.plastic((0.025, 0.025, 0.025))
+        elif s == "plate":
+            out[s] = M.principled("plate", (0.85, 0.85, 0.8), roughness=0.4)
+        elif s == "lamp_head":
+            out[s] = M.lamp((1.0, 0.95, 0.85), 2.0)
+        elif s == "lamp_tail":
+            out[s] = M.lamp((0.9, 0.02, 0.01), 1.5)
+        elif s == "lamp_sign":
+            out[s] = M.lamp((1.0, 0.55, 0.05), 3.0)
+        elif s.startswith("lamp_"):  # traffic-light lamps: lit one emits strongly
+            name = s.split("_")[1]
+            col = LAMP_COLORS[name]
+            out[s] = (M.lamp(col, 0.02) if s.endswith("_off") else M.lamp(col, LIT_STRENGTH))
+        elif s == "housing":
+            out[s] = M.principled(M._key("housing", v.get("housing", (0.02, 0.02, 0.02))),
+                                  v.get("housing", (0.02, 0.02, 0.02)), roughness=0.45)
+        elif s == "pole":
+            out[s] = M.metal((0.45, 0.46, 0.47), 0.45)
+        else:  # person parts: pedestrians, or the rider of a two-wheeler
+            pv = rider if obj.cls in ("bicycle", "motorcycle") else v
+            col = {"skin": pv.get("skin"), "hair": pv.get("hair"), "shirt": pv.get("shirt"),
+                   "pants": pv.get("pants"), "shoes": pv.get("shoes"), "bag": (0.08, 0.05, 0.03)}.get(s)
+            col = col or (0.3, 0.3, 0.3)
+            if s == "skin":
+                out[s] = M.skin(col)
+            elif s == "hair":
+                out[s] = M.hair(col)
+            elif s == "shoes":
+                out[s] = M.principled(M._key("leather", col), col, roughness=0.5, coat=0.3)
+            else:
+                out[s] = M.fabric(col)
+    return out
+
+
+def _link(ob, collection):
+    (collection or bpy.context.scene.collection).objects.link(ob)
+
+
+def build_object(obj: PlacedObject, collection=None):
+    """Build one object; returns its root mesh object (children parented)."""
+    if not obj.variant:  # a plan made by hand: draw a variant, keep the given dims
+        variant, _ = sample_variant(obj.cls, np.random.default_rng(obj.id))
+        variant.pop("shape_dims")
+        obj = PlacedObject(**{**obj.__dict__, "variant": variant})
+    mb = build_shape(obj.cls, obj.variant, obj.dims, obj.state)
+    name = f"obj_{obj.id}_{obj.cls.replace(' ', '_')}"
+    me = mb.to_mesh(name, _materials(obj, mb.slots))
+    root = bpy.data.objects.new(name, me)
+    root.location = tuple(float(x) for x in obj.position)
+    root.rotation_euler = (0.0, 0.0, float(obj.yaw))
+    root.pass_index = int(obj.id)
+    root["blendgen_id"] = int(obj.id)
+    root["blendgen_cls"] = obj.cls
+    _link(root, collection)
+    return root
+
+
+def remove_object(root) -> None:
+    """Delete an object built by build_object with its children and meshes (keeps RSS flat)."""
+    for ob in [root, *root.children_recursive]:
+        me = ob.data
+        bpy.data.objects.remove(ob, do_unlink=True)
+        if me is not None and me.users == 0:
+            bpy.data.meshes.remove(me)

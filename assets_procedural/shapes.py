@@ -1,0 +1,538 @@
+"""Geometry of the seven object classes (NumPy only, no bpy).
+
+Each builder adds named-material parts to a MeshBuilder in the object frame (x forward,
+y left, z up, origin at the centre of the bottom face), shaped from the catalog variant and
+the target dims. `fit_to_dims` then maps the tight box exactly onto `dims`; builders are
+proportioned so that this correction stays within a few per cent.
+Material slot names: paint, glass, rubber, chrome, alloy, plastic, lamp_head, lamp_tail,
+lamp_red/amber/green (+ _off), skin, hair, shirt, pants, shoes, bag, cargo, saddle, housing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, loft, rot_y, rot_z, rounded_section,
+                                       torus, tube, xf)
+
+
+# ====================================================================== vehicles (4 wheels)
+def _wheel(mb, x, y, r, width, rim="alloy"):
+    v, f = cylinder(r, width, 20, "y", (x, y, r))
+    mb.add(v, f, "rubber", smooth=True)
+    side = 1 if y > 0 else -1
+    v, f = cylinder(r * 0.6, 0.02, 16, "y", (x, y + side * (width / 2 + 0.002), r))
+    mb.add(v, f, rim)
+
+
+def _lower_body(L, hw, z_bot, tops, r=0.12):
+    """Loft of the lower body from rear (x=-L/2) to front; `tops` = [(x, z_top, width_frac)]."""
+    st = []
+    for x, zt, wf in tops:
+        st.append((x, rounded_section(hw * wf, z_bot + (0.05 if wf < 0.97 else 0.0), zt, r,
+                                      top_half_w=hw * wf * 0.96)))
+    return loft(st)
+
+
+CAR_SHAPES = {  # fractions: beltline/hood/deck heights of H; x positions of L; bottom of H
+    "sedan": dict(belt=.63, hood=.57, deck=.65, ws=.21, roof_f=.03, roof_r=-.24, rw=-.37, bot=.12, axle=.30),
+    "hatchback": dict(belt=.61, hood=.56, deck=.63, ws=.20, roof_f=.02, roof_r=-.36, rw=-.46, bot=.12, axle=.31),
+    "suv": dict(belt=.60, hood=.60, deck=.62, ws=.22, roof_f=.06, roof_r=-.42, rw=-.48, bot=.13, axle=.31),
+    "van": dict(belt=.50, hood=.44, deck=.52, ws=.42, roof_f=.28, roof_r=-.47, rw=-.495, bot=.10, axle=.33),
+}
+
+
+def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    p = CAR_SHAPES.get(v.get("kind", "sedan"), CAR_SHAPES["sedan"])
+    r = float(v.get("wheel_radius", 0.33))
+    hw = W * 0.94 / 2
+    belt, hood, deck = p["belt"] * H, p["hood"] * H, p["deck"] * H
+    zb = max(p["bot"] * H, r * 0.55)
+    x_ws, x_rw = p["ws"] * L, p["rw"] * L
+    tops = [(-L / 2, deck - 0.1, 0.92), (-L / 2 + 0.04 * L, deck, 0.99), (x_rw, belt, 1.0),
+            (x_ws, belt, 1.0), (L / 2 - 0.06 * L, hood, 0.99), (L / 2, hood - 0.12, 0.9)]
+    vv, f = _lower_body(L, hw, zb, tops)
+    mb.add(vv, f, "paint", smooth=True)
+    # greenhouse: glass, with the painted roof panel on top
+    zc = belt - 0.04
+    cab = [(x_rw, rounded_section(hw * 0.92, zc, belt + 0.03, 0.05, top_half_w=hw * 0.9)),
+           (p["roof_r"] * L, rounded_section(hw * 0.92, zc, H - 0.03, 0.1, top_half_w=hw * 0.74)),
+           (p["roof_f"] * L, rounded_section(hw * 0.92, zc, H - 0.03, 0.1, top_half_w=hw * 0.74)),
+           (x_ws, rounded_section(hw * 0.92, zc, belt + 0.03, 0.05, top_half_w=hw * 0.9))]
+    vv, f = loft(cab)
+    mb.add(vv, f, "glass", smooth=False)
+    roof = [(p["roof_r"] * L - 0.04, rounded_section(hw * 0.75, H - 0.06, H, 0.02, top_half_w=hw * 0.72)),
+            (p["roof_f"] * L + 0.04, rounded_section(hw * 0.75, H - 0.06, H, 0.02, top_half_w=hw * 0.72))]
+    vv, f = loft(roof)
+    mb.add(vv, f, "paint", smooth=True)
+    # B-pillars
+    xb = (p["roof_f"] + p["roof_r"]) / 2 * L
+    for s in (1, -1):
+        vv, f = box((0.12, 0.04, H - 0.06 - zc), (xb, s * hw * 0.84, (H - 0.06 + zc) / 2))
+        mb.add(xf(vv, None, (0, 0, 0)), f, "paint")
+    # wheels
+    ax = p["axle"] * L
+    for x in (ax, -ax):
+        for s in (1, -1):
+            _wheel(mb, x, s * (hw - 0.11), r, 0.22, "chrome" if v.get("chrome_trim") else "alloy")
+    # lights, grille, bumpers, plates, mirrors
+    zl = hood - 0.14
+    for s in (1, -1):
+        vv, f = box((0.05, 0.30, 0.09), (L / 2 - 0.045, s * (hw - 0.28), zl))
+        mb.add(vv, f, "lamp_head")
+        vv, f = box((0.05, 0.28, 0.10), (-L / 2 + 0.03, s * (hw - 0.25), deck - 0.16))
+        mb.add(vv, f, "lamp_tail")
+        vv, f = box((0.18, (W / 2 - hw) + 0.06, 0.11), (x_ws - 0.12, s * (W / 2 - (W / 2 - hw + 0.06) / 2), belt + 0.06))
+        mb.add(vv, f, "paint")
+    vv, f = box((0.04, hw * 0.8, 0.16), (L / 2 - 0.02, 0, zl - 0.02))
+    mb.add(vv, f, "plastic")
+    for x in (L / 2 - 0.05, -L / 2 + 0.05):
+        vv, f = box((0.1, hw * 1.9, 0.14), (x, 0, zb + 0.1))
+        mb.add(vv, f, "plastic")
+        vv, f = box((0.02, 0.5, 0.11), (x + (0.05 if x > 0 else -0.05), 0, zb + 0.28))
+        mb.add(vv, f, "plate")
+
+
+def _cab(mb, x_front, length, hw, z0, z1, glass_from):
+    """A truck/pickup cab: painted body with windscreen and side windows."""
+    vv, f = loft([(x_front - length, rounded_section(hw, z0, z1, 0.12)),
+                  (x_front - 0.1, rounded_section(hw, z0, z1, 0.12)),
+                  (x_front, rounded_section(hw * 0.97, z0 + 0.05, z1 - 0.08, 0.1))])
+    mb.add(vv, f, "paint", smooth=True)
+    zg = z0 + glass_from * (z1 - z0)
+    vv, f = box((0.04, hw * 1.8, (z1 - 0.12) - zg), (x_front + 0.005, 0, (z1 - 0.12 + zg) / 2))
+    mb.add(vv, f, "glass")
+    for s in (1, -1):
+        vv, f = box((length * 0.55, 0.03, (z1 - 0.15) - zg), (x_front - length * 0.4, s * (hw + 0.005),
+                                                             (z1 - 0.15 + zg) / 2))
+        mb.add(vv, f, "glass")
+    for s in (1, -1):
+        vv, f = box((0.05, 0.28, 0.16), (x_front + 0.01, s * (hw - 0.3), z0 + 0.35))
+        mb.add(vv, f, "lamp_head")
+
+
+def truck(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    kind = v.get("kind", "box_truck")
+    r = float(v.get("wheel_radius", 0.5))
+    hw = W / 2
+    if kind == "pickup":
+        zb = 0.45
+        _cab(mb, L / 2 - 1.2, 1.6, hw * 0.98, zb, H, 0.45)
+        hood = [(L / 2 - 1.25, rounded_section(hw * 0.98, zb, 0.58 * H, 0.1)),
+                (L / 2, rounded_section(hw * 0.94, zb + 0.05, 0.55 * H, 0.1))]
+        vv, f = loft(hood)
+        mb.add(vv, f, "paint", smooth=True)
+        xb0, xb1 = -L / 2, L / 2 - 2.85
+        vv, f = box((xb1 - xb0, 2 * hw * 0.98, 0.08), ((xb0 + xb1) / 2, 0, zb + 0.05))
+        mb.add(vv, f, "plastic")
+        for s in (1, -1):
+            vv, f = box((xb1 - xb0, 0.06, 0.5), ((xb0 + xb1) / 2, s * (hw * 0.98 - 0.03), zb + 0.3))
+            mb.add(vv, f, "paint")
+        vv, f = box((0.06, 2 * hw * 0.98, 0.5), (xb0 + 0.03, 0, zb + 0.3))
+        mb.add(vv, f, "paint")
+        axles = [L / 2 - 1.0, -L / 2 + 1.35]
+        for s in (1, -1):
+            vv, f = box((0.05, 0.25, 0.12), (-L / 2 + 0.01, s * (hw - 0.2), zb + 0.45))
+            mb.add(vv, f, "lamp_tail")
+    else:
+        cab_len = 2.2 if kind == "box_truck" else 2.5
+        cab_h = (0.78 if kind == "box_truck" else 0.82) * H
+        z_ch = r + 0.15
+        _cab(mb, L / 2, cab_len, hw * 0.98, z_ch - 0.2, cab_h, 0.5)
+        if kind == "semi":  # roof fairing up to the trailer
+            vv, f = loft([(L / 2 - cab_len, rounded_section(hw * 0.95, cab_h - 0.05, H - 0.05, 0.2)),
+                          (L / 2 - cab_len * 0.35, rounded_section(hw * 0.85, cab_h - 0.05, cab_h + 0.05, 0.05))])
+            mb.add(vv, f, "paint", smooth=True)
+        gap = 0.15 if kind == "box_truck" else 0.6
+        x1 = L / 2 - cab_len - gap
+        z_box = z_ch + (0.15 if kind == "box_truck" else 0.45)
+        vv, f = loft([(-L / 2, rounded_section(hw, z_box, H, 0.05)), (x1, rounded_section(hw, z_box, H, 0.05))])
+        mb.add(vv, f, "cargo")
+        vv, f = box((L - 0.4, 1.0, 0.3), (0.1, 0, z_ch))
+        mb.add(vv, f, "plastic")
+        if kind == "box_truck":
+            axles = [L / 2 - 1.3, -L / 2 + 1.7]
+        else:
+            axles = [L / 2 - 1.3, L / 2 - 4.2, L / 2 - 5.5, -L / 2 + 1.2, -L / 2 + 2.5, -L / 2 + 3.8]
+        for s in (1, -1):
+            vv, f = box((0.05, 0.25, 0.15), (-L / 2 - 0.0, s * (hw - 0.2), z_box + 0.1))
+            mb.add(vv, f, "lamp_tail")
+    for x in axles:
+        for s in (1, -1):
+            _wheel(mb, x, s * (hw - 0.17), r, 0.32, "alloy")
+
+
+def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    r = float(v.get("wheel_radius", 0.5))
+    hw = W / 2
+    z0 = 0.3
+    st = [(-L / 2, rounded_section(hw * 0.97, z0 + 0.05, H - 0.05, 0.25, top_half_w=hw * 0.9)),
+          (-L / 2 + 0.15, rounded_section(hw, z0, H, 0.25, top_half_w=hw * 0.94)),
+          (L / 2 - 0.15, rounded_section(hw, z0, H, 0.25, top_half_w=hw * 0.94)),
+          (L / 2, rounded_section(hw * 0.97, z0 + 0.05, H - 0.08, 0.25, top_half_w=hw * 0.9))]
+    vv, f = loft(st)
+    mb.add(vv, f, "paint", smooth=True)
+    zw0, zw1 = 0.36 * H, 0.86 * H
+    # side window band, windscreen, rear window
+    for s in (1, -1):
+        vv, f = box((L - 1.6, 0.03, zw1 - zw0), (-0.3, s * (hw + 0.004), (zw0 + zw1) / 2))
+        mb.add(vv, f, "glass")
+    vv, f = box((0.04, W * 0.9, 0.86 * H - 0.3 * H), (L / 2 + 0.004, 0, 0.58 * H))
+    mb.add(vv, f, "glass")
+    vv, f = box((0.04, W * 0.8, 0.3 * H), (-L / 2 - 0.004, 0, 0.68 * H))
+    mb.add(vv, f, "glass")
+    # doors on the right (y < 0), full height glass panels
+    doors = [L / 2 - 1.2, -0.2, -L / 2 + 2.2][: int(v.get("doors", 3))]
+    for x in doors:
+        vv, f = box((1.2, 0.04, 0.86 * H - z0 - 0.1), (x, -(hw + 0.008), (0.86 * H + z0 + 0.1) / 2))
+        mb.add(vv, f, "glass")
+    vv, f = box((0.04, W * 0.6, 0.2), (L / 2 + 0.01, 0, 0.93 * H))
+    mb.add(vv, f, "lamp_sign")
+    vv, f = box((L * 0.25, W * 0.6, 0.22), (-L * 0.1, 0, H - 0.11))  # roof air-conditioning unit
+    mb.add(vv, f, "alloy")
+    vv, f = box((L + 0.01, W + 0.01, 0.28), (0, 0, z0 + 0.16))
+    mb.add(vv, f, "plastic")
+    for s in (1, -1):
+        vv, f = box((0.05, 0.3, 0.15), (L / 2 + 0.01, s * (hw - 0.35), z0 + 0.45))
+        mb.add(vv, f, "lamp_head")
+        vv, f = box((0.05, 0.2, 0.35), (-L / 2 - 0.01, s * (hw - 0.25), z0 + 0.7))
+        mb.add(vv, f, "lamp_tail")
+    for x in (L / 2 - 2.6, -L / 2 + 3.0):
+        for s in (1, -1):
+            _wheel(mb, x, s * (hw - 0.2), r, 0.3, "alloy")
+
+
+# ====================================================================== people
+def _ik(hip, foot, l1, l2, forward):
+    """Knee (or elbow) of a two-bone chain from `hip` to `foot`, bending toward `forward`."""
+    hip, foot = np.asarray(hip, float), np.asarray(foot, float)
+    d = foot - hip
+    dist = float(np.linalg.norm(d))
+    dist = min(dist, l1 + l2 - 1e-4)
+    u = d / max(np.linalg.norm(d), 1e-9)
+    a = (l1 ** 2 - l2 ** 2 + dist ** 2) / (2 * dist)
+    hgt = math.sqrt(max(l1 ** 2 - a ** 2, 0.0))
+    fw = np.asarray(forward, float)
+    fw = fw - u * (fw @ u)
+    fw /= max(np.linalg.norm(fw), 1e-9)
+    return hip + u * a + fw * hgt, hip + u * dist
+
+
+def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
+    """A person from limb tubes and ellipsoids. Without `joints`: standing or walking on the
+    ground (origin between the feet). With `joints` (riders): pelvis, lean, hands, feet given."""
+    h = float(v.get("height_m", 1.72))
+    build = {"slim": 0.9, "medium": 1.0, "broad": 1.12}.get(v.get("build", "medium"), 1.0)
+    hip_w, sh_w = 0.085 * h * build, 0.125 * h * build
+    thigh, shin = 0.245 * h, 0.235 * h
+    upper, fore = 0.175 * h, 0.16 * h
+    stride = float(v.get("stride_rad", 0.0))
+    if joints is None:
+        pelvis = np.array([0.0, 0.0, 0.52 * h - (1 - math.cos(stride)) * 0.47 * h])
+        lean = 0.05 if stride else 0.0
+        legs = []
+        for s, ang in ((1, stride), (-1, -stride)):
+            hip = pelvis + [0, s * hip_w, 0]
+            ankle = hip + (thigh + shin) * np.array([math.sin(ang), 0, -math.cos(ang)])
+            ankle[2] = max(ankle[2], 0.05 * h)
+            knee, ankle = _ik(hip, ankle, thigh, shin, [1, 0, 0])
+            legs.append((hip, knee, ankle))
+        arms_target = None
+    else:
+        pelvis, lean = np.asarray(joints["pelvis"], float), joints["lean"]
+        legs = []
+        for s in (1, -1):
+            hip = pelvis + [0, s * hip_w, 0]
+            foot = np.asarray(joints["feet"][0 if s > 0 else 1], float)
+            knee, ankle = _ik(hip, foot, thigh, shin, [1, 0, 0.6])
+            legs.append((hip, knee, ankle))
+        arms_target = joints["hands"]
+    # torso: elliptic rings along the spine, leaning forward by `lean`
+    spine = np.array([math.sin(lean), 0, math.cos(lean)])
+    rings = [(0.0, 0.075, hip_w * 1.25), (0.09, 0.07, hip_w * 1.1), (0.2, 0.08, sh_w * 0.9),
+             (0.29, 0.075, sh_w * 1.0), (0.33, 0.05, sh_w * 0.6)]
+    st = []
+    n = 12
+    for t, rx, ry in rings:
+        c = pelvis + spine * t * h
+        a = np.linspace(0, 2 * math.pi, n, endpoint=False)
+        ring = np.stack([rx * h * np.cos(a), ry * np.sin(a)], 1)
+        st.append((c, ring))
+    R = rot_y(lean)
+    verts = []
+    for c, ring in st:
+        for (x, y) in ring:
+            verts.append(c + R @ np.array([x, y, 0.0]))
+    faces = [[k * n + i, k * n + (i + 1) % n, (k + 1) * n + (i + 1) % n, (k + 1) * n + i]
+             for k in range(len(st) - 1) for i in range(n)]
+    faces += [list(range(n))[::-1], list(range((len(st) - 1) * n, len(st) * n))]
+    mb.add(np.asarray(verts), faces, "shirt", smooth=True)
+    neck_base = pelvis + spine * 0.33 * h
+    head_c = neck_base + spine * 0.085 * h + np.array([0.01 * h, 0, 0])
+    vv, f = tube(neck_base, neck_base + spine * 0.05 * h, 0.028 * h, 8)
+    mb.add(vv, f, "skin", smooth=True)
+    vv, f = ellipsoid((0.058 * h, 0.05 * h, 0.068 * h), head_c, 12, 8)
+    mb.add(vv, f, "skin", smooth=True)
+    hair_c = head_c + np.array([-0.01 * h, 0, 0.012 * h])
+    if v.get("helmet"):
+        vv, f = ellipsoid((0.066 * h, 0.058 * h, 0.06 * h), hair_c + [0, 0, 0.006 * h], 12, 6)
+        mb.add(vv, f, "paint", smooth=True)
+    else:
+        vv, f = ellipsoid((0.058 * h, 0.052 * h, 0.06 * h), hair_c, 12, 6)
+        mb.add(vv, f, "hair", smooth=True)
+    # legs, shoes; a skirt covers the thighs
+    for hip, knee, ankle in legs:
+        vv, f = tube(hip, knee, 0.062 * h * build ** 0.5, 8, radius2=0.045 * h)
+        mb.add(vv, f, "skin" if v.get("skirt") else "pants", smooth=True)
+        vv, f = tube(knee, ankle, 0.044 * h, 8, radius2=0.032 * h)
+        mb.add(vv, f, "skin" if v.get("skirt") else "pants", smooth=True)
+        foot_dir = np.array([1.0, 0, 0])
+        toe = ankle + foot_dir * 0.1 * h
+        c = (ankle + toe) / 2 - [0.015 * h, 0, 0.0]
+        c[2] = max(ankle[2] - 0.02 * h, 0.025 * h) if joints is None else ankle[2] - 0.01 * h
+        vv, f = box((0.15 * h, 0.055 * h, 0.05 * h), c)
+        mb.add(vv, f, "shoes")
+    if v.get("skirt"):
+        vv, f = cylinder(hip_w * 1.25, 0.2 * h, 12, "z", pelvis + [0, 0, -0.06 * h], radius2=hip_w * 1.3)
+        vv = xf(vv - pelvis, rot_y(lean), pelvis)
+        mb.add(vv, f, "pants", smooth=True)
+        # skirt flares to the knees
+        vv, f = cylinder(hip_w * 2.0, 0.03, 12, "z", pelvis + [0, 0, -0.17 * h], radius2=hip_w * 1.3)
+        mb.add(vv, f, "pants", smooth=True)
+    # arms: swing opposite to the legs, or reach for the handlebar
+    shoulder_c = pelvis + spine * 0.29 * h
+    for k, s in enumerate((1, -1)):
+        sh = shoulder_c + R @ np.array([0, s * sh_w * 0.98, 0])
+        if arms_target is None:
+            swing = -stride * 0.8 * s
+            hand = sh + (upper + fore * 0.97) * np.array([math.sin(swing), s * 0.06, -math.cos(swing)])
+            elbow, hand = _ik(sh, hand, upper, fore, [-1, 0, 0])
+        else:
+            elbow, hand = _ik(sh, arms_target[k], upper, fore, [0, s * 0.5, -1])
+        sleeve = "shirt" if v.get("long_sleeves") else "skin"
+        vv, f = tube(sh, elbow, 0.038 * h * build ** 0.5, 8, radius2=0.03 * h)
+        mb.add(vv, f, "shirt", smooth=True)
+        vv, f = tube(elbow, hand, 0.03 * h, 8, radius2=0.024 * h)
+        mb.add(vv, f, sleeve, smooth=True)
+        vv, f = ellipsoid((0.03 * h, 0.017 * h, 0.045 * h), hand, 8, 6)
+        mb.add(vv, f, "skin", smooth=True)
+    if v.get("bag") and joints is None:
+        vv, f = box((0.1 * h, 0.16 * h, 0.2 * h), pelvis + spine * 0.2 * h + [-0.085 * h, 0, 0])
+        mb.add(vv, f, "bag")
+
+
+def person(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    figure(mb, {**v, "height_m": H})
+
+
+# ====================================================================== two-wheelers
+def bicycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    kind = v.get("kind", "city")
+    r = float(v.get("wheel_radius", 0.35))
+    wb = L - 2 * r
+    xr, xf_ = -wb / 2, wb / 2
+    tr = 0.028 if kind == "mountain" else 0.018
+    for x in (xr, xf_):
+        vv, f = torus(r - tr, tr, (x, 0, r), "y", 28, 6)
+        mb.add(vv, f, "rubber", smooth=True)
+        vv, f = torus(r - 2 * tr - 0.012, 0.012, (x, 0, r), "y", 28, 4)
+        mb.add(vv, f, "alloy", smooth=True)
+        for k in range(8):
+            a = k * math.pi / 8
+            d = np.array([math.cos(a), 0, math.sin(a)]) * (r - 2 * tr - 0.015)
+            vv, f = tube(np.array([x, 0, r]) - d, np.array([x, 0, r]) + d, 0.004, 4)
+            mb.add(vv, f, "chrome")
+    bb = np.array([xr + 0.42 * wb, 0, r * 0.85])
+    seat_top = np.array([xr + 0.27 * wb, 0, r + 0.56])
+    head_top = np.array([xf_ - 0.16 * wb, 0, r + 0.5])
+    head_bot = np.array([xf_ - 0.12 * wb, 0, r + 0.28])
+    rad = 0.022 if kind != "road" else 0.017
+    top_from = seat_top + (bb - seat_top) * (0.45 if kind == "city" else 0.08)
+    for a, b in ((seat_top, bb), (bb, head_bot), (top_from, head_top), (head_top, head_bot),
+                 (bb, [xr, 0, r]), (seat_top + (bb - seat_top) * 0.1, [xr, 0, r])):
+        vv, f = tube(a, b, rad, 8)
+        mb.add(vv, f, "paint", smooth=True)
+    for s in (1, -1):
+        vv, f = tube(head_bot, [xf_, s * 0.05, r], 0.013, 6)
+        mb.add(vv, f, "paint")
+    post = seat_top + np.array([-0.05, 0, 0.12])
+    vv, f = tube(seat_top, post, 0.013, 6)
+    mb.add(vv, f, "chrome")
+    vv, f = ellipsoid((0.13, 0.075, 0.03), post + [0.0, 0, 0.02], 10, 5)
+    mb.add(vv, f, "saddle", smooth=True)
+    stem = head_top + np.array([0.04 if kind == "road" else -0.02, 0, 0.13 if kind == "city" else 0.06])
+    vv, f = tube(head_top, stem, 0.015, 6)
+    mb.add(vv, f, "chrome")
+    bar_w = W / 2 - 0.01
+    vv, f = tube(stem + [0, -bar_w, 0], stem + [0, bar_w, 0], 0.012, 6)
+    mb.add(vv, f, "chrome")
+    for s in (1, -1):
+        vv, f = tube(stem + [0, s * (bar_w - 0.12), 0], stem + [0, s * bar_w, 0], 0.017, 6)
+        mb.add(vv, f, "plastic")
+    pedals = []
+    for s, ang in ((1, 0.6), (-1, 0.6 + math.pi)):
+        p = bb + np.array([0.17 * math.cos(ang), s * 0.12, 0.17 * math.sin(ang)])
+        vv, f = tube(bb + [0, s * 0.06, 0], p, 0.01, 4)
+        mb.add(vv, f, "alloy")
+        vv, f = box((0.1, 0.08, 0.02), p)
+        mb.add(vv, f, "plastic")
+        pedals.append(p)
+    vv, f = torus(0.09, 0.008, bb + [0, -0.05, 0], "y", 16, 4)
+    mb.add(vv, f, "alloy")
+    if kind == "city":
+        vv, f = box((0.3, 0.03, 0.02), [xf_, 0, 2 * r + 0.03])
+        mb.add(vv, f, "paint")
+    if "rider" in v:
+        rv = v["rider"]
+        h = float(rv.get("height_m", 1.72))
+        lean = {"road": 0.75, "mountain": 0.55, "city": 0.3}.get(kind, 0.45)
+        pelvis = post + np.array([-0.02, 0, 0.06])
+        hands = [stem + [0, bar_w - 0.06, 0], stem + [0, -(bar_w - 0.06), 0]]
+        figure(mb, {**rv, "height_m": h}, {"pelvis": pelvis, "lean": lean, "hands": hands,
+                                           "feet": [pedals[0] + [0, 0, 0.03], pedals[1] + [0, 0, 0.03]]})
+
+
+def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    kind = v.get("kind", "sport")
+    r = float(v.get("wheel_radius", 0.31))
+    tr = 0.06 if kind != "scooter" else 0.05
+    wb = L - 2 * r - 0.1
+    xr, xf_ = -wb / 2 - 0.05, wb / 2 - 0.05
+    for x in (xr, xf_):
+        vv, f = torus(r - tr, tr, (x, 0, r), "y", 24, 8)
+        mb.add(vv, f, "rubber", smooth=True)
+        vv, f = cylinder(r - tr, 0.05, 16, "y", (x, 0, r))
+        mb.add(vv, f, "alloy")
+    if kind == "scooter":
+        vv, f = box((wb * 0.5, 0.34, 0.08), (0.0, 0, r * 0.9))
+        mb.add(vv, f, "plastic")
+        body = [(xr - 0.15, rounded_section(0.17, r * 0.8, r + 0.45, 0.12)),
+                (xr + 0.45, rounded_section(0.2, r * 0.8, r + 0.5, 0.14)),
+                (xr + 0.6, rounded_section(0.15, r * 0.9, r + 0.3, 0.1))]
+        vv, f = loft(body)
+        mb.add(vv, f, "paint", smooth=True)
+        apron = [(xf_ - 0.35, rounded_section(0.22, r * 0.9, r + 0.75, 0.1)),
+                 (xf_ - 0.15, rounded_section(0.2, r + 0.1, r + 0.85, 0.1))]
+        vv, f = loft(apron)
+        mb.add(vv, f, "paint", smooth=True)
+        seat_z, seat_x = r + 0.55, xr + 0.25
+        bar = np.array([xf_ - 0.2, 0, r + 0.95])
+        peg_x, peg_z = 0.0, r * 0.9 + 0.06
+    else:
+        low = kind == "cruiser"
+        vv, f = box((wb * 0.35, 0.3, 0.32), (0.0, 0, r + 0.05))
+        mb.add(vv, f, "chrome" if low else "alloy")
+        tank = ellipsoid((0.28, 0.17, 0.13), (xf_ - 0.55 * wb + 0.1, 0, r + 0.42 - (0.05 if low else 0)), 12, 8)
+        mb.add(*tank, "paint", smooth=True)
+        seat_x, seat_z = xr + 0.35 * wb, r + (0.38 if low else 0.5)
+        vv, f = loft([(xr - 0.05, rounded_section(0.1, seat_z - 0.12, seat_z + (0.02 if low else 0.06), 0.05)),
+                      (seat_x + 0.25, rounded_section(0.16, seat_z - 0.12, seat_z, 0.06))])
+        mb.add(vv, f, "saddle", smooth=True)
+        vv, f = loft([(xr - 0.15, rounded_section(0.1, r + 0.25, r + 0.4, 0.05)),
+                      (xr + 0.3, rounded_section(0.14, r + 0.1, r + 0.45, 0.06))])
+        mb.add(vv, f, "paint", smooth=True)
+        if kind == "sport":
+            fair = [(xf_ - 0.55, rounded_section(0.2, r - 0.05, r + 0.55, 0.12)),
+                    (xf_ - 0.1, rounded_section(0.13, r + 0.15, r + 0.62, 0.08))]
+            vv, f = loft(fair)
+            mb.add(vv, f, "paint", smooth=True)
+            vv, f = box((0.04, 0.22, 0.16), (xf_ - 0.16, 0, r + 0.72))
+            mb.add(xf(vv - [xf_ - 0.16, 0, r + 0.72], rot_y(-0.5), [xf_ - 0.16, 0, r + 0.72]), f, "glass")
+        bar = np.array([xf_ - 0.25, 0, r + (0.72 if low else 0.65)])
+        peg_x, peg_z = seat_x + (0.35 if low else 0.05), r * (0.7 if low else 0.95)
+        vv, f = tube([xr + 0.2, -0.16, r * 0.7], [xr - 0.2, -0.18, r * 0.9], 0.045, 10)
+        mb.add(vv, f, "chrome")
+    for s in (1, -1):
+        vv, f = tube([xf_, s * 0.09, r], bar + [0.05, s * 0.09, -0.1], 0.025, 8)
+        mb.add(vv, f, "chrome")
+    bar_w = W / 2 - 0.02
+    vv, f = tube(bar + [0, -bar_w, 0], bar + [0, bar_w, 0], 0.014, 6)
+    mb.add(vv, f, "chrome")
+    vv, f = cylinder(0.08, 0.06, 12, "x", bar + [0.17, 0, -0.15])
+    mb.add(vv, f, "lamp_head")
+    vv, f = box((0.04, 0.14, 0.06), (xr - r + 0.05, 0, r + 0.42))
+    mb.add(vv, f, "lamp_tail")
+    if "rider" in v:
+        rv = v["rider"]
+        lean = {"sport": 0.75, "cruiser": 0.05, "scooter": 0.1}.get(kind, 0.4)
+        pelvis = np.array([seat_x, 0, seat_z + 0.06])
+        hands = [bar + [0, bar_w - 0.06, 0], bar + [0, -(bar_w - 0.06), 0]]
+        feet = [np.array([peg_x, s * 0.2, peg_z]) for s in (1, -1)]
+        figure(mb, rv, {"pelvis": pelvis, "lean": lean, "hands": hands, "feet": feet})
+
+
+# ====================================================================== traffic light
+LAMP_COLORS = {"red": (1.0, 0.05, 0.02), "amber": (1.0, 0.45, 0.0), "green": (0.05, 1.0, 0.35)}
+
+
+def traffic_light(mb: MeshBuilder, v: dict, L: float, W: float, H: float, state: str | None = "red"):
+    """The signal head facing +x; the lamp of `state` is lit (emission), the others dark."""
+    back = v.get("kind") == "backplate"
+    hw = (W - (0.18 if back else 0.0)) / 2
+    hh = H - (0.14 if back else 0.0)
+    depth = 0.24
+    x0 = -L / 2
+    vv, f = loft([(x0, rounded_section(hw, (H - hh) / 2, (H + hh) / 2, 0.04)),
+                  (x0 + depth, rounded_section(hw, (H - hh) / 2, (H + hh) / 2, 0.04))])
+    mb.add(vv, f, "housing", smooth=True)
+    if back:
+        vv, f = box((0.02, W, H), (x0 + 0.01, 0, H / 2))
+        mb.add(vv, f, "housing")
+    lr = min(hw * 0.78, hh / 6 * 0.8)
+    for k, name in enumerate(("red", "amber", "green")):
+        zc = (H - hh) / 2 + hh * (5 - 2 * k) / 6
+        slot = f"lamp_{name}" if state == name else f"lamp_{name}_off"
+        vv, f = cylinder(lr, 0.03, 20, "x", (x0 + depth + 0.01, 0, zc))
+        mb.add(vv, f, slot, smooth=False)
+        # visor: a hood over the lamp reaching the front of the box
+        vd = L - depth
+        vv, f = box((vd, 2 * lr + 0.04, 0.015), (x0 + depth + vd / 2, 0, zc + lr + 0.02))
+        mb.add(vv, f, "housing")
+        for s in (1, -1):
+            vv, f = box((vd * 0.8, 0.012, lr * 1.2), (x0 + depth + vd * 0.4, s * (lr + 0.02), zc + lr * 0.4))
+            mb.add(vv, f, "housing")
+
+
+def traffic_light_pole(v: dict, L: float, H: float) -> MeshBuilder:
+    """The pole under the head (scenery: not part of the labelled object)."""
+    mb = MeshBuilder()
+    mount = float(v.get("mount_height_m", 2.6))
+    vv, f = cylinder(0.06, mount + H * 0.6, 12, "z", (-L / 2 - 0.07, 0, (-mount + H * 0.6) / 2))
+    mb.add(vv, f, "pole", smooth=True)
+    vv, f = box((0.1, 0.08, 0.08), (-L / 2 - 0.03, 0, H * 0.5))
+    mb.add(vv, f, "pole")
+    return mb
+
+
+BUILDERS = {"car": car, "truck": truck, "bus": bus, "person": person, "bicycle": bicycle,
+            "motorcycle": motorcycle, "traffic light": traffic_light}
+
+
+def build_shape(cls: str, variant: dict, dims, state: str | None = None) -> MeshBuilder:
+    """Geometry of one object, fitted exactly to `dims`."""
+    L, W, H = (float(x) for x in variant.get("shape_dims", dims))
+    mb = MeshBuilder()
+    if cls == "traffic light":
+        traffic_light(mb, variant, L, W, H, state or "red")
+    else:
+        BUILDERS[cls](mb, variant, L, W, H)
+    fit_to_dims(mb, dims)
+    return mb
+
+
+def natural_extent(mb: MeshBuilder) -> np.ndarray:
+    v = mb.vertices
+    return v.max(0) - v.min(0)
+
+
+def fit_to_dims(mb: MeshBuilder, dims) -> np.ndarray:
+    """Scale and shift all parts so their tight box is `dims`, centred, bottom at z=0.
+    Returns the scale applied per axis (close to 1 when the builder matched the catalog)."""
+    v = mb.vertices
+    lo, hi = v.min(0), v.max(0)
+    scale = np.asarray(dims, float) / np.maximum(hi - lo, 1e-9)
+    centre = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+    mb.verts = [(p - centre) * scale for p in mb.verts]
+    return scale

@@ -1,0 +1,63 @@
+"""Sync on real data (../shared/data): comma2k19 IMU + GNSS vs ground truth, udacity video VO."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from blendgen.job.schema import Sync
+from blendgen.recording.folder import read_recording
+from blendgen.sync.metrics import comma_errors
+from blendgen.sync.pipeline import run_sync
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+COMMA = DATA / "real" / "comma2k19_example1_segment40"
+UDACITY = DATA / "real" / "udacity_solidWhiteRight.mp4"
+pytestmark = pytest.mark.data
+
+
+def test_comma2k19_imu_gnss_beats_raw_gnss(tmp_path):
+    if not COMMA.exists():
+        pytest.skip("needs ../shared/data/real/comma2k19_example1_segment40")
+    from blendgen.recording.importers.comma2k19 import import_comma2k19
+
+    rec = read_recording(import_comma2k19(COMMA, tmp_path / "rec", show_progress=False))
+    assert rec.n_frames == 0
+    o = rec.extra["import"]["groundtruth_origin"]
+    georef = (o["lat"], o["lon"], o["alt"])
+    res = run_sync(rec, Sync(), tmp_path / "out", georef=georef, progress=False)
+    err = comma_errors(res, rec, georef)
+    s, g = err["sync"], err["raw_gnss"]
+    print(err)
+    # the raw receiver, measured the same way (issue 3: 0.28 m, 0.13 m, 0.9 deg)
+    assert g["h_rmse_m"] == pytest.approx(0.28, abs=0.02)
+    assert g["rel_1s_median_m"] == pytest.approx(0.13, abs=0.02)
+    assert g["heading_median_deg"] == pytest.approx(0.9, abs=0.1)
+    # the filter beats it on all three and meets the targets
+    assert s["h_rmse_m"] < g["h_rmse_m"] and s["h_rmse_m"] <= 0.25
+    assert s["rel_1s_median_m"] < g["rel_1s_median_m"] and s["rel_1s_median_m"] <= 0.10
+    assert s["heading_median_deg"] <= 1.0
+    assert np.all(np.isfinite(res.cov))
+
+
+def test_udacity_video_vo_tracks_all_frames(tmp_path):
+    if not UDACITY.exists():
+        pytest.skip("needs ../shared/data/real/udacity_solidWhiteRight.mp4")
+    from blendgen.recording.importers.video import import_video
+
+    rec = read_recording(import_video(UDACITY, tmp_path / "rec", show_progress=False))
+    assert rec.n_frames == 221
+    res = run_sync(rec, Sync(), tmp_path / "out", progress=False)
+    assert len(res.poses) == 221
+    status = res.summary["vo_status"]
+    assert status.get("first") == 1
+    assert sum(status.get(k, 0) for k in ("ok", "rotation")) == 220, status  # no failures
+    assert status.get("ok", 0) >= 200
+    P = res.positions()
+    d = P[-1] - P[0]
+    # a highway drive straight ahead: the first camera looks along +x of the VO world
+    assert d[0] > 0.98 * np.linalg.norm(d)
+    fwd = np.array([T[:3, 2] for _, _, T in res.poses])
+    assert np.degrees(np.arccos(np.clip(fwd[:, 0], -1, 1))).max() < 15.0  # no wild heading swings
+    steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    assert np.all(np.isfinite(P)) and steps.max() < 1.0

@@ -48,9 +48,7 @@ class Runner:
             return load_twin(self.job.twin_path)
         from blendgen.scene.ground_plane import GroundPlaneTwin
 
-        gp = self.job.ground_plane
-        return GroundPlaneTwin(camera_height_m=gp.camera_height_m, pitch_deg=gp.pitch_deg,
-                               lane_width_m=gp.lane_width_m)
+        return GroundPlaneTwin.from_job(self.job.ground_plane)
 
     # ------------------------------------------------------------------ stages
     def record(self) -> None:
@@ -93,6 +91,8 @@ class Runner:
             self.skipped.append("sync")
             self._say(2, "sync", f"poses exist ({self.folder.poses_csv})")
             return read_poses(self.folder.poses_csv, rec)
+        if job.ground_plane is not None:
+            return self._ground_plane_poses(rec)
         lut = job.path(job.sync.lut) if job.sync.lut else self._default_lut()
         self._say(2, "sync", f"{rec.n_frames} frames, {len(rec.imu)} IMU, {len(rec.gnss)} GNSS samples"
                              f"{', LUT ' + str(lut) if lut else ''}")
@@ -101,6 +101,20 @@ class Runner:
                           georef=twin.georef if twin is not None else None, progress=self.progress)
         self.folder.mark_stage("sync", {"frames": len(result.poses)})
         return result.poses
+
+    def _ground_plane_poses(self, rec):
+        """Footage without a map: the ground-plane twin is the road under the camera, so
+        every frame's pose is the dashcam's fixed pose above it (no sync to estimate)."""
+        from blendgen.sync.pipeline import SyncResult, write_poses
+
+        T = self._twin().camera_pose(0.0)
+        poses = [(rec.frame_id(i), float(t), T) for i, t in enumerate(rec.frames_t)]
+        quality = [{"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0, "flags": ["ground_plane"]}
+                   for _ in poses]
+        write_poses(self.folder.root, SyncResult(poses, np.zeros((len(poses), 6)), quality))
+        self._say(2, "sync", f"ground-plane twin: fixed camera pose for {len(poses)} frames")
+        self.folder.mark_stage("sync", {"frames": len(poses), "ground_plane": True})
+        return poses
 
     def _default_lut(self) -> Path | None:
         tp = self.job.twin_path

@@ -1,10 +1,10 @@
 """Composite rendered objects (EXR passes) into a real frame.
 
-Per frame, on the crop that holds the objects and their shadows (the rest of the frame is
-never touched):
-1. relight: re-weight the lighting passes toward the illumination estimate (relight.py);
-2. colour transfer: each object's region toward the real background around it;
-3. shadows: the real image (linear) times the shadow-catcher pass;
+Per frame (pixels that are neither object nor shadow are never touched, bit for bit):
+1. shadows: the real image (linear) times the shadow-catcher pass, on the shadow's pixels;
+then on the crop around the objects and their background rings:
+2. relight: re-weight the lighting passes toward the illumination estimate (relight.py);
+3. colour transfer: each object's region toward the real background around it;
 4. sensor matching: blur, vignetting, noise, JPEG measured in the real frame (sensor.py);
 5. I = a * I_V + (1 - a) * I_R in linear light, with a the render's alpha (anti-aliased
    edges) restricted to the object pixels of the index pass, so that shadow-catcher alpha

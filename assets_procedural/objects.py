@@ -18,7 +18,7 @@ from assets_procedural.shapes import LAMP_COLORS, build_shape
 from blendgen.scene.catalog import sample_variant
 from blendgen.scene.plan import PlacedObject
 
-LIT_STRENGTH = 10.0  # emission of a lit signal lamp: bright, still saturated in colour
+LIT_STRENGTH = 6.0  # emission of a lit signal lamp: bright, still saturated in colour
 
 
 def _materials(obj: PlacedObject, slots: list[str]) -> dict:

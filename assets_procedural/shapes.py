@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, loft, rot_y, rot_z, rounded_section,
+from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, loft, rot_y, rounded_section,
                                        torus, tube, xf)
 
 
@@ -190,7 +190,7 @@ def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "glass")
     vv, f = box((0.04, W * 0.6, 0.2), (L / 2 + 0.01, 0, 0.93 * H))
     mb.add(vv, f, "lamp_sign")
-    vv, f = box((L * 0.25, W * 0.6, 0.22), (-L * 0.1, 0, H - 0.11))  # roof air-conditioning unit
+    vv, f = box((L * 0.25, W * 0.6, 0.2), (-L * 0.1, 0, H + 0.05))  # roof air-conditioning unit
     mb.add(vv, f, "alloy")
     vv, f = box((L + 0.01, W + 0.01, 0.28), (0, 0, z0 + 0.16))
     mb.add(vv, f, "plastic")

@@ -311,7 +311,7 @@ def _street_furniture(sc: _Scene):
         pole = traffic_light_pole(variant, variant["shape_dims"][0], variant["shape_dims"][2])
         mats_tl = {"housing": M.principled("housing_0.02_0.02_0.02", (0.02, 0.02, 0.02), roughness=0.45)}
         for name, col in LAMP_COLORS.items():
-            mats_tl[f"lamp_{name}"] = M.lamp(col, 10.0)
+            mats_tl[f"lamp_{name}"] = M.lamp(col, 6.0)
             mats_tl[f"lamp_{name}_off"] = M.lamp(col, 0.02)
         ob = sc.emit(f"traffic_light_{i}", head, mats_tl, "structure", blendgen_kind="traffic_light")
         ob.location = (*t.position, sc.twin.ground_height(*t.position) + t.mount_height_m)

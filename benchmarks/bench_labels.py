@@ -110,6 +110,8 @@ def run(quick: bool):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--outputs", type=Path, default=None,
+                    help="write the plot and the table here instead of benchmarks/results and docs/benchmarks")
     args = ap.parse_args()
     rows, counts, export_t = run(args.quick)
     table = ["| step | size | median ms |", "|---|---|---:|"]
@@ -127,12 +129,12 @@ def main():
     ax.set_xlabel("frames exported"), ax.set_ylabel("ms per frame (median)"), ax.set_xscale("log")
     ax.set_title("label export time per frame"), ax.legend()
     fig.tight_layout()
-    res = ROOT / "benchmarks" / "results"
+    res = args.outputs or ROOT / "benchmarks" / "results"
     res.mkdir(parents=True, exist_ok=True)
     with atomic.atomic_path(res / "labels.png") as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     cmd = "nice -n 5 .venv/bin/python benchmarks/bench_labels.py" + (" --quick" if args.quick else "")
-    doc = ROOT / "docs" / "benchmarks" / "labels.md"
+    doc = (args.outputs or ROOT / "docs" / "benchmarks") / "labels.md"
     doc.parent.mkdir(parents=True, exist_ok=True)
     atomic.write_text(doc, "# Labels benchmark\n\nProduced by `" + cmd + "` on the shared 2-core development machine "
                    "(timings noisy; medians).\n\n" + "\n".join(table) + "\n\n![export time](../../benchmarks/results/labels.png)\n")

@@ -25,7 +25,7 @@ import bpy  # noqa: E402
 import cv2  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
-from assets_procedural.objects import build_object, remove_object  # noqa: E402
+from assets_procedural.objects import build_object  # noqa: E402
 from assets_procedural.twin_builder import build_twin  # noqa: E402
 from blendgen import atomic  # noqa: E402
 from blendgen.geometry import CV_TO_BLENDER, Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
@@ -152,7 +152,7 @@ def twin_tile(name, route, res, samples, out, frame, seed):
     info = build_twin(twin)
     camera = Camera.from_hfov(res[0], res[1], 70.0)
     poses = drive(route, speed=8.0 if name == "demo_town" else 20.0)
-    classes = {"car": 3, "person": 3, "bicycle": 1, "motorcycle": 1, "bus": 1, "truck": 1.5, "traffic light": 1.5}
+    classes = {"car": 3, "person": 3, "bicycle": 1, "motorcycle": 1, "bus": 1, "truck": 1.5, "traffic light": 4}
     inject = Inject(objects_per_frame=(5, 8), classes=classes, scenarios=list(SCENARIOS),
                     distance_m=(4.0, 45.0 if name == "demo_town" else 70.0), min_projected_px=16)
     plans = plan_sequence(twin, camera, poses, inject, seed)
@@ -204,7 +204,7 @@ def main(argv=None):
     hw = load_twin(TWINS / "highway.yaml")
     hw_route = hw.lane_polyline("a7", 1, 1, 150.0, 290.0)
     twin_imgs = []
-    for name, route, frame, seed in (("demo_town", town_route, 12, 4), ("highway", hw_route, 10, 2)):
+    for name, route, frame, seed in (("demo_town", town_route, 14, 2), ("highway", hw_route, 10, 2)):
         p = tmp / f"twin_{name}.png"
         tb, ob, r, classes = twin_tile(name, route, twin_res, samples, p, frame, seed)
         print(f"twin {name:10s} build {tb:4.2f} s  objects {ob * 1000:5.0f} ms  render {r:5.1f} s  {classes}", flush=True)

@@ -20,6 +20,8 @@ from .seeds import frame_seed
 
 MANIFEST = "manifest.jsonl"
 LEASE_S = 60.0  # a running task's lease; renewed by every supervisor heartbeat
+FLUSH_EVERY_S = 0.2  # manifest fsync + ledger commit at most this often (and at the end)
+FLUSH_LINES = 512
 _STAGE = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
@@ -114,6 +116,7 @@ class Books:
         self._lines: list[str] = []
         self._t0 = time.perf_counter()
         self._last_beat = 0.0
+        self._last_flush = 0.0
         self.bar = None
         if progress and items:
             from tqdm import tqdm
@@ -199,13 +202,18 @@ class Books:
         self.ledger.release(task_id)
 
     # -- commits ---------------------------------------------------------------------------
-    def flush(self) -> None:
+    def flush(self, force: bool = True) -> None:
         """Manifest first, then the ledger: if we die in between, the next run finds the
-        record in the manifest and marks the item done without redoing it."""
+        record in the manifest and marks the item done without redoing it. Unforced calls
+        batch (an item finished but not yet flushed when we die is found complete by
+        `is_done` on the next run: skipped, not redone)."""
+        now = time.monotonic()
+        if not force and len(self._lines) < FLUSH_LINES and now - self._last_flush < FLUSH_EVERY_S:
+            return
+        self._last_flush = now
         if self._lines:
             atomic.append_line(self.manifest, "\n".join(self._lines))
             self._lines.clear()
-        now = time.monotonic()
         if now - self._last_beat > 2.0:
             self.ledger.heartbeat(self.run_id, LEASE_S)
             self._last_beat = now

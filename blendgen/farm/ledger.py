@@ -45,6 +45,7 @@ CREATE TABLE IF NOT EXISTS workers(
     state TEXT, exit TEXT, log_path TEXT, PRIMARY KEY(run_id, worker));
 CREATE INDEX IF NOT EXISTS tasks_by_run ON tasks(run_id, state);
 CREATE INDEX IF NOT EXISTS items_by_run ON items(stage, run_id, state);
+CREATE INDEX IF NOT EXISTS items_by_task ON items(stage, task_id);
 """
 
 

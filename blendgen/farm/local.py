@@ -104,7 +104,7 @@ class LocalEngine:
                     break
                 self._dispatch()
                 self._poll(timeout=1.0)
-                self.books.flush()
+                self.books.flush(force=False)
         except BaseException:
             self._abort()
             raise
@@ -206,7 +206,9 @@ class LocalEngine:
     def _on_message(self, w: _Worker, ev: dict) -> None:
         kind = ev["ev"]
         if kind == "ready":
-            w.state, w.rss_mb = "idle", ev.get("rss_mb", 0.0)
+            w.rss_mb = ev.get("rss_mb", 0.0)
+            if w.state == "starting":  # not if it was told to stop while starting
+                w.state = "idle"
             self.ever_ready = True
             self.books.ledger.worker_update(self.books.run_id, w.name, state="idle")
         elif kind == "init_error":
@@ -229,7 +231,7 @@ class LocalEngine:
                 self.books.ledger.worker_update(self.books.run_id, w.name, items=0)
             else:
                 self._task_failed(tid, w, w.error or "unknown error")
-            if w.processed >= self.recycle_after or w.rss_mb > self.max_rss_mb:
+            if self.queue and (w.processed >= self.recycle_after or w.rss_mb > self.max_rss_mb):
                 why = (f"{w.processed} items" if w.processed >= self.recycle_after
                        else f"RSS {w.rss_mb:.0f} MB > {self.max_rss_mb} MB")
                 self._stop(w, f"recycled after {why}")

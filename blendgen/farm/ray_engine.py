@@ -18,7 +18,6 @@ import json
 import math
 import os
 import socket
-import time
 
 from ..errors import UserError
 from .books import Books
@@ -60,10 +59,11 @@ def ray_task(processor: str, processor_args: dict, items: list[str], log_path: s
 
 class RayEngine:
     def __init__(self, books: Books, processor: str, processor_args: dict, *, workers: int,
-                 recycle_after: int, address: str | None):
+                 chunk: int, recycle_after: int, address: str | None):
         self.books = books
         self.processor, self.processor_args = processor, processor_args
         self.workers, self.recycle_after, self.address = workers, recycle_after, address
+        self.chunk = chunk
         self.node_fails: collections.Counter = collections.Counter()
         self.banned: set[str] = set()
         self._rr = 0
@@ -100,10 +100,9 @@ class RayEngine:
         gpus_here = ray.cluster_resources().get("GPU", 0) > 0
         num_gpus = float(os.environ.get("BLENDGEN_RAY_NUM_GPUS", 1 if gpus_here else 0))
         num_cpus = float(os.environ.get("BLENDGEN_RAY_NUM_CPUS", 1))
-        per_task = max(1, len(self.books.ledger.remaining_items(self.books.task_ids[0]))
-                       if self.books.task_ids else 1)
+        # max_calls counts tasks; recycle_after counts items
         return ray.remote(num_cpus=num_cpus, num_gpus=num_gpus,
-                          max_calls=max(1, math.ceil(self.recycle_after / per_task)),
+                          max_calls=max(1, math.ceil(self.recycle_after / self.chunk)),
                           max_retries=max(0, self.books.max_attempts - 1),
                           retry_exceptions=False)(ray_task)
 
@@ -144,7 +143,7 @@ class RayEngine:
                     ref = fn.options(**self._options(ray, tid)).remote(
                         self.processor, self.processor_args, items, log)
                     inflight[ref] = (tid, attempt)
-                self.books.flush()
+                self.books.flush(force=False)
                 if not inflight:
                     continue
                 ready, _ = ray.wait(list(inflight), num_returns=1, timeout=1.0)
@@ -152,7 +151,7 @@ class RayEngine:
                     tid, attempt = inflight.pop(ref)
                     if not self._collect(ray, ref, tid, attempt):
                         pending.appendleft(tid)
-                self.books.flush()
+                self.books.flush(force=False)
         except BaseException:
             for ref, (tid, _) in inflight.items():
                 with contextlib.suppress(Exception):

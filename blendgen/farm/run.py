@@ -49,7 +49,7 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
         else:
             from .ray_engine import RayEngine
 
-            RayEngine(books, processor, processor_args, workers=workers,
+            RayEngine(books, processor, processor_args, workers=workers, chunk=chunk,
                       recycle_after=recycle_after, address=address).run(books.task_ids)
     except BaseException as e:
         books.finish("interrupted" if isinstance(e, KeyboardInterrupt) else "failed")

@@ -113,7 +113,7 @@ class FrameProcessor:
         atomic.write_image(fdir / "composite.png", composite)
         # labels.json last: its presence (with the others) marks the frame finished.
         write_frame_labels(fdir / "labels.json", frame_id, f"frames/{frame_id}/composite.png",
-                           self.camera.width, self.camera.height, instances)
+                           self.camera.width, self.camera.height, instances, camera=self.camera)
         if not job.export.save_exr:
             exr.unlink(missing_ok=True)
         timings["labels"] = time.perf_counter() - t3

@@ -209,11 +209,12 @@ class Runner:
         ids = timed("plan", self.plan, rec, poses)
         farm_summary = timed("frames", self.frames, ids)
         export = timed("export", self.export, ids)
-        report = timed("report", self.report)
         self.times["total"] = round(time.perf_counter() - t_all, 3)
-        return self._summary(ids, farm_summary, export, report)
+        summary = self._summary(ids, farm_summary, export)  # written first: the report shows it
+        timed("report", self.report)
+        return summary
 
-    def _summary(self, ids, farm_summary, export, report) -> dict:
+    def _summary(self, ids, farm_summary, export) -> dict:
         from blendgen.labels.frame_labels import read_frame_labels
 
         done = [i for i in ids if self.folder.frame_done(i, self.job.export.save_exr)]
@@ -228,7 +229,7 @@ class Runner:
             "frames": {"total": len(ids), "done": len(done), "failed": len(failed)},
             "labels_per_class": dict(sorted(per_class.items())),
             "seconds_per_stage": self.times, "skipped_stages": self.skipped,
-            "outputs": {"labels": str(self.folder.labels), "report": str(report),
+            "outputs": {"labels": str(self.folder.labels), "report": str(self.folder.root / "report" / "index.md"),
                         "manifest": str(self.folder.manifest), "frames": str(self.folder.root / "frames")},
             "export": export,
         }

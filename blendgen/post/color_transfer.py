@@ -26,6 +26,8 @@ METHODS = ("reinhard", "mkl", "histogram", "none")
 # would otherwise flatten the object, and a flat source would blow up its noise.
 MAX_STD_RATIO = 3.0
 EPS = 1e-6
+STATS_PIXELS = 20000
+HIST_BINS = 1024
 
 
 def transfer(src: np.ndarray, src_mask: np.ndarray | None, ref: np.ndarray, ref_mask: np.ndarray | None,
@@ -72,6 +74,12 @@ def transfer_pixels(s_pix: np.ndarray, r_pix: np.ndarray, method: str,
     s_fit = s_pix if fit_rows is None else s_pix[fit_rows]
     if s_fit.shape == r_pix.shape and np.array_equal(s_fit, r_pix):
         return s_pix.copy()  # a region onto itself: the identity, without colour-space round trips
+    # Statistics need no more than ~20k pixels: a regular subsample keeps them and the time.
+    r_pix = r_pix[::-(-len(r_pix) // STATS_PIXELS)]
+    if fit_rows is None and len(s_pix) > STATS_PIXELS:
+        fit_rows = np.zeros(len(s_pix), bool)
+        fit_rows[::-(-len(s_pix) // STATS_PIXELS)] = True
+        s_fit = s_pix[fit_rows]
     if method == "reinhard":
         s_lab, r_lab = _lab(s_pix), _lab(r_pix)
         s_fit_lab = s_lab if fit_rows is None else s_lab[fit_rows]
@@ -87,9 +95,16 @@ def transfer_pixels(s_pix: np.ndarray, r_pix: np.ndarray, method: str,
 
 # ---- the three methods on pixel lists
 
+def _mean_std(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel mean and std of Nx3 float32 (cv2.meanStdDev: numpy's column reductions
+    over an Nx3 array are strided and ~10x slower)."""
+    mu, sd = cv2.meanStdDev(np.ascontiguousarray(x, dtype=np.float32).reshape(-1, 1, 3))
+    return mu.ravel(), sd.ravel()
+
+
 def _reinhard(s: np.ndarray, s_fit: np.ndarray, r: np.ndarray) -> np.ndarray:
-    mu_s, sd_s = s_fit.mean(0, dtype=np.float64), s_fit.std(0, dtype=np.float64)
-    mu_r, sd_r = r.mean(0, dtype=np.float64), r.std(0, dtype=np.float64)
+    mu_s, sd_s = _mean_std(s_fit)
+    mu_r, sd_r = _mean_std(r)
     # A flat source has nothing to scale (x - mu = 0), so the ratio only matters when sd_s > 0.
     ratio = np.where(sd_s > EPS, sd_r / np.maximum(sd_s, EPS), 1.0)
     ratio = np.clip(ratio, 1.0 / MAX_STD_RATIO, MAX_STD_RATIO)
@@ -99,7 +114,7 @@ def _reinhard(s: np.ndarray, s_fit: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def _mkl(s: np.ndarray, s_fit: np.ndarray, r: np.ndarray) -> np.ndarray:
-    mu_s, mu_r = s_fit.mean(0, dtype=np.float64), r.mean(0, dtype=np.float64)
+    mu_s, mu_r = _mean_std(s_fit)[0], _mean_std(r)[0]
     A = _cov(s_fit, mu_s)
     B = _cov(r, mu_r)
     if np.allclose(A, B, rtol=0, atol=1e-12) and np.allclose(mu_s, mu_r, rtol=0, atol=1e-9):
@@ -123,36 +138,65 @@ def _mkl(s: np.ndarray, s_fit: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def _histogram(s: np.ndarray, s_fit: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Per-channel quantile mapping through CDFs on a 1024-bin grid over the joint range."""
     out = np.empty_like(s)
     for c in range(s.shape[1]):
-        sv, sc = np.unique(s_fit[:, c], return_counts=True)
-        rv, rc = np.unique(r[:, c], return_counts=True)
-        # Mid-point ECDF so identical distributions map each value onto itself exactly.
-        s_cdf = (np.cumsum(sc) - 0.5 * sc) / sc.sum()
-        r_cdf = (np.cumsum(rc) - 0.5 * rc) / rc.sum()
-        s_to_q = np.interp(s[:, c], sv, s_cdf)
-        out[:, c] = np.interp(s_to_q, r_cdf, rv)
+        lo = float(min(s_fit[:, c].min(), r[:, c].min()))
+        hi = float(max(s_fit[:, c].max(), r[:, c].max()))
+        if hi - lo < 1e-9:
+            out[:, c] = r[0, c]  # both flat and equal
+            continue
+        scale = (HIST_BINS - 1) / (hi - lo)
+        centres = lo + np.arange(HIST_BINS) / scale
+        hs = np.bincount(np.rint((s_fit[:, c] - lo) * scale).astype(np.int64), minlength=HIST_BINS)[:HIST_BINS]
+        hr = np.bincount(np.rint((r[:, c] - lo) * scale).astype(np.int64), minlength=HIST_BINS)[:HIST_BINS]
+        # Mid-point ECDF: identical histograms map each bin onto itself.
+        s_cdf = (np.cumsum(hs) - 0.5 * hs) / hs.sum()
+        r_cdf = (np.cumsum(hr) - 0.5 * hr) / hr.sum()
+        keep_s, keep_r = hs > 0, hr > 0
+        q = np.interp(s[:, c], centres[keep_s], s_cdf[keep_s])
+        out[:, c] = np.interp(q, r_cdf[keep_r], centres[keep_r])
     return out
 
 
 # ---- helpers
 
 def _cov(x: np.ndarray, mu: np.ndarray) -> np.ndarray:
-    d = x.astype(np.float64) - mu
-    return d.T @ d / max(len(x), 1)
+    d = x - mu.astype(np.float32)
+    return (d.T @ d).astype(np.float64) / max(len(x), 1)  # float32 BLAS; centred, so precise enough
+
+
+# CIE Lab (D65) in NumPy: OpenCV's float BGR->Lab is ~50x slower on pixel lists.
+_RGB2XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
+                     [0.2126729, 0.7151522, 0.0721750],
+                     [0.0193339, 0.1191920, 0.9503041]])
+_WHITE = np.array([0.95047, 1.0, 1.08883])
+_BGR2XYZ_N = (_RGB2XYZ[:, ::-1] / _WHITE[:, None]).T.astype(np.float32)  # row vectors, white-normalised
+_XYZ_N2BGR = np.linalg.inv(_BGR2XYZ_N.astype(np.float64)).astype(np.float32)
+_D = 6.0 / 29.0
+# (fx, fy, fz) -> (L, a, b) = f @ _F2LAB + _LAB0
+_F2LAB = np.array([[0.0, 500.0, 0.0], [116.0, -500.0, 200.0], [0.0, 0.0, -200.0]], np.float32)
+_LAB0 = np.array([-16.0, 0.0, 0.0], np.float32)
+_LAB2F = np.linalg.inv(_F2LAB.astype(np.float64)).astype(np.float32)
 
 
 def _lab(bgr_pix: np.ndarray) -> np.ndarray:
-    """Nx3 float BGR ([0, 1], HDR allowed) -> Nx3 Lab (float32, OpenCV's ranges)."""
-    img = np.ascontiguousarray(np.maximum(bgr_pix, 0.0), dtype=np.float32).reshape(-1, 1, 3)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2Lab).reshape(-1, 3)
+    """Nx3 sRGB-encoded BGR in [0, 1] (HDR > 1 allowed) -> Nx3 CIE Lab (L in 0..100)."""
+    x = np.maximum(np.asarray(bgr_pix, dtype=np.float32), 0.0)
+    lin = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    t = lin @ _BGR2XYZ_N
+    f = np.where(t > _D ** 3, np.cbrt(t), t / (3 * _D * _D) + 4.0 / 29.0)
+    return (f @ _F2LAB + _LAB0).astype(np.float32)  # the linear f -> Lab step as one matmul
 
 
 def _from_lab(lab_pix: np.ndarray) -> np.ndarray:
-    lab = np.ascontiguousarray(lab_pix, dtype=np.float32).copy()
-    lab[:, 0] = np.maximum(lab[:, 0], 0.0)
-    out = cv2.cvtColor(lab.reshape(-1, 1, 3), cv2.COLOR_Lab2BGR).reshape(-1, 3)
-    return np.maximum(np.nan_to_num(out, nan=0.0, posinf=1.0, neginf=0.0), 0.0)
+    lab = np.asarray(lab_pix, dtype=np.float32).copy()
+    np.maximum(lab[:, :1], 0.0, out=lab[:, :1])
+    f = (lab - _LAB0) @ _LAB2F
+    t = np.where(f > _D, f ** 3, 3 * _D * _D * (f - 4.0 / 29.0))
+    lin = np.maximum(t @ _XYZ_N2BGR, 0.0)
+    out = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * np.power(lin, 1 / 2.4) - 0.055)
+    return np.maximum(np.nan_to_num(out, nan=0.0, posinf=1.0, neginf=0.0), 0.0).astype(np.float32)
 
 
 def _pixels(img: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -40,7 +40,7 @@ def finite(a: np.ndarray, fill: float = 0.0, big: float | None = None) -> np.nda
     """``a`` with NaN -> fill and +-inf -> big / fill; a cheap check first, since render passes
     are almost always finite and np.nan_to_num costs several full passes over the data."""
     a = np.asarray(a)
-    if a.dtype.kind != "f" or np.isfinite(a.sum(dtype=np.float64)):
+    if a.dtype.kind != "f" or np.isfinite(a.sum()):  # (an overflow to inf only costs the slow path)
         return a
     return np.nan_to_num(a, nan=fill, posinf=fill if big is None else big, neginf=fill)
 

@@ -36,7 +36,6 @@ STRENGTH_WITHOUT_ENV_LIGHT = 0.3
 RING_PX = 0.35  # background ring width, as a fraction of the object's box size
 MIN_RING_PX = 6
 SHADOW_EPS = 0.03  # (smoothed) shadow-catcher values below 1 - eps darken the background
-SHADOW_SMOOTH_PX = 1.0
 HDR_MAX = 1e4  # clamp for +inf / absurd values in the EXR
 LIGHT_PASSES = ("diffuse_direct", "diffuse_indirect", "diffuse_color", "glossy_direct", "glossy_indirect",
                 "glossy_color")
@@ -74,7 +73,7 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
     if has_shadow:
         sb = _bbox(shadowed, 2, H, W)
         m = shadowed[sb]
-        sc = cv2.GaussianBlur(finite(shadow[sb].astype(np.float32), 1.0), (0, 0), SHADOW_SMOOTH_PX)
+        sc = cv2.blur(finite(shadow[sb].astype(np.float32), 1.0), (3, 3))
         sc = sc.reshape(m.shape + (-1,))
         # Shadows only darken: the catcher's >1 values (bounce light, noise) are not added.
         mult = np.clip(sc[m][:, ::-1] / baseline, 0.0, 1.0)
@@ -96,80 +95,105 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
 
 def _composite_objects(out, real_bgr, passes, rgba, idx, obj_any, shadowed, settings, illumination, seed,
                        info) -> dict:
-    """Relight, colour-transfer, sensor-match and alpha-blend the objects into ``out`` (in place)."""
+    """Relight, colour-transfer, sensor-match and alpha-blend each object into ``out`` (in
+    place), each on its own crop (box + background ring), so the cost follows object size."""
     H, W = real_bgr.shape[:2]
-    rows, cols = np.flatnonzero(obj_any.any(axis=1)), np.flatnonzero(obj_any.any(axis=0))
-    m = int(max(MIN_RING_PX, RING_PX * max(rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1))) + 2
-    y0, x0 = max(0, (rows[0] - m) // 8 * 8), max(0, (cols[0] - m) // 8 * 8)
-    y1, x1 = min(H, rows[-1] + 1 + m), min(W, cols[-1] + 1 + m)
-    crop = (slice(y0, y1), slice(x0, x1))
-    info["crop_xywh"] = [int(x0), int(y0), int(x1 - x0), int(y1 - y0)]
     t0 = time.perf_counter()
-    idx_c, obj_c = idx[crop], obj_any[crop]
-    sh_c = shadowed[crop] if shadowed is not None else np.zeros(obj_c.shape, bool)
-    # Object alpha: the render's coverage on and right next to object pixels (anti-aliased
-    # rims); elsewhere alpha belongs to the shadow catcher and is handled as a shadow.
-    near = cv2.dilate(obj_c.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    alpha = np.clip(finite(rgba[crop][..., 3].astype(np.float32)), 0.0, 1.0)
-    alpha[~near] = 0.0
-    alpha[obj_c & (alpha < 1e-3)] = 1.0  # index says object but alpha is empty (e.g. NaN): trust index
-    cov = alpha > 0
-    rgb_px = np.clip(finite(rgba[crop][cov][:, :3].astype(np.float32), 0.0, HDR_MAX), 0.0, HDR_MAX)  # RGB, premult.
-
-    # ---- 1. relight (re-weight the lighting passes toward the estimate)
-    t1 = time.perf_counter()
-    if settings.relight and illumination is not None and settings.illumination != "off":
-        sub = {k: np.asarray(passes[k])[crop][cov] for k in LIGHT_PASSES
-               if k in passes and np.shape(passes[k])[:2] == (H, W)}
-        rgb_px, info["relight"] = relight(rgb_px, sub, (alpha[cov] > 0.5) & obj_c[cov], illumination)
-    # Un-premultiply, then display-encode (HDR clips here, like the real camera's sensor).
-    obj_srgb = np.zeros(alpha.shape + (3,), np.float32)
-    obj_srgb[cov] = linear_to_srgb(rgb_px[:, ::-1] / alpha[cov][:, None])  # BGR, [0, 1]
-
-    # ---- 2. colour transfer, per object against the real background around it
-    t2 = time.perf_counter()
+    ob = _bbox(obj_any, 1, H, W)
+    ids_u16 = np.clip(idx[ob], 0, 65535).astype(np.uint16)
+    # Anti-aliased rims (alpha > 0 next to an object) belong to the neighbouring object.
+    owner = np.where(ids_u16 > 0, ids_u16, cv2.dilate(ids_u16, np.ones((3, 3), np.uint8)))
     env_lit = illumination is not None and settings.illumination != "off"
     strength = 0.0 if settings.color_transfer == "none" else settings.color_strength \
         if settings.color_strength is not None else \
         STRENGTH_AFTER_ENV_LIGHT if env_lit else STRENGTH_WITHOUT_ENV_LIGHT
-    real_c = real_bgr[crop]
-    for oid in np.unique(idx_c[obj_c]):
-        om = (idx_c == oid) & (alpha > 0.5)
-        rec = {"id": int(oid), "pixels": int(om.sum())}
+    profile = sensor.measure(_centre_crop(real_bgr)) if settings.sensor_match else None
+    if profile is not None:
+        info["sensor"] = {"measured": {k: (round(v, 4) if isinstance(v, float) else v)
+                                       for k, v in profile.to_dict().items()}, "applied": {}}
+    tm = dict.fromkeys(("relight", "color_transfer", "sensor", "blend"), 0.0)
+    tm["objects_prepare"] = time.perf_counter() - t0
+    for oid in np.flatnonzero(np.bincount(ids_u16.ravel(), minlength=1)[1:]) + 1:  # ids present, O(N)
+        own = owner == oid
+        rows, cols = np.flatnonzero(own.any(axis=1)), np.flatnonzero(own.any(axis=0))
+        ring_px = int(max(MIN_RING_PX, RING_PX * max(rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1)))
+        # Crop = the object's box + its ring, origin on the 8x8 JPEG grid of the frame.
+        y0 = max(0, (ob[0].start + rows[0] - ring_px) // 8 * 8)
+        x0 = max(0, (ob[1].start + cols[0] - ring_px) // 8 * 8)
+        y1 = min(H, ob[0].start + rows[-1] + 1 + ring_px)
+        x1 = min(W, ob[1].start + cols[-1] + 1 + ring_px)
+        crop = (slice(y0, y1), slice(x0, x1))
+        o_c = idx[crop] == oid
+        own_c = np.zeros(o_c.shape, bool)
+        oy, ox = ob[0].start - y0, ob[1].start - x0  # owner (box ob) -> crop offset
+        ys, xs = slice(max(0, oy), min(y1 - y0, oy + own.shape[0])), slice(max(0, ox), min(x1 - x0, ox + own.shape[1]))
+        own_c[ys, xs] = own[ys.start - oy:ys.stop - oy, xs.start - ox:xs.stop - ox]
+        alpha = np.clip(finite(rgba[crop][..., 3].astype(np.float32)), 0.0, 1.0)
+        alpha[~own_c] = 0.0  # elsewhere alpha is another object's or the shadow catcher's
+        alpha[o_c & (alpha < 1e-3)] = 1.0  # index says object but alpha is empty (e.g. NaN): trust index
+        cov = alpha > 0
+        cy, cx = np.nonzero(cov)
+        flat = (cy + y0) * W + (cx + x0)  # np.take on flat indices: ~5x faster than a masked view
+        rgb_px = np.clip(finite(_take(rgba, flat)[:, :3].astype(np.float32), 0.0, HDR_MAX), 0.0, HDR_MAX)
+        rec = {"id": int(oid), "pixels": int(o_c.sum()), "crop_xywh": [int(x0), int(y0), int(x1 - x0), int(y1 - y0)]}
+
+        # ---- relight (re-weight the lighting passes toward the estimate)
+        t1 = time.perf_counter()
+        if settings.relight and env_lit:
+            sub = {k: _take(passes[k], flat) for k in LIGHT_PASSES
+                   if k in passes and np.shape(passes[k])[:2] == (H, W)}
+            rgb_px, rec["relight"] = relight(rgb_px, sub, (alpha[cov] > 0.5) & o_c[cov], illumination)
+        # Un-premultiply, then display-encode (HDR clips here, like the real camera's sensor).
+        obj = np.zeros(alpha.shape + (3,), np.float32)
+        obj[cov] = linear_to_srgb(rgb_px[:, ::-1] / alpha[cov][:, None])  # BGR, [0, 1]
+
+        # ---- colour transfer against the real background around the object
+        t2 = time.perf_counter()
+        om = o_c & (alpha > 0.5)
         if strength > 0 and om.any():
-            r_, c_ = np.flatnonzero(om.any(axis=1)), np.flatnonzero(om.any(axis=0))
-            r = int(max(MIN_RING_PX, RING_PX * max(r_[-1] - r_[0] + 1, c_[-1] - c_[0] + 1)))
-            sub = (slice(max(0, r_[0] - r), r_[-1] + r + 1), slice(max(0, c_[0] - r), c_[-1] + r + 1))
-            # Ring = background within r px of the object (distance transform: O(N) for any r).
-            dist = cv2.distanceTransform((~om[sub]).astype(np.uint8), cv2.DIST_L2, 3)
-            ring = (dist <= r) & ~near[sub] & ~sh_c[sub]
+            # Ring = background within ring_px of the object (distance transform: O(N) for any r).
+            dist = cv2.distanceTransform((~om).astype(np.uint8), cv2.DIST_L2, 3)
+            ring = (dist <= ring_px) & (idx[crop] == 0) & (alpha == 0)
+            if shadowed is not None:
+                ring &= ~shadowed[crop]
             if ring.sum() >= 4:
-                s_pix = obj_srgb[om]
-                mapped = transfer_pixels(s_pix, real_c[sub][ring].astype(np.float32) / 255.0, settings.color_transfer)
-                obj_srgb[om] = np.clip(s_pix + strength * (mapped - s_pix), 0.0, 1.0)
+                s_pix = obj[om]
+                mapped = transfer_pixels(s_pix, real_bgr[crop][ring].astype(np.float32) / 255.0,
+                                         settings.color_transfer)
+                obj[om] = np.clip(s_pix + strength * (mapped - s_pix), 0.0, 1.0)
                 rec["transfer"] = {"method": settings.color_transfer, "strength": strength, "ring_px": int(ring.sum()),
-                                   "mean_shift_bgr": [round(float(v), 4) for v in (obj_srgb[om] - s_pix).mean(0)]}
+                                   "mean_shift_bgr": [round(float(v), 4) for v in (obj[om] - s_pix).mean(0)]}
             else:
                 rec["transfer"] = {"method": "none", "reason": "no visible background around the object"}
+
+        # ---- sensor matching on the object pixels
+        t3 = time.perf_counter()
+        if profile is not None:
+            obj, applied = sensor.apply(obj, alpha, profile, origin=(x0, y0), frame_size=(W, H),
+                                        seed=seed * 65536 + int(oid))
+            rec["sensor"] = applied
+            info["sensor"]["applied"].update(applied)
+
+        # ---- alpha blend in linear light over the (already shadowed) background
+        t4 = time.perf_counter()
+        out_c = out[crop]
+        a = alpha[cov][:, None]
+        out_c[cov] = linear_to_srgb_u8(a * srgb_to_linear(obj[cov]) + (1.0 - a) * srgb_u8_to_linear(out_c[cov]))
+        t5 = time.perf_counter()
+        for k, v in (("relight", t2 - t1), ("color_transfer", t3 - t2), ("sensor", t4 - t3), ("blend", t5 - t4)):
+            tm[k] += v
         info["objects"].append(rec)
+    if len(info["objects"]) == 1:  # keep the simple one-object view at the top level
+        info["relight"] = info["objects"][0].get("relight")
+    elif info["objects"]:
+        info["relight"] = {"relight": "per object", "objects": [o.get("relight") for o in info["objects"]]}
+    return tm
 
-    # ---- 3. sensor matching on the object pixels
-    t3 = time.perf_counter()
-    if settings.sensor_match:
-        profile = sensor.measure(_centre_crop(real_bgr))
-        obj_srgb, applied = sensor.apply(obj_srgb, alpha, profile, origin=(x0, y0), frame_size=(W, H), seed=seed)
-        info["sensor"] = {"measured": {k: (round(v, 4) if isinstance(v, float) else v)
-                                       for k, v in profile.to_dict().items()}, "applied": applied}
 
-    # ---- 4. alpha blend in linear light over the (already shadowed) background
-    t4 = time.perf_counter()
-    out_c = out[crop]
-    a = alpha[cov][:, None]
-    bg_lin = srgb_u8_to_linear(out_c[cov])
-    out_c[cov] = linear_to_srgb_u8(a * srgb_to_linear(obj_srgb[cov]) + (1.0 - a) * bg_lin)
-    t5 = time.perf_counter()
-    return {"objects_prepare": t1 - t0, "relight": t2 - t1, "color_transfer": t3 - t2, "sensor": t4 - t3,
-            "blend": t5 - t4}
+def _take(a: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """Rows ``flat`` of an HxW(xC) image viewed as (H*W, C)."""
+    a = np.asarray(a)
+    return np.take(a.reshape(a.shape[0] * a.shape[1], -1), flat, axis=0)
 
 
 def _shadow_mask(passes: dict, hw: tuple[int, int]):
@@ -191,7 +215,7 @@ def _shadow_mask(passes: dict, hw: tuple[int, int]):
     baseline = baseline if 0.9 <= baseline < 1.0 else 1.0
     # The pass is a ratio of two noisy estimates; shadows are smooth, so a small blur before
     # the threshold keeps real shadows and drops the noise.
-    grey = cv2.GaussianBlur(grey, (0, 0), SHADOW_SMOOTH_PX)
+    grey = cv2.blur(grey, (3, 3))
     return grey < baseline * (1.0 - SHADOW_EPS), shadow, baseline
 
 

@@ -37,15 +37,17 @@ def relight(rgb: np.ndarray, passes: dict, mask: np.ndarray, illumination: Illum
     dd, di, dc = (_clean(np.asarray(passes[k])[mask]) for k in NEEDED)
     gd, gi, gc = (_clean(np.asarray(passes[k])[mask]) if k in passes else None
                   for k in ("glossy_direct", "glossy_indirect", "glossy_color"))
-    D = dd.mean(0).astype(np.float64)
-    I = di.mean(0).astype(np.float64)
+    ones = np.full(len(dd), 1.0 / len(dd), np.float32)  # column means as one BLAS call each
+    D = (ones @ dd).astype(np.float64)
+    I = (ones @ di).astype(np.float64)
     if float((D + I) @ LUMA_RGB) < 1e-6:
         return rgb, {"relight": "skipped", "reason": "object receives no light in the render"}
     target = np.asarray(illumination.illuminant_rgb, dtype=float)
-    g = _gains(D + I, target)
-    delta = dc * ((g - 1.0) * (dd + di))
+    g = _gains(D + I, target).astype(np.float32)  # float32: a float64 gain would promote every pixel
+    gm1 = g - np.float32(1.0)
+    delta = dc * (gm1 * (dd + di))
     if gd is not None and gi is not None and gc is not None:
-        delta += gc * ((g - 1.0) * (gd + gi))
+        delta += gc * (gm1 * (gd + gi))
     out = rgb.copy()
     out[mask] = np.maximum(rgb[mask] + delta, 0.0)
     return out, {"relight": "applied", "light_gain_rgb": [round(float(v), 4) for v in g]}

@@ -21,7 +21,7 @@ import numpy as np
 NOISE_MIN_SIGMA = 1.5  # 8-bit levels (quantisation and fine texture read as ~1)
 BLUR_MIN_DELTA = 0.03  # re-blur metric above the render's
 BLOCKINESS_MIN = 1.12  # boundary / interior gradient ratio
-VIGNETTE_MIN_K = 0.08  # 8% darker at the corner radius
+VIGNETTE_MIN_K = 0.15  # 15% darker at the corner radius (scene content can fake ~10%)
 BLUR_SIGMAS = (0.0, 0.6, 1.0, 1.5, 2.2)
 GHOST_QUALITIES = (30, 40, 50, 60, 70, 80, 90)
 

@@ -2,10 +2,10 @@
 segment, and spread each correction smoothly so the trajectory never jumps.
 
 Each segment of `every_s` seconds gets one anchor correction, a planar rigid transform plus a
-height offset (yaw dpsi, translation b): the robust mean of the fix residuals in the segment,
-using future fixes as well as past ones (which the causal filter could not). The yaw part is
-kept only when it is statistically significant (> 3 sigma given the fix noise and the
-segment's extent), because a short noisy segment would otherwise rotate a good trajectory.
+height offset (yaw dpsi, translation b): the robust mean of the fix residuals in the segment.
+Both parts are kept only beyond what the fix noise explains (3 sigma, soft threshold), so a
+trajectory that already agrees with the fixes (the smoothed EKF usually does) is left alone,
+and one that drifted (e.g. fixes rejected or filtered out, a biased LUT segment) is pulled back.
 Between anchors the (dpsi, b) parameters are interpolated linearly in distance travelled, so
 the corrected trajectory is continuous (no step at segment borders) and a parked vehicle is
 not made to creep.
@@ -60,6 +60,11 @@ def reanchor(result, fix_t, fix_xyz, fix_inside, fix_std, every_s: float, T_imu_
             if abs(psi) < 3 * sigma_psi:
                 psi = 0.0
         shift = np.median(r, axis=0)
+        # keep only what the fixes can actually tell apart from zero (the median of n fixes
+        # has a standard deviation of ~1.25 sigma / sqrt(n)); a smoothed trajectory that already
+        # agrees with the fixes is left alone instead of inheriting their noise
+        sig = 1.2533 * float(np.mean(s)) / np.sqrt(len(r)) * np.array([1.0, 1.0, 2.0])
+        shift = np.where(np.abs(shift) > 3 * sig, shift - 3 * sig * np.sign(shift), 0.0)
         Rz = so3.yaw_rotation(psi)
         bvec = c + shift - Rz @ c  # x' = Rz x + b maps the segment onto the fixes
         anchors.append((0.5 * (a + b), psi, bvec))

@@ -37,6 +37,7 @@ class VoConfig:
     min_parallax_px: float = 1.0           # rotation-compensated flow below this: pure rotation
     fast_threshold: int = 12
     n_levels: int = 6
+    max_width: int | None = 640            # larger frames are downscaled for detection (speed)
 
 
 @dataclass
@@ -80,6 +81,17 @@ class OrbVo:
 
     def _features(self, gray: np.ndarray):
         c = self.cfg
+        k_down = 1.0
+        if c.max_width and gray.shape[1] > c.max_width:
+            k_down = gray.shape[1] / c.max_width
+            gray = cv2.resize(gray, (c.max_width, int(round(gray.shape[0] / k_down))), interpolation=cv2.INTER_AREA)
+        px, desc = self._orb_features(gray)
+        if k_down != 1.0 and len(px):
+            px = (px + 0.5) * k_down - 0.5  # pixel centres at integers at both sizes
+        return px, desc
+
+    def _orb_features(self, gray: np.ndarray):
+        c = self.cfg
         kps = self.orb.detect(gray, None)
         if len(kps) > c.n_features:
             h, w = gray.shape
@@ -103,7 +115,12 @@ class OrbVo:
         kps, desc = self.orb.compute(gray, kps)
         if desc is None or len(kps) == 0:
             return np.zeros((0, 2)), None
-        return np.array([k.pt for k in kps], dtype=np.float64), desc
+        pts = np.array([k.pt for k in kps], dtype=np.float64)
+        # OpenCV maps a pyramid level's pixel x_L to x_L * s; with pixel centres at integers the
+        # full-resolution position is (x_L + 0.5) * s - 0.5. The missing 0.5 (s - 1) is the same
+        # in both frames, so it moves the focus of expansion (a bias of ~1 px = 0.2 deg here).
+        s = self.orb.getScaleFactor() ** np.array([k.octave for k in kps], dtype=np.float64)
+        return pts + 0.5 * (s - 1.0)[:, None], desc
 
     def _bearings(self, px: np.ndarray) -> np.ndarray:
         cam = self.camera
@@ -183,11 +200,47 @@ class OrbVo:
             res.n_inliers = int(inl_r.sum())
             res.R_c1c2 = R21.T
             return res
+        # RANSAC's E comes from one minimal sample: refit R, t on all inliers (Sampson error)
+        R21, t = _refine_rt(R21, t.ravel(), n1[inl], n2[inl])
         res.status = "ok"
         res.R_c1c2 = R21.T
         u = -R21.T @ t.ravel()
         res.u_dir = u / np.linalg.norm(u)
         return res
+
+
+def _sampson(params: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    R = so3.exp(params[:3])
+    th, ph = params[3], params[4]
+    t = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+    E = so3.hat(t) @ R
+    Ex1 = x1 @ E.T
+    Etx2 = x2 @ E
+    num = np.sum(x2 * Ex1, axis=1)
+    den = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
+    return num / np.sqrt(den + 1e-15)
+
+
+def _refine_rt(R: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray):
+    """Levenberg-Marquardt on the Sampson distance over the inliers, Huber-robust; keeps the
+    RANSAC solution if the refit does not lower the cost."""
+    from scipy.optimize import least_squares
+
+    if len(n1) < 8:
+        return R, t
+    x1 = np.hstack([n1, np.ones((len(n1), 1))])
+    x2 = np.hstack([n2, np.ones((len(n2), 1))])
+    t = t / np.linalg.norm(t)
+    p0 = np.concatenate([so3.log(R), [np.arccos(np.clip(t[2], -1, 1)), np.arctan2(t[1], t[0])]])
+    c0 = np.sum(_sampson(p0, x1, x2) ** 2)
+    try:
+        sol = least_squares(_sampson, p0, args=(x1, x2), loss="huber", f_scale=1e-3, max_nfev=50)
+    except (ValueError, np.linalg.LinAlgError):
+        return R, t
+    if not np.all(np.isfinite(sol.x)) or np.sum(_sampson(sol.x, x1, x2) ** 2) > c0:
+        return R, t
+    th, ph = sol.x[3], sol.x[4]
+    return so3.exp(sol.x[:3]), np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
 
 
 def _same_image(a: np.ndarray, b: np.ndarray) -> bool:

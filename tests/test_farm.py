@@ -157,6 +157,23 @@ def test_ledger_garbage_is_a_user_error(tmp_path):
     with pytest.raises(UserError, match="ledger.sqlite"):
         run_tasks(tmp_path, "frames", ["a"], "test_farm:FileProcessor", {"out": str(tmp_path)},
                   progress=False)
+    led.unlink()  # the lock was released: a second try in this process proceeds
+    s = run_tasks(tmp_path, "frames", ["a"], "test_farm:FileProcessor", {"out": str(tmp_path)},
+                  progress=False)
+    assert s.ok
+
+
+def test_second_supervisor_on_the_same_folder_is_refused(tmp_path):
+    from blendgen.farm.books import Books
+
+    b = Books(tmp_path, "frames", ["a"], chunk=1, engine="local", workers=1, seed=0,
+              max_attempts=1, progress=False)
+    try:
+        with pytest.raises(UserError, match="another blendgen supervisor"):
+            run_tasks(tmp_path, "frames", ["a"], "test_farm:FileProcessor",
+                      {"out": str(tmp_path)}, progress=False)
+    finally:
+        b.close()
 
 
 # -- local engine ----------------------------------------------------------------------------
@@ -239,8 +256,10 @@ def test_permanent_failure_keeps_log_and_summary(tmp_path):
 
 def test_processor_that_cannot_start_is_a_stage_error(tmp_path):
     with pytest.raises(StageError, match="cannot open the twin"):
-        run_tasks(tmp_path, "frames", items(3), "test_farm:BrokenInit", {}, workers=1,
-                  progress=False)
+        run_tasks(tmp_path, "frames", items(6), "test_farm:BrokenInit", {}, workers=2,
+                  chunk=1, progress=False)
+    con = sqlite3.connect(tmp_path / ".blendgen" / "ledger.sqlite")
+    assert con.execute("SELECT count(*) FROM workers").fetchone()[0] <= 4  # gave up early
     assert "finished: failed" in status_report(tmp_path)
 
 
@@ -438,3 +457,16 @@ def test_ray_cluster_survives_node_removal(tmp_path, monkeypatch):
     finally:
         ray.shutdown()
         cluster.shutdown()
+
+
+# -- benchmark wrapper (excluded by default: -m benchmark) ------------------------------------
+@pytest.mark.benchmark
+def test_bench_ledger_throughput_and_overhead(monkeypatch):
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT / "benchmarks"), str(TESTS)]))
+    import bench_farm
+
+    assert bench_farm.bench_ledger(2000, commit_every=1) >= 1000  # issue 7 target
+    startup = bench_farm.bench_run("bench_farm:NoopProcessor", {}, 1, 1, 1)
+    wall = bench_farm.bench_run("bench_farm:NoopProcessor", {}, 300, 1, 16)
+    assert (wall - startup) / 300 < 0.02  # scheduling overhead per frame well under a render

@@ -104,10 +104,14 @@ class Books:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self._lock = self._take_lock()
         self.manifest = self.out_dir / MANIFEST
-        self.in_manifest = read_manifest_items(self.manifest, stage)
-        self.ledger = Ledger(self.out_dir)
-        self.run_id, self.task_ids = self.ledger.begin_run(
-            stage, items, chunk, engine, workers, self.in_manifest & seen)
+        try:
+            self.in_manifest = read_manifest_items(self.manifest, stage)
+            self.ledger = Ledger(self.out_dir)
+            self.run_id, self.task_ids = self.ledger.begin_run(
+                stage, items, chunk, engine, workers, self.in_manifest & seen)
+        except BaseException:
+            self._lock.close()  # let the next attempt in (same process included)
+            raise
         counts = self.ledger.count_items(stage, self.run_id)
         self.summary = FarmSummary(stage=stage, engine=engine, run_id=self.run_id,
                                    total=len(items), done=counts.get("done", 0),

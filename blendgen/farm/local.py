@@ -91,6 +91,7 @@ class LocalEngine:
         self.retired: set[int] = set()
         self.queue: collections.deque[int] = collections.deque()
         self.ever_ready = False
+        self.init_failures = 0
         self.last_init_error: tuple[str, str] | None = None
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -214,6 +215,10 @@ class LocalEngine:
         elif kind == "init_error":
             w.error = ev["error"]
             self.last_init_error = (ev["error"], w.log)
+            self.init_failures += 1
+            if not self.ever_ready and self.init_failures >= SLOT_MAX_FAILURES_IN_ROW:
+                # the processor never started anywhere: a setup error, not a flaky worker
+                self.retired = set(range(self.n_slots))
         elif kind == "item" and ev.get("task") == w.task:
             self.books.on_item(w.task, w.attempt, w.name, ev)
             with contextlib.suppress(ValueError):

@@ -19,7 +19,7 @@ import math
 import os
 import socket
 
-from ..errors import UserError
+from ..errors import StageError, UserError
 from .books import Books
 from .local import worker_env
 from .processor import close_processor, load_processor, redirect_output, rss_mb, run_items
@@ -64,6 +64,8 @@ class RayEngine:
         self.processor, self.processor_args = processor, processor_args
         self.workers, self.recycle_after, self.address = workers, recycle_after, address
         self.chunk = chunk
+        self.any_ok = False
+        self.init_failures = 0
         self.node_fails: collections.Counter = collections.Counter()
         self.banned: set[str] = set()
         self._rr = 0
@@ -179,7 +181,15 @@ class RayEngine:
         if res["ok"]:
             self.books.on_task_done(tid)
             self.node_fails[node] = 0
+            self.any_ok = True
             return True
+        if error and ": init: " in error:
+            self.init_failures += 1
+            if not self.any_ok and self.init_failures >= NODE_MAX_FAILURES_IN_ROW:
+                self.books.on_task_failed(tid, node, error)
+                raise StageError(f"farm stage {self.books.stage}: processor {self.processor} "
+                                 f"failed to start on the Ray workers: {error} "
+                                 f"(log: {self.books.ledger.task(tid)['log_path']})")
         final = self.books.on_task_failed(tid, node, error or "unknown error")
         self.node_fails[node] += 1
         if self.node_fails[node] >= NODE_MAX_FAILURES_IN_ROW and res["node"] not in self.banned:

@@ -49,6 +49,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 DOC = ROOT / "docs" / "benchmarks" / "post.md"
 IMAGES = ROOT / "docs" / "images"
 
+VANISHING_ROW = 153.0  # udacity_highway_images at 480x270, measured on the lane lines
 DEFAULT_LIGHTING = {"sun_direction": list(enu_from_az_el(135.0, 45.0)), "sun_strength": 3.0,
                     "sun_color": [1.0, 1.0, 1.0], "sun_angle_deg": 0.53, "sky_color": [1.0, 1.0, 1.0],
                     "sky_strength": 0.3, "sun_visible": True}
@@ -223,13 +224,14 @@ def real_photo_figure(work: Path, quick: bool):
         print(f"skipping the real-photo figure: needs {DATA}/*.jpg")
         return None
     picks = [photos[1], photos[4], photos[5]] if len(photos) >= 6 else photos[:3]
+    # Positions in the camera's road frame (x right, y ahead, metres); yaw 90 = driving ahead.
     layouts = [
-        [("car", [0.5, 0.5, 0.52], [-3.6, 16, 0], 88), ("truck", [0.7, 0.1, 0.05], [3.7, 30, 0], 92),
-         ("person", [0.1, 0.2, 0.5], [7.0, 12, 0], 180)],
-        [("bus", [0.8, 0.55, 0.05], [-3.8, 28, 0], 90), ("bicycle", [0.05, 0.3, 0.1], [5.8, 13, 0], 90),
-         ("traffic light", [0.3, 0.3, 0.3], [6.5, 24, 4.2], 270)],
-        [("motorcycle", [0.4, 0.02, 0.02], [1.2, 11, 0], 92), ("car", [0.75, 0.75, 0.78], [-3.4, 20, 0], 90),
-         ("person", [0.45, 0.15, 0.3], [-8.0, 14, 0], 0)],
+        [("car", [0.5, 0.5, 0.52], [0.3, 18, 0], 90), ("truck", [0.7, 0.1, 0.05], [-3.7, 34, 0], 92),
+         ("person", [0.1, 0.2, 0.5], [3.4, 12, 0], 180)],
+        [("bus", [0.8, 0.55, 0.05], [3.8, 30, 0], 90), ("bicycle", [0.05, 0.3, 0.1], [-2.6, 14, 0], 95),
+         ("traffic light", [0.3, 0.3, 0.3], [-4.8, 26, 4.2], 270)],
+        [("motorcycle", [0.4, 0.02, 0.02], [0.3, 12, 0], 92), ("car", [0.75, 0.75, 0.78], [3.6, 22, 0], 90),
+         ("person", [0.45, 0.15, 0.3], [-3.4, 11, 0], 0)],
     ]
     W, H = 480, 270
     panels, infos = [], []
@@ -238,7 +240,9 @@ def real_photo_figure(work: Path, quick: bool):
         real = cv2.resize(cv2.imread(str(photo)), (W, H), interpolation=cv2.INTER_AREA)
         est = estimate_illumination(real)
         f = 0.5 * W / np.tan(np.radians(30))
-        pitch = float(np.degrees(np.arctan(((H - 1) / 2 - est.horizon_row) / f)))
+        # The road's vanishing point (read off these photos: row ~153 of 270), not the sky line
+        # (est.horizon_row is where the sky ends: above hills and trees).
+        pitch = float(np.degrees(np.arctan(((H - 1) / 2 - VANISHING_ROW) / f)))
         objs = [{"cls": c, "colour": col, "position": pos, "yaw_deg": yaw, "id": j + 1}
                 for j, (c, col, pos, yaw) in enumerate(layouts[k % len(layouts)])]
         spec = {"resolution": [W, H], "samples": 8 if quick else 16, "denoise": True, "hfov_deg": 60,

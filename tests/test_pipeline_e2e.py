@@ -53,7 +53,7 @@ def test_tiny_demo_runs_end_to_end_and_resumes(tmp_path):
     assert len(coco["images"]) == 5 and len(coco["annotations"]) > 0
     assert {c["id"] for c in coco["categories"]} >= {1, 3}
     manifest = [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines() if line]
-    assert {m["frame_id"] for m in manifest if m.get("stage") == "frames"} == {d.name for d in frames}
+    assert {m["item"] for m in manifest if m.get("stage") == "frames"} == {d.name for d in frames}
     poses = np.loadtxt(out / "poses.tum")
     assert poses.shape == (5, 8) and np.all(np.isfinite(poses))
     summary = json.loads((out / "run_summary.json").read_text())

@@ -60,7 +60,7 @@ class Illumination:
     sun_fraction: float  # share of the ground irradiance that comes from the sun
     shadow_ratio: float  # lit / shadowed road luminance (1: no shadow measured)
     visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "below_horizon"
-    horizon_row: float  # in pixels of the input frame
+    horizon_row: float  # sky line (bottom of the sky region, or from the pitch), in input pixels
     notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:

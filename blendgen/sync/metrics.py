@@ -49,7 +49,9 @@ def trajectory_errors(est: list[np.ndarray], ref: list[np.ndarray], *, align: st
         de = np.linalg.inv(est[k]) @ est[k + rpe_step]
         dg = np.linalg.inv(ref[k]) @ ref[k + rpe_step]
         rpe.append(np.linalg.norm(de[:3, 3] - dg[:3, 3]))
+    h_err = np.linalg.norm(E[:, :2] - G[:, :2], axis=1)
     out = {"ate_rmse_m": float(np.sqrt(np.mean(pos_err**2))), "pos_median_m": float(np.median(pos_err)),
+           "ate_h_rmse_m": float(np.sqrt(np.mean(h_err**2))),
            "rot_median_deg": float(np.median(rot_err)), "rot_max_deg": float(np.max(rot_err)),
            "rpe_rmse_m": float(np.sqrt(np.mean(np.square(rpe)))) if rpe else 0.0}
     if camera is not None:

@@ -30,6 +30,7 @@ def _run(tmp_path, kind, duration, settings=None, **kw):
     rot_rel = np.degrees([np.linalg.norm(so3.log(g[:3, :3].T @ Rz @ e[:3, :3])) for e, g in zip(est, gt)])
     assert all(np.all(np.isfinite(e)) for e in est)
     assert np.all(np.isfinite(res.cov)) and np.all(res.cov > 0)
+    assert res.summary["cov_min_eig"] > 0 and res.summary["cov_asym"] < 1e-9  # final P is SPD
     assert (tmp_path / "poses.csv").exists() and (tmp_path / "poses.tum").exists()
     return res, pos, rot, rot_rel
 

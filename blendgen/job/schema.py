@@ -185,7 +185,7 @@ class Job(Section):
     # ---- derived paths
     def path(self, p: Path | str) -> Path:
         p = Path(p).expanduser()
-        return p if p.is_absolute() else (self.job_dir or Path.cwd()) / p
+        return (p if p.is_absolute() else (self.job_dir or Path.cwd()) / p).resolve()
 
     @property
     def out_dir(self) -> Path:

@@ -170,8 +170,9 @@ def apply(obj_bgr: np.ndarray, alpha: np.ndarray, profile: SensorProfile, *, ori
             for s in BLUR_SIGMAS[1:]:
                 gb = cv2.GaussianBlur(g, (0, 0), s)
                 err = abs(blur_metric(gb, inside) - real_blur)
-                if err < best_err:
-                    best, best_err = s, err
+                if err >= best_err:
+                    break  # the metric grows with sigma: past the best match it only gets worse
+                best, best_err = s, err
             if best > 0:
                 out = cv2.GaussianBlur(out, (0, 0), best)
                 applied["blur_sigma"] = best

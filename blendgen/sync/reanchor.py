@@ -17,6 +17,8 @@ import numpy as np
 
 from blendgen.sync import so3
 
+MERGE_M = 1.0
+
 
 def _interp_positions(t_q, t, P):
     return np.stack([np.interp(t_q, t, P[:, k]) for k in range(3)], axis=1)
@@ -79,6 +81,12 @@ def reanchor(result, fix_t, fix_xyz, fix_inside, fix_std, every_s: float, T_imu_
     step = np.linalg.norm(np.diff(body, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(step)]) + 1e-3 * (t - t[0])
     sa = np.interp(ta, t, s)
+    # anchors less than MERGE_M apart along the path (a standstill) become one: otherwise the
+    # correction would swing between them while the car does not move
+    groups = np.concatenate([[0], np.cumsum(np.diff(sa) > MERGE_M)])
+    sa = np.array([sa[groups == g].mean() for g in np.unique(groups)])
+    psi = np.array([psi[groups == g].mean() for g in np.unique(groups)])
+    bv = np.array([bv[groups == g].mean(axis=0) for g in np.unique(groups)])
     psi_t = np.interp(s, sa, psi)
     b_t = _interp_positions(s, sa, bv)
     for k, (fid, tk, T) in enumerate(result.poses):

@@ -330,9 +330,9 @@ def main():
     ax[0].set_ylabel("fMSE over object pixels (8-bit, log)")
     ax[0].set_title(f"{len(Ls)} lightings, {res[0]}x{res[1]}, {samples} spp")
     ax[0].tick_params(axis="x", rotation=35)
-    for t in table:
+    for k, t in enumerate(table):
         ax[1].scatter(t[5], t[1], s=40)
-        ax[1].annotate(t[0], (t[5], t[1]), fontsize=8, xytext=(4, 4), textcoords="offset points")
+        ax[1].annotate(t[0], (t[5], t[1]), fontsize=8, xytext=(4, 4 if k % 2 else -10), textcoords="offset points")
     ax[1].set_xlabel("ms per 1280x720 frame (median)")
     ax[1].set_ylabel("median fMSE (log)")
     ax[1].set_yscale("log")

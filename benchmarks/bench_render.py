@@ -29,6 +29,7 @@ Memory: RSS over 300 frames in one session (objects moving, one replaced every 1
 from __future__ import annotations
 
 import argparse
+import json
 import resource
 import statistics
 import sys
@@ -217,8 +218,9 @@ def main():
 
     # ---- summary
     def fastest(fam, cond):
+        # By CPU time: wall time on two shared cores swings with the other jobs.
         c = [r for r in rows if r["family"] in fam and cond(r)]
-        return min(c, key=lambda r: r["time_s"]) if c else None
+        return min(c, key=lambda r: r["cpu_s"]) if c else None
 
     ok = lambda r: r["psnr_db"] >= TARGET_DB  # noqa: E731
     best = fastest(("effects", "default"), ok)
@@ -229,8 +231,8 @@ def main():
                  f"{nv['cpu_s'] / best['cpu_s']:.1f}x CPU time ({nv['cpu_s']:.1f} -> {best['cpu_s']:.1f} CPU s)")
     elif best:
         slow = max(naive_rows, key=lambda r: r["psnr_db"])
-        speed = (f"> {slow['time_s'] / best['time_s']:.1f}x: no naive configuration reached {TARGET_DB} dB "
-                 f"(best {slow['psnr_db']:.1f} dB at {slow['time_s']:.1f} s)")
+        speed = (f"> {slow['cpu_s'] / best['cpu_s']:.1f}x CPU time: no naive configuration reached {TARGET_DB} dB "
+                 f"(best {slow['psnr_db']:.1f} dB at {slow['cpu_s']:.1f} CPU s)")
     else:
         speed = f"no configuration reached {TARGET_DB} dB"
     total = time.perf_counter() - t_start
@@ -297,14 +299,20 @@ def main():
     lines += ["",
               f"- Time per frame at the job default (64 samples, denoise, region): **{default['time_s']:.2f} s** "
               f"(median of 3), {default['psnr_db']:.1f} dB.",
-              f"- Fastest configuration with PSNR >= {TARGET_DB} dB: " +
+              f"  CPU time {default['cpu_s']:.2f} s (two threads: about half that in wall time on two "
+              f"dedicated cores).",
+              f"- Cheapest configuration with PSNR >= {TARGET_DB} dB (by CPU time): " +
               (f"{best['family']} {best['samples']} spp, denoise {'on' if best['denoise'] else 'off'}, "
-               f"bounces {best['bounces']}: **{best['time_s']:.2f} s**, {best['psnr_db']:.1f} dB." if best else "none."),
+               f"bounces {best['bounces']}: **{best['time_s']:.2f} s** wall, {best['cpu_s']:.2f} CPU s, "
+               f"{best['psnr_db']:.1f} dB." if best else "none."),
               f"- Speedup over the naive full-frame render at >= {TARGET_DB} dB: **{speed}**.",
               f"- RSS over {frames} frames in one session (320x180, 1 spp, one object replaced every 10 frames): "
               f"{rss[0]:.0f} MB at frame 0, {base:.0f} MB at frame 10, {rss[-1]:.0f} MB at the end; "
               f"largest growth after frame 10: **{growth:+.1%}**.", "",
               f"![render benchmark](../../benchmarks/results/{png.name})", ""]
+    write_text(png.with_suffix(".json"), json.dumps({"resolution": [W, H], "reference_samples": ref_samples,
+                                                     "objects": build_name, "rows": rows, "rss_mb": rss},
+                                                    indent=1))
     md = "\n".join(lines)
     write_text(DOC if not args.quick else DOC.with_name("render_quick.md"), md)
     print("\n" + md)

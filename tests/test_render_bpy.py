@@ -162,7 +162,10 @@ def test_frame_without_visible_objects_costs_almost_nothing(tmp_path):
         info = s.render_frame(FramePlan("f4", 0.0, T.tolist(), [behind], SUN), tmp_path / "e.exr",
                               {"rgba", "index", "shadow_catcher"})
         dt = time.perf_counter() - t0
-        assert info["skipped"] and info["amodal_px"] == {} and dt < 0.15
+        # Blender is not called (no "render" timing); writing the empty EXR takes milliseconds
+        # (the bound leaves room for the shared machine's load).
+        assert info["skipped"] and "render" not in info["timings"] and info["amodal_px"] == {}
+        assert dt < 0.5, dt
         p = read_passes(tmp_path / "e.exr")
         assert p["rgba"].max() == 0 and p["index"].max() == 0 and p["shadow_catcher"].min() == 1
         assert p["index"].shape == (180, 320)

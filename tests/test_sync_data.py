@@ -52,7 +52,7 @@ def test_udacity_video_vo_tracks_all_frames(tmp_path):
     status = res.summary["vo_status"]
     assert status.get("first") == 1
     assert sum(status.get(k, 0) for k in ("ok", "rotation")) == 220, status  # no failures
-    assert status.get("ok", 0) >= 200
+    assert status.get("ok", 0) >= 180  # the rest: too little parallax, rotation only (direction held)
     P = res.positions()
     d = P[-1] - P[0]
     # a highway drive straight ahead: the first camera looks along +x of the VO world

@@ -69,6 +69,19 @@ def test_dark_frames_are_bridged(tmp_path, scene):
     assert np.all(np.isfinite(res.cov))
 
 
+def test_repeated_frames_while_driving(tmp_path, scene):
+    """Encoder duplicates: the image repeats but the car moves on (no false standstill)."""
+    rec, _, _ = synthetic_recording("drive", 8.0, scene=scene)
+    for k in (10, 11, 25):
+        rec.extra["images"][k] = rec.extra["images"][k - 1].copy()
+    res = run_sync(rec, Sync(), tmp_path, georef=GEOREF, progress=False)
+    flags = [q["flags"] for q in res.quality]
+    assert ["repeated_frame" in f for f in flags].count(True) == 3
+    assert not any("zupt" in f for f in flags)
+    err = _errors(res, rec)
+    assert err["ate_rmse_m"] < 0.8 and err["rot_median_deg"] < 1.0
+
+
 def test_vo_only_without_imu_and_gnss(tmp_path, drive):
     rec, _, _ = drive
     res = run_sync(rec, Sync(use_imu=False, use_gnss=False), tmp_path, progress=False)

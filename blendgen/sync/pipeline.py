@@ -19,7 +19,7 @@ import numpy as np
 import pymap3d
 
 from blendgen import atomic
-from blendgen.errors import UserError
+from blendgen.errors import StageError, UserError
 from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
 from blendgen.recording.model import Recording
 from blendgen.sync import so3
@@ -362,6 +362,10 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 res = vo_cache[i]
                 if res is None:
                     flags.append("decode_failed")
+                elif res.status == "repeated":
+                    # a duplicated frame (encoder repeat) says nothing about motion: no update,
+                    # and the clone stays at the frame whose image this is
+                    flags.append("repeated_frame")
                 else:
                     if res.has_rotation and ekf.has_clone:
                         # measured on synthetic 480x270 frames at 5 fps (USAC + Sampson refit):
@@ -376,7 +380,8 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                         flags.append("vo" if ok else "vo_rejected")
                     elif res.status not in ("first",):
                         flags.append("vo_failed")
-                ekf.clone()
+                if res is None or res.status != "repeated":
+                    ekf.clone()
             if smooth:
                 marks.append(ekf.mark())
             T_wb = make_pose(ekf.R, ekf.p)
@@ -386,8 +391,6 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             covs.append(np.concatenate([c[0:3], c[6:9]]))
             quality.append(_quality(res, flags))
             if not ekf.healthy():
-                from blendgen.errors import StageError
-
                 raise StageError(f"filter became numerically unstable at t={t:.3f}")
             bar.update(1)
     bar.close()
@@ -403,7 +406,8 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     st = ekf.stats
     P = ekf.P[:15, :15]
     summary = {"cov_min_eig": float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()),
-               "cov_asym": float(np.abs(P - P.T).max()), "imu_steps": st.imu_steps, "imu_gaps": st.imu_gaps, "imu_saturated": st.saturated,
+               "cov_asym": float(np.abs(P - P.T).max()), "imu_steps": st.imu_steps, "imu_gaps": st.imu_gaps,
+               "imu_saturated": st.saturated,
                "updates": dict(st.updates), "rejected": dict(st.rejected),
                "gyro_bias": ekf.bg.round(5).tolist(), "accel_bias": ekf.ba.round(4).tolist(),
                "vo_status": _count(q["vo_status"] for q in quality)}
@@ -416,6 +420,7 @@ def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
     R_wc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # level, looking along +x
     T = make_pose(R_wc, np.zeros(3))
     last_step, last_dir = None, None
+    t_last = float(out_t_cam[0]) if len(out_t_cam) else 0.0
     poses, covs, quality = [], [], []
     bar = _bar(progress, len(out_t_cam), "sync (VO only)")
     var_p, var_r = 0.0, 0.0
@@ -427,7 +432,15 @@ def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
             vo.reset()
         else:
             res = vo.track(img)
-        dt = t - out_t_cam[i - 1] if i > 0 else 0.0
+        dt = t - t_last if i > 0 else 0.0
+        if res is not None and res.status == "repeated":
+            flags.append("repeated_frame")  # same image as before: hold the pose, time runs on
+            poses.append((ids[i], float(t), T.copy()))
+            covs.append(np.array([var_p] * 3 + [var_r] * 3))
+            quality.append(_quality(res, flags))
+            bar.update(1)
+            continue
+        t_last = t
         if res is not None and res.has_rotation and i > 0:
             if res.has_direction:
                 step = make_pose(res.R_c1c2, res.u_dir * settings.vo_speed_mps * dt)
@@ -470,8 +483,6 @@ def _bar(progress: bool, total: int, desc: str):
 
 
 def _check_finite(result: SyncResult) -> None:
-    from blendgen.errors import StageError
-
     for fid, t, T in result.poses:
         if not np.all(np.isfinite(T)):
             raise StageError(f"pose of {fid} (t={t}) is not finite")

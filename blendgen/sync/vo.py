@@ -8,8 +8,9 @@ classified instead of producing a wrong pose:
 
   few_features  textureless / dark / lens cap            -> no measurement
   few_matches   too few consistent matches                -> no measurement
-  repeated      the same image twice (dropped/duplicated)  -> identity, stationary
-  stationary    matches do not move                         -> identity, stationary
+  repeated      the same image twice (encoder duplicate)   -> no information (not a standstill:
+                                                              the car may well be moving)
+  stationary    a new image whose features do not move      -> identity, zero velocity
   rotation      no parallax after removing the rotation   -> rotation only (Kabsch fit)
   ok            rotation + translation direction
 """
@@ -53,7 +54,7 @@ class VoResult:
 
     @property
     def has_rotation(self) -> bool:
-        return self.status in ("ok", "rotation", "stationary", "repeated")
+        return self.status in ("ok", "rotation", "stationary")
 
     @property
     def has_direction(self) -> bool:
@@ -61,7 +62,7 @@ class VoResult:
 
     @property
     def stationary(self) -> bool:
-        return self.status in ("stationary", "repeated")
+        return self.status == "stationary"
 
 
 class OrbVo:

@@ -15,6 +15,7 @@ from blendgen.recording.importers.check import Finding, check_recording, format_
 
 FORMATS = {
     "video": ("blendgen.recording.importers.video", "import_video"),
+    "images": ("blendgen.recording.importers.images", "import_images"),
     "euroc": ("blendgen.recording.importers.euroc", "import_euroc"),
     "kitti": ("blendgen.recording.importers.kitti", "import_kitti"),
     "comma2k19": ("blendgen.recording.importers.comma2k19", "import_comma2k19"),

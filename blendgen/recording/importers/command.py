@@ -10,6 +10,7 @@ from blendgen.errors import UserError
 # per-format options: argparse dest -> importer keyword
 _OPTIONS = {
     "video": ["imu_csv", "gnss_csv", "calib", "hfov_deg", "time_offset", "time_unit"],
+    "images": ["calib", "hfov_deg"],
     "euroc": ["cam"],
     "kitti": ["kitti_cam"],
     "comma2k19": ["gnss_source"],

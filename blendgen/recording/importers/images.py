@@ -1,0 +1,60 @@
+"""A folder of still photos -> a recording with frames only (e.g. dashcam stills).
+
+Frames are one second apart on the recording clock (stills have no shared timeline);
+use them with a `ground_plane` job, which needs no sync. Every image must have the same
+size; the camera is a pinhole from --calib or an assumed horizontal field of view.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blendgen.errors import UserError
+from blendgen.recording import folder
+from blendgen.recording.importers import common
+from blendgen.recording.importers.video import DEFAULT_HFOV_DEG, _load_user_calib
+
+IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+
+
+def import_images(src, dst, *, calib=None, hfov_deg: float | None = None, force: bool = False,
+                  show_progress: bool = True) -> Path:
+    src = Path(src)
+    if not src.is_dir():
+        raise UserError("image folder not found", where=str(src))
+    files = sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_EXTS)
+    if not files:
+        raise UserError(f"no images ({', '.join(IMAGE_EXTS)}) in the folder", where=str(src))
+    size = None
+    for p in common.progress(files, desc="check images", enabled=show_progress):
+        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        if img is None:
+            raise UserError("does not decode as an image", where=str(p))
+        if size is None:
+            size = img.shape[:2]
+        elif img.shape[:2] != size:
+            raise UserError(f"is {img.shape[1]}x{img.shape[0]} but {files[0].name} is {size[1]}x{size[0]}; "
+                            "all images of a recording share one camera", where=str(p))
+    h, w = size
+    dst = common.prepare_output(dst, force)
+    if calib is not None:
+        camera, _, _ = _load_user_calib(Path(calib), w, h)
+        cam_note = f"from {calib}"
+    else:
+        hf = float(hfov_deg) if hfov_deg else DEFAULT_HFOV_DEG
+        camera = common.default_camera(w, h, hf)
+        cam_note = f"assumed pinhole with {hf:g} deg horizontal field of view"
+    names = []
+    for i, p in enumerate(files):
+        name = f"frames/{i:06d}{p.suffix.lower()}"
+        common.place_file(p, dst / name)
+        names.append(name)
+    folder.write_frames_csv(dst, np.arange(len(files), dtype=float), names)
+    meta = common.import_meta("images", src, camera=cam_note, T_cam_imu="not applicable (no IMU)",
+                              notes=["stills: frames are 1 s apart on the recording clock",
+                                     *(f"{n} <- {p.name}" for n, p in zip(names, files))])
+    folder.write_calib(dst, camera, None, None, extra={"import": meta})
+    return dst

@@ -135,11 +135,62 @@ def memory_run(cam: Camera, frames: int, build) -> list[float]:
     return rss
 
 
+def plot_results(rows, rss, W, H, ref_samples, png: Path) -> None:
+    """PSNR against CPU time per frame (the steadier cost on shared cores), Pareto front;
+    RSS per frame."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
+    styles = {("effects", False): ("o", "tab:blue", "effects, no denoise"),
+              ("effects", True): ("s", "tab:green", "effects + denoise"),
+              ("full frame", True): ("^", "tab:orange", "full frame + denoise"),
+              ("naive", False): ("x", "tab:red", "naive full frame"),
+              ("default", True): ("*", "black", "job default (64 spp, denoise)")}
+    for (fam, dn), (m, c, lab) in styles.items():
+        pts = [r for r in rows if r["family"] == fam and r["denoise"] == dn and r["bounces"] == 4]
+        if pts:
+            ax[0].scatter([r["cpu_s"] for r in pts], [r["psnr_db"] for r in pts], marker=m, c=c, label=lab, s=50)
+            for r in pts:
+                ax[0].annotate(str(r["samples"]), (r["cpu_s"], r["psnr_db"]), fontsize=7,
+                               xytext=(3, 3), textcoords="offset points")
+    bn = [r for r in rows if r["bounces"] != 4]
+    if bn:
+        ax[0].scatter([r["cpu_s"] for r in bn], [r["psnr_db"] for r in bn], marker="D", c="tab:purple",
+                      label="16 spp + denoise, bounces " + "/".join(str(r["bounces"]) for r in bn), s=30)
+    pts = [(r["cpu_s"], r["psnr_db"]) for r in rows]
+    front = pareto(pts)
+    ax[0].plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
+    ax[0].axhline(TARGET_DB, color="grey", lw=0.8, ls=":")
+    ax[0].set_xscale("log")
+    ax[0].xaxis.set_minor_formatter(NullFormatter())
+    ax[0].xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax[0].set_xlabel("CPU time per frame (s, both threads; wall on 2 free cores is about half)")
+    ax[0].set_ylabel(f"PSNR over object+shadow pixels (dB) vs {ref_samples} spp")
+    ax[0].set_title(f"{W}x{H}, 5 objects with shadows")
+    ax[0].legend(fontsize=7)
+    ax[1].plot(np.arange(len(rss)), rss)
+    ax[1].set_xlabel("frame")
+    ax[1].set_ylabel("RSS (MB)")
+    ax[1].set_title(f"one session, {len(rss)} frames at 320x180")
+    ax[1].set_ylim(0, max(rss) * 1.2)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="640x360, fewer configurations, 60 memory frames")
     ap.add_argument("--ref-samples", type=int, default=None, help="reference samples (default 256; quick 128)")
+    ap.add_argument("--replot", type=Path, default=None, help="redraw the plot from a results JSON and exit")
     args = ap.parse_args()
+    if args.replot is not None:
+        d = json.loads(args.replot.read_text())
+        plot_results(d["rows"], d["rss_mb"], *d["resolution"], d["reference_samples"], args.replot.with_suffix(".png"))
+        return
     from blendgen.render.session import RenderSession
 
     W, H = (640, 360) if args.quick else (1280, 720)
@@ -237,46 +288,9 @@ def main():
         speed = f"no configuration reached {TARGET_DB} dB"
     total = time.perf_counter() - t_start
 
-    # ---- plot
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
-    styles = {("effects", False): ("o", "tab:blue", "effects, no denoise"),
-              ("effects", True): ("s", "tab:green", "effects + denoise"),
-              ("full frame", True): ("^", "tab:orange", "full frame + denoise"),
-              ("naive", False): ("x", "tab:red", "naive full frame"),
-              ("default", True): ("*", "black", "job default (64 spp, denoise)")}
-    for (fam, dn), (m, c, lab) in styles.items():
-        pts = [r for r in rows if r["family"] == fam and r["denoise"] == dn and r["bounces"] == 4]
-        if pts:
-            ax[0].scatter([r["time_s"] for r in pts], [r["psnr_db"] for r in pts], marker=m, c=c, label=lab, s=50)
-            for r in pts:
-                ax[0].annotate(str(r["samples"]), (r["time_s"], r["psnr_db"]), fontsize=7,
-                               xytext=(3, 3), textcoords="offset points")
-    bn = [r for r in rows if r["bounces"] != 4]
-    if bn:
-        ax[0].scatter([r["time_s"] for r in bn], [r["psnr_db"] for r in bn], marker="D", c="tab:purple",
-                      label="16 spp + denoise, bounces 1/2/8", s=30)
-    pts = [(r["time_s"], r["psnr_db"]) for r in rows]
-    front = pareto(pts)
-    ax[0].plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k--", lw=1, label="Pareto front")
-    ax[0].axhline(TARGET_DB, color="grey", lw=0.8, ls=":")
-    ax[0].set_xscale("log")
-    ax[0].set_xlabel("time per frame (s, 2 shared cores)")
-    ax[0].set_ylabel(f"PSNR over object+shadow pixels (dB) vs {ref_samples} spp")
-    ax[0].set_title(f"{W}x{H}, 5 objects with shadows")
-    ax[0].legend(fontsize=7)
-    ax[1].plot(np.arange(len(rss)), rss)
-    ax[1].set_xlabel("frame")
-    ax[1].set_ylabel("RSS (MB)")
-    ax[1].set_title(f"one session, {frames} frames at 320x180")
-    ax[1].set_ylim(0, max(rss) * 1.2)
-    fig.tight_layout()
     RESULTS.mkdir(parents=True, exist_ok=True)
     png = RESULTS / ("render_quick.png" if args.quick else "render.png")
-    fig.savefig(png, dpi=110)
+    plot_results(rows, rss, W, H, ref_samples, png)
 
     # ---- table
     cmd = ".venv/bin/python benchmarks/bench_render.py" + (" --quick" if args.quick else "")

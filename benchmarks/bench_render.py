@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import shutil
 import statistics
 import sys
 import tempfile
@@ -329,6 +330,7 @@ def main():
                                                     indent=1))
     md = "\n".join(lines)
     write_text(DOC if not args.quick else DOC.with_name("render_quick.md"), md)
+    shutil.rmtree(tmp, ignore_errors=True)
     print("\n" + md)
 
 

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 DATA = ROOT.parent / "shared" / "data" / "real"
 
-from blendgen.geometry import invert_pose, make_pose  # noqa: E402
+from blendgen.geometry import make_pose  # noqa: E402
 from blendgen.job.schema import Sync  # noqa: E402
 from blendgen.sync.metrics import comma_errors, gt_poses, trajectory_errors  # noqa: E402
 from blendgen.sync.pipeline import SyncResult, gnss_to_world, run_sync  # noqa: E402
@@ -42,7 +42,8 @@ from blendgen.sync.threads import single_thread_blas  # noqa: E402
 def _metrics(est, ref, cam720):
     a = trajectory_errors(est, ref, align="none", camera=cam720)
     y = trajectory_errors(est, ref, align="yaw", camera=cam720)
-    return {"ate": a["ate_rmse_m"], "ate4": y["ate_rmse_m"], "ateh": a["ate_h_rmse_m"], "ateh4": y["ate_h_rmse_m"], "rpe": a["rpe_rmse_m"], "rot": a["rot_median_deg"],
+    return {"ate": a["ate_rmse_m"], "ate4": y["ate_rmse_m"], "ateh": a["ate_h_rmse_m"], "ateh4": y["ate_h_rmse_m"],
+            "rpe": a["rpe_rmse_m"], "rot": a["rot_median_deg"],
             "rot4": y["rot_median_deg"], "px": a["reproj_median_px"], "px4": y["reproj_median_px"]}
 
 
@@ -90,7 +91,8 @@ def synthetic(quick: bool):
             est = run_gtsam(rec, g_t, g_xyz, 1.0, rec.frames_t, x0)
         secs = time.perf_counter() - t
         m = _metrics(est, ref, cam720)
-        rows.append({"name": "GTSAM ISAM2 IMU+GPS (peer, true initial state)", "ms_per_frame": 1e3 * secs / rec.n_frames, **m})
+        rows.append({"name": "GTSAM ISAM2 IMU+GPS (peer, true initial state)",
+                     "ms_per_frame": 1e3 * secs / rec.n_frames, **m})
         print(f"  {rows[-1]['name']:46s} {rows[-1]['ms_per_frame']:7.1f} ms/frame  ATE {m['ate']:.3f} m  "
               f"ATE4 {m['ate4']:.3f} m  horiz {m['ateh']:.3f}/{m['ateh4']:.3f} m  rot {m['rot']:.3f} deg  "
               f"px {m['px']:.1f} / {m['px4']:.1f}")
@@ -185,7 +187,8 @@ def main() -> None:
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     for r in rows:
-        for ax, key, lab in ((axes[0], "ate4", "ATE, 4-DoF aligned (m)"), (axes[1], "rot", "median rotation error (deg)")):
+        for ax, key, lab in ((axes[0], "ate4", "ATE, 4-DoF aligned (m)"),
+                             (axes[1], "rot", "median rotation error (deg)")):
             mk = "s" if "GTSAM" in r["name"] else ("^" if "VO alone" in r["name"] else "o")
             ax.scatter(r["ms_per_frame"], r[key], marker=mk)
             ax.annotate(r["name"].replace("full, ", ""), (r["ms_per_frame"], r[key]), fontsize=6,
@@ -217,7 +220,8 @@ def main() -> None:
           f"## Synthetic drive ({dur:.0f} s, {nframes} frames 480x270 at 5 fps, IMU 200 Hz, GNSS 10 Hz 1 m noise)", "",
           "ATE/rot/px: absolute, in the twin frame. ATE4/rot4/px4: after a 4-DoF (yaw + translation)",
           "alignment. px: reprojection error of a point 20 m ahead on the optical axis at 1280x720.", "",
-          "| variant | ms/frame | ATE (m) | ATE4 (m) | ATE horiz. (m) | ATE4 horiz. (m) | RPE (m) | rot (deg) | rot4 (deg) | px | px4 |",
+          "| variant | ms/frame | ATE (m) | ATE4 (m) | ATE horiz. (m) | ATE4 horiz. (m) | RPE (m) | rot (deg) "
+          "| rot4 (deg) | px | px4 |",
           "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         md.append(f"| {r['name']} | {r['ms_per_frame']:.1f} | {r['ate']:.3f} | {r['ate4']:.3f} | {r['ateh']:.3f} | "
@@ -230,7 +234,8 @@ def main() -> None:
     if cm:
         md += ["", "## comma2k19 example segment (real IMU + GNSS, no video)", "",
                "Constant horizontal offset removed (issue 3). rel 1 s: median error of the 1 s displacement.", "",
-               "| | seconds | horizontal RMSE (m) | rel 1 s (m) | camera heading median (deg) |", "|---|---|---|---|---|"]
+               "| | seconds | horizontal RMSE (m) | rel 1 s (m) | camera heading median (deg) |",
+               "|---|---|---|---|---|"]
         for k, (secs, e) in cm.items():
             s = e["sync"]
             md.append(f"| {k} | {secs:.2f} | {s['h_rmse_m']:.3f} | {s['rel_1s_median_m']:.3f} | "

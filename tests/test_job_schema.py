@@ -112,7 +112,7 @@ def test_cli_exit_code_2_without_traceback(tmp_path, rec_dir):
 def test_valid_job_defaults_and_hash(tmp_path, rec_dir):
     path = write_job(tmp_path, base_job(rec_dir))
     job = load_job(path)
-    assert job.render.samples == 64 and job.export.formats == ["coco", "yolo", "kitti"]
+    assert job.render.samples == 16 and job.export.formats == ["coco", "yolo", "kitti"]
     assert job.out_dir == tmp_path / "out"  # relative to the job file
     h = job.content_hash()
     # farm settings do not change results, so they do not change the hash

@@ -31,7 +31,8 @@ def _make(root: Path, n_frames=4, imu_rate=200.0, imu_s=1.0, calib=True):
     imu = np.column_stack([ti, np.zeros((len(ti), 3)), np.tile([0, 0, 9.81], (len(ti), 1))])
     folder.write_imu(root, imu)
     tg = np.arange(0, imu_s, 0.1)
-    folder.write_gnss(root, np.column_stack([tg, np.full(len(tg), 48.1), np.full(len(tg), 11.5), np.full(len(tg), 500.0)]))
+    n = len(tg)
+    folder.write_gnss(root, np.column_stack([tg, np.full(n, 48.1), np.full(n, 11.5), np.full(n, 500.0)]))
     return root
 
 

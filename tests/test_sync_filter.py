@@ -100,6 +100,9 @@ def test_yaw_wraps_through_180(tmp_path):
 def test_no_imu_gnss_only(tmp_path):
     res, pos, rot, _ = _run(tmp_path, "drive", 20, settings=Sync(use_imu=False))
     assert np.median(pos) < 1.0
+    # camera assumed level and along the GNSS velocity: the simulated 3 deg pitch and 1.5 deg
+    # yaw of the camera mount remain, the curves are followed
+    assert np.median(rot) < 6.0
 
 
 def _spd(P):

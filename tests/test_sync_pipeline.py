@@ -9,7 +9,7 @@ import pymap3d
 import pytest
 
 from blendgen.cli import main
-from blendgen.geometry import invert_pose, make_pose
+from blendgen.geometry import make_pose
 from blendgen.job.schema import Sync
 from blendgen.recording import folder
 from blendgen.sync import so3

@@ -297,7 +297,8 @@ def _drop_nan_rows(arr: np.ndarray, path: Path, rec: Recording, what: str, check
     rows = np.flatnonzero(bad)
     if bad.mean() > NAN_ROWS_MAX_FRACTION:
         raise UserError(f"{bad.sum()} of {len(arr)} rows hold NaN/empty {what} values (first: row {rows[0] + 2}); "
-                        f"more than {NAN_ROWS_MAX_FRACTION:.0%} means a broken export: fix the file", where=str(path))
+                        f"more than {NAN_ROWS_MAX_FRACTION:.0%} means a broken export: fix the file",
+                        where=str(path))
     rec.issues.append(f"{path.name}: dropped {bad.sum()} row(s) with NaN {what} values "
                       f"(rows {', '.join(str(r + 2) for r in rows[:5])}{'...' if len(rows) > 5 else ''})")
     return arr[~bad]

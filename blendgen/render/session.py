@@ -12,6 +12,7 @@ import shutil
 import tempfile
 import time
 import warnings
+import weakref
 from pathlib import Path
 from typing import Callable
 
@@ -82,6 +83,8 @@ class RenderSession:
         self.catch_shadows_on = catch_shadows_on
         self._placed: dict[int, _Placed] = {}
         self._tmp = Path(tempfile.mkdtemp(prefix="blendgen_render_"))
+        # Removed on close(), or when the session is collected / the worker exits.
+        self._tmp_cleanup = weakref.finalize(self, shutil.rmtree, str(self._tmp), True)
         self._frames = 0
 
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -659,4 +662,4 @@ class RenderSession:
                 self._remove(p)
             RenderSession._current = None
         self._placed.clear()
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        self._tmp_cleanup()

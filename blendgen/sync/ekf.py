@@ -67,6 +67,7 @@ class ErrorStateEkf:
         self.bg = np.zeros(3)
         self.ba = np.zeros(3)
         self.use_imu = use_imu
+        self.yaw_only_motion = False  # without IMU and VO: roll/pitch stay as initialised
         self.P = np.eye(N) * 1e-6
         self.P[:15, :15] = np.diag(np.asarray(P0_diag, dtype=float))
         if not use_imu:  # biases are meaningless without an IMU: freeze them
@@ -158,13 +159,20 @@ class ErrorStateEkf:
         q = np.zeros(15)
         q[0:3] = 0.25 * acc_std**2 * dt**3 + 1e-9
         q[3:6] = acc_std**2 * dt
-        q[6:9] = rot_std**2 * dt
+        if self.yaw_only_motion:
+            # nothing observes roll and pitch (no IMU, no VO): let only the heading wander,
+            # about the world vertical expressed in the body frame
+            up_b = self.R.T @ np.array([0.0, 0.0, 1.0])
+            Qth = rot_std**2 * dt * np.outer(up_b, up_b) + 1e-10 * dt * np.eye(3)
+        else:
+            Qth = None
+            q[6:9] = rot_std**2 * dt
         if self.use_imu:
             q[9:12] = self._q_bg * dt
             q[12:15] = self._q_ba * dt
-        self._apply_F(F, q)
+        self._apply_F(F, q, Qth)
 
-    def _apply_F(self, F: np.ndarray, q: np.ndarray) -> None:
+    def _apply_F(self, F: np.ndarray, q: np.ndarray, Qth: np.ndarray | None = None) -> None:
         if self.history is not None:
             # consecutive predictions with no update between them collapse into one
             # transition: RTS needs the state only where information entered or is asked for
@@ -172,7 +180,7 @@ class ErrorStateEkf:
                 self._acc = [self._post_nominal, self.P[:15, :15].copy(), F]
             else:
                 self._acc[2] = F @ self._acc[2]
-        self._predict_cov(F, q)
+        self._predict_cov(F, q, Qth)
 
     def _flush(self) -> None:
         if self.history is not None and self._acc is not None:
@@ -186,10 +194,12 @@ class ErrorStateEkf:
     def _nominal(self):
         return (self.p.copy(), self.v.copy(), self.R.copy(), self.bg.copy(), self.ba.copy())
 
-    def _predict_cov(self, F: np.ndarray, q: np.ndarray) -> None:
+    def _predict_cov(self, F: np.ndarray, q: np.ndarray, Qth: np.ndarray | None = None) -> None:
         P = self.P
         A = P[:15, :15]
         P[:15, :15] = F @ A @ F.T + np.diag(q)
+        if Qth is not None:
+            P[ITH, ITH] += Qth
         cross = F @ P[:15, 15:]
         P[:15, 15:] = cross
         P[15:, :15] = cross.T

@@ -281,6 +281,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                  gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, progress):
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
+    ekf.yaw_only_motion = not use_imu and not use_vo
     if use_imu:
         ekf.bg, ekf.ba = bg0.copy(), ba0.copy()
     if smooth:
@@ -344,8 +345,13 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 next_nhc_t = t + 1.0
             if not g_inside[i]:
                 pending.append("lut_outside")
-            if not use_imu and not use_vo and np.isfinite(g_yaw[i]):
-                ekf.update_yaw(g_yaw[i], fwd, 0.1)
+            if not use_imu and not use_vo:
+                # GNSS alone: the camera is taken to look along the heading column, else along
+                # the velocity the fixes imply (when moving fast enough for it to mean much)
+                if np.isfinite(g_yaw[i]):
+                    ekf.update_yaw(g_yaw[i], fwd, 0.1)
+                elif speed > 2.0:
+                    ekf.update_yaw(float(np.arctan2(ekf.v[1], ekf.v[0])), fwd, 0.05 + 1.0 / speed)
         else:
             advance(t)
             flags = pending

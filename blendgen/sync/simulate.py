@@ -17,7 +17,7 @@ import pymap3d
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
-from blendgen.geometry import Camera, invert_pose, make_pose
+from blendgen.geometry import Camera, invert_pose, make_pose, pose_to_xyz_quat
 from blendgen.recording.model import ImuNoise, Recording
 from blendgen.sync import so3
 
@@ -68,8 +68,8 @@ class Trajectory:
         return w, f
 
 
-def make_trajectory(kind: str = "drive", duration: float = 60.0, speed: float = 8.0, rate: float = 100.0,
-                    seed: int = 0) -> Trajectory:
+def make_trajectory(kind: str = "drive", duration: float = 60.0, speed: float = 8.0,
+                    rate: float = 100.0) -> Trajectory:
     """Named test trajectories: drive (gentle S-curves), straight, turns, stop_and_go,
     rotate_in_place, pitch90 (pitch sweeps through +-90 deg), yaw_wrap (crosses +-180 deg)."""
     t = np.arange(0.0, duration + 1e-9, 1.0 / rate)
@@ -104,8 +104,7 @@ def make_trajectory(kind: str = "drive", duration: float = 60.0, speed: float = 
     else:
         raise ValueError(f"unknown trajectory kind {kind!r}")
     head = np.stack([np.cos(yaw), np.sin(yaw)], axis=1) * v[:, None]
-    xy = np.concatenate([[0.0, 0.0]], axis=0)[None] + np.vstack(
-        [np.zeros(2), np.cumsum(0.5 * (head[1:] + head[:-1]) / rate, axis=0)])
+    xy = np.vstack([np.zeros(2), np.cumsum(0.5 * (head[1:] + head[:-1]) / rate, axis=0)])
     xyz = np.column_stack([xy, np.full(n, 1.2)])
     return Trajectory(t, xyz, np.column_stack([yaw, pitch, roll]))
 
@@ -209,7 +208,7 @@ class StreetScene:
         P = c + tt[..., None] * d
         # texture coordinates and per-pixel footprint (texels per pixel) for mip-mapping
         scale = self.tex_px / self.tile_m
-        su = np.where(use_g, P[..., 0], P[..., 0]) * scale
+        su = P[..., 0] * scale  # x runs along the street on the ground and on both facades
         sv = np.where(use_g, P[..., 1], P[..., 2]) * scale
         normal_comp = np.where(use_g, np.abs(d[..., 2]), np.abs(d[..., 1])) / np.linalg.norm(d, axis=-1)
         foot = tt * np.linalg.norm(d, axis=-1) / camera.fx / np.sqrt(np.maximum(normal_comp, 0.02)) * scale
@@ -247,7 +246,7 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
 
     Returns (rec, traj, T_cam_imu). `rec.groundtruth` holds T_world_cam per frame.
     """
-    traj = make_trajectory(kind, duration + 1.0, speed=speed, seed=seed)
+    traj = make_trajectory(kind, duration + 1.0, speed=speed)
     T_cam_imu = default_T_cam_imu()
     T_imu_cam = invert_pose(T_cam_imu)
     cam = Camera.from_hfov(resolution[0], resolution[1], hfov_deg)
@@ -274,8 +273,6 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
             if dark_frames is not None and dark_frames[0] <= i < dark_frames[1]:
                 img = np.clip(rng.normal(3, 1.5, img.shape), 0, 255).astype(np.uint8)  # lens cap
             images.append(img)
-    from blendgen.geometry import pose_to_xyz_quat
-
     rows = []
     for t, T in zip(ft, gt):
         xyz, q = pose_to_xyz_quat(T)

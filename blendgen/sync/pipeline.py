@@ -88,24 +88,33 @@ def _forward_axis(R_bc: np.ndarray) -> np.ndarray:
 
 
 def _initial_heading(t_fix, xyz, yaw_col, t_start, min_dist: float = 12.0):
-    """Travel heading at the start from a line fit to the first fixes that span min_dist."""
+    """(yaw, velocity, yaw std) at the start: velocity from a line fit to the first fixes that
+    span min_dist; yaw from the receiver's heading column when it has one, else from that fit.
+
+    The vertical velocity is set to zero: it would be GNSS altitude noise (~2x the horizontal),
+    not motion, and a wrong climb rate tilts the camera through the VO direction update. A
+    vehicle already moving at the start must not start at zero velocity either, for the same
+    reason (the first VO directions would pull the attitude toward the wrong motion).
+    """
     ok = np.isfinite(yaw_col)
-    if ok.any():
-        return float(yaw_col[np.flatnonzero(ok)[0]]), np.zeros(3), 0.05
-    if len(xyz) < 3:
+    yaw_rx = float(yaw_col[np.flatnonzero(ok)[0]]) if ok.any() else None
+    vel = None
+    if len(xyz) >= 3:
+        d = np.linalg.norm(xyz[:, :2] - xyz[0, :2], axis=1)
+        far = np.flatnonzero(d > min_dist)
+        if far.size:
+            j = max(int(far[0]), 5)
+            tt, P = t_fix[: j + 1], xyz[: j + 1]
+            A = np.column_stack([np.ones_like(tt), tt - tt[0]])
+            coef, *_ = np.linalg.lstsq(A, P, rcond=None)
+            if np.linalg.norm(coef[1][:2]) >= 0.5:
+                vel = np.array([coef[1][0], coef[1][1], 0.0])
+    if yaw_rx is not None:
+        if vel is not None:  # the fit's speed along the receiver's heading
+            vel = np.linalg.norm(vel) * np.array([np.cos(yaw_rx), np.sin(yaw_rx), 0.0])
+        return yaw_rx, vel if vel is not None else np.zeros(3), 0.05
+    if vel is None:
         return None, np.zeros(3), None
-    d = np.linalg.norm(xyz[:, :2] - xyz[0, :2], axis=1)
-    far = np.flatnonzero(d > min_dist)
-    if far.size == 0:
-        return None, np.zeros(3), None
-    j = max(int(far[0]), 5)
-    tt, P = t_fix[: j + 1], xyz[: j + 1]
-    A = np.column_stack([np.ones_like(tt), tt - tt[0]])
-    coef, *_ = np.linalg.lstsq(A, P, rcond=None)
-    vel = coef[1]
-    if np.linalg.norm(vel[:2]) < 0.5:
-        return None, np.zeros(3), None
-    # velocity at the start of the window (the first fix), good enough as a prior
     return float(np.arctan2(vel[1], vel[0])), vel, 0.1
 
 
@@ -378,7 +387,11 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                         # rotation 0.035-0.046 deg, direction 0.35 deg (1 sigma); about doubled
                         rot_std = VO_ROT_STD if res.status == "ok" else 2 * VO_ROT_STD
                         dir_std = VO_DIR_STD if res.has_direction else None
-                        if res.stationary:  # no motion at all: the strongest constraint
+                        # features that do not move mean "standing" only if the IMU agrees and
+                        # the filter is slow: a far scene (highway, drone) barely moves either
+                        imu_quiet = (not use_imu) or bool(
+                            stationary[min(np.searchsorted(imu[:, 0], t), len(imu) - 1)])
+                        if res.stationary and imu_quiet and np.linalg.norm(ekf.v) < 1.0:
                             ekf.update_zero_velocity(0.05)
                             flags.append("zupt")
                         ok = ekf.update_relative(res.R_c1c2, res.u_dir if res.has_direction else None,

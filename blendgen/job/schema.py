@@ -12,12 +12,12 @@ import json
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import (BaseModel, ConfigDict, Field, ValidationError, field_validator,
                       model_validator)
 
 from blendgen import CLASSES
 from blendgen.errors import UserError
+from blendgen.validation import error_lines, read_yaml_mapping
 
 BUILTIN_TWINS_DIR = Path(__file__).resolve().parents[2] / "assets_procedural" / "twins"
 SCENARIOS = ("jaywalker", "cut_in", "near_collision", "occluded_pedestrian", "cyclist_overtake")
@@ -223,37 +223,13 @@ class Job(Section):
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
-def _format_loc(loc: tuple) -> str:
-    parts: list[str] = []
-    for p in loc:
-        if isinstance(p, int):
-            parts.append(f"[{p}]")
-        elif p in ("function-after", "function-before") or str(p).startswith(("function-", "constrained-")):
-            continue
-        else:
-            parts.append(("." if parts else "") + str(p))
-    return "".join(parts) or "(top level)"
-
-
-def _format_error(err: dict) -> str:
-    loc = _format_loc(tuple(p for p in err["loc"] if not str(p).startswith("function")))
-    msg = err["msg"].removeprefix("Value error, ")
-    if err["type"] == "extra_forbidden":
-        return f"{loc}: unknown key (check the spelling; see README 'Job format')"
-    if err["type"] == "missing":
-        return f"{loc}: required field is missing"
-    got = err.get("input")
-    got_s = "" if isinstance(got, dict) or got is None else f" (got {got!r})"
-    return f"{loc}: {msg}{got_s}"
-
-
 def parse_job(data: Any, *, source: str = "job", job_dir: Path | None = None) -> Job:
     if not isinstance(data, dict):
         raise UserError(f"expected a mapping of job fields at the top level, got {type(data).__name__}", where=source)
     try:
         job = Job.model_validate(data)
     except ValidationError as e:
-        lines = [_format_error(err) for err in e.errors()]
+        lines = error_lines(e, " (check the spelling; see README 'Job format')")
         raise UserError("invalid job:\n  " + "\n  ".join(lines), where=source) from None
     job.job_dir = job_dir
     _check_files(job, source)
@@ -274,12 +250,5 @@ def _check_files(job: Job, source: str) -> None:
 
 def load_job(path: str | Path) -> Job:
     path = Path(path)
-    if not path.is_file():
-        raise UserError("job file not found", where=str(path))
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        raise UserError(f"not valid YAML: {getattr(e, 'problem', e)}", where=where) from None
+    data = read_yaml_mapping(path, "job")
     return parse_job(data, source=str(path), job_dir=path.resolve().parent)

@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import yaml
 from pydantic import ValidationError
 
 from blendgen import atomic
 from blendgen.errors import UserError
+from blendgen.validation import error_lines, read_yaml_mapping
 from blendgen.scene.geom2d import Polyline, convex_overlap, point_in_convex, rect
 from blendgen.scene.twin_schema import Road, TwinSpec
 
@@ -453,39 +453,15 @@ class Twin:
         return (*pts.min(0), *pts.max(0))
 
 
-def _format_loc(loc) -> str:
-    out = ""
-    for p in loc:
-        out += f"[{p}]" if isinstance(p, int) else (("." if out else "") + str(p))
-    return out or "(top level)"
-
-
 def load_twin(path) -> Twin:
     """Load and validate a twin YAML; bad input raises UserError naming the field."""
     path = Path(path)
-    if not path.is_file():
-        raise UserError("twin file not found", where=str(path))
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        raise UserError(f"not valid YAML: {getattr(e, 'problem', e)}",
-                        where=f"{path}:{mark.line + 1}" if mark else str(path)) from None
+    data = read_yaml_mapping(path, "twin")
     if not isinstance(data, dict):
         raise UserError("expected a mapping of twin fields at the top level", where=str(path))
     try:
         spec = TwinSpec.model_validate(data)
     except ValidationError as e:
-        msgs = []
-        for err in e.errors():
-            loc = _format_loc([p for p in err["loc"] if not str(p).startswith("function")])
-            if err["type"] == "extra_forbidden":
-                msgs.append(f"{loc}: unknown key")
-            elif err["type"] == "missing":
-                msgs.append(f"{loc}: required field is missing")
-            else:
-                got = err.get("input")
-                got_s = "" if isinstance(got, dict) or got is None else f" (got {got!r})"
-                msgs.append(f"{loc}: {err['msg'].removeprefix('Value error, ')}{got_s}")
+        msgs = error_lines(e)
         raise UserError("invalid twin:\n  " + "\n  ".join(msgs), where=str(path)) from None
     return Twin(spec, path)

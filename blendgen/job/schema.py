@@ -174,8 +174,8 @@ class Job(Section):
     def _sources(self):
         if (self.recording is None) == (self.synthetic is None):
             raise ValueError("give exactly one of `recording` (a folder) or `synthetic` (a block)")
-        if self.twin is None and self.ground_plane is None:
-            raise ValueError("give a `twin` (built-in name or YAML path) or a `ground_plane` block")
+        if (self.twin is None) == (self.ground_plane is None):
+            raise ValueError("give exactly one of `twin` (built-in name or YAML path) or `ground_plane` (a block)")
         if self.synthetic is not None and self.twin is None:
             raise ValueError("`synthetic` renders a drive through a twin: give `twin` too")
         if self.frames.stop is not None and self.frames.stop <= self.frames.start:

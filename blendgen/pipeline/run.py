@@ -7,6 +7,7 @@ outputs atomically and a marker; running the same job again skips what is finish
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from collections import Counter
@@ -41,7 +42,8 @@ class Runner:
         if self.progress:
             print(f"[{k}/{len(STAGES)}] {stage}: {what}", flush=True)
 
-    def _twin(self):
+    @functools.cached_property
+    def twin(self):
         if self.job.twin_path is not None:
             from blendgen.scene.twin import load_twin
 
@@ -65,11 +67,11 @@ class Runner:
         from blendgen.recording.folder import write_frames_csv
         from blendgen.recording.synthetic import clear_sky_lighting, write_sensor_data
 
-        twin = self._twin()
+        twin = self.twin
         s = job.synthetic
         self._say(1, "record", f"synthetic drive {s.duration_s:g} s at {s.fps:g} fps, "
                                f"{s.resolution[0]}x{s.resolution[1]}, Cycles {s.samples} spp -> {root}")
-        camera, poses, frame_t = write_sensor_data(root, twin, s, job.seed)
+        frame_t = write_sensor_data(root, twin, s, job.seed)
         rec = read_recording(root)
         lighting = clear_sky_lighting(twin.georef, rec.utc(0.0))
         ids = [rec.frame_id(i) for i in range(len(frame_t))]
@@ -96,9 +98,8 @@ class Runner:
         lut = job.path(job.sync.lut) if job.sync.lut else self._default_lut()
         self._say(2, "sync", f"{rec.n_frames} frames, {len(rec.imu)} IMU, {len(rec.gnss)} GNSS samples"
                              f"{', LUT ' + str(lut) if lut else ''}")
-        twin = self._twin() if job.twin_path else None
-        result = run_sync(rec, job.sync, self.folder.root, lut_path=lut,
-                          georef=twin.georef if twin is not None else None, progress=self.progress)
+        result = run_sync(rec, job.sync, self.folder.root, lut_path=lut, georef=self.twin.georef,
+                          progress=self.progress)
         self.folder.mark_stage("sync", {"frames": len(result.poses)})
         return result.poses
 
@@ -107,7 +108,7 @@ class Runner:
         every frame's pose is the dashcam's fixed pose above it (no sync to estimate)."""
         from blendgen.sync.pipeline import SyncResult, write_poses
 
-        T = self._twin().camera_pose(0.0)
+        T = self.twin.camera_pose(0.0)
         poses = [(rec.frame_id(i), float(t), T) for i, t in enumerate(rec.frames_t)]
         quality = [{"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0, "flags": ["ground_plane"]}
                    for _ in poses]
@@ -125,7 +126,7 @@ class Runner:
             return lut
         lut = self.folder.state / "lut.csv"
         if not lut.exists():
-            self._twin().export_lut(lut, 5.0)
+            self.twin.export_lut(lut, 5.0)
         return lut
 
     def plan(self, rec, poses) -> list[str]:
@@ -143,7 +144,7 @@ class Runner:
             return ids
         w, h = job.render.resolution or (rec.camera.width, rec.camera.height)
         camera = rec.camera.scaled(w, h)
-        plans = plan_sequence(self._twin(), camera, sel, job.inject, job.seed)
+        plans = plan_sequence(self.twin, camera, sel, job.inject, job.seed)
         n_obj = sum(len(p.objects) for p in plans)
         self._say(3, "plan", f"{len(plans)} frames, {n_obj} objects")
         atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))

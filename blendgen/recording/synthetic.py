@@ -154,10 +154,10 @@ def clear_sky_lighting(georef, when_utc) -> dict:
             "sky_strength": 1.0 if up else 0.05, "sun_visible": bool(up)}
 
 
-def write_sensor_data(root: Path, twin, settings, seed: int) -> tuple[Camera, list[np.ndarray], np.ndarray]:
+def write_sensor_data(root: Path, twin, settings, seed: int) -> np.ndarray:
     """Write calib.yaml, imu.csv, gnss.csv, groundtruth.csv of a synthetic drive through `twin`.
 
-    Returns (camera, frame poses, frame times); frames.csv is written once frames exist.
+    Returns the frame times; frames.csv is written once the frames exist.
     """
     width, height = settings.resolution
     camera = Camera.from_hfov(width, height, settings.hfov_deg)
@@ -180,7 +180,7 @@ def write_sensor_data(root: Path, twin, settings, seed: int) -> tuple[Camera, li
     folder.write_imu(root, imu)
     folder.write_gnss(root, gnss, ["t", "lat", "lon", "alt", "heading_deg", "h_std_m"])
     folder.write_groundtruth(root, gt)
-    return camera, poses, frame_t
+    return frame_t
 
 
 class BackgroundRenderer:
@@ -192,8 +192,7 @@ class BackgroundRenderer:
 
         self.root = Path(recording_dir)
         rec = read_recording(self.root)
-        gt = rec.groundtruth
-        self.poses = {rec_id: row for rec_id, row in ((f"f{i:06d}", gt[i]) for i in range(len(gt)))}
+        self.poses = {rec.frame_id(i): row for i, row in enumerate(rec.groundtruth)}
         self.camera = rec.camera
         self.twin_path = Path(twin_path)
         self.render = Render(**render)

@@ -17,7 +17,6 @@ import numpy as np
 
 from blendgen import atomic
 from blendgen.errors import StageError, UserError
-from blendgen.geometry import pose_from_xyz_quat
 from blendgen.job.schema import Job
 from blendgen.pipeline.outputs import JobFolder
 from blendgen.recording.folder import read_recording

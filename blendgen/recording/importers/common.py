@@ -48,6 +48,18 @@ def progress(iterable, *, total: int | None = None, desc: str = "", enabled: boo
                 disable=not enabled or not sys.stderr.isatty(), file=sys.stderr)
 
 
+def first_frame_size(video: Path, what: str = "the first video frame") -> tuple[int, int]:
+    """(width, height) of a video, from its first decoded frame; UserError if it does not decode."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(video))
+    ok, first = cap.read()
+    cap.release()
+    if not ok:
+        raise UserError(f"{what} does not decode", where=str(video))
+    return first.shape[1], first.shape[0]
+
+
 def default_camera(width: int, height: int, hfov_deg: float) -> Camera:
     return Camera.from_hfov(int(width), int(height), float(hfov_deg))
 

@@ -94,8 +94,6 @@ def _axes(entries, key) -> np.ndarray:
 
 def import_gopro(src, dst, *, hfov_deg: float | None = None, force: bool = False,
                  show_progress: bool = True) -> Path:
-    import cv2
-
     from blendgen.recording.importers.video import video_frame_times
 
     src = Path(src)
@@ -104,12 +102,7 @@ def import_gopro(src, dst, *, hfov_deg: float | None = None, force: bool = False
     tel = read_telemetry(src, show_progress=show_progress)
     pk, starts, durs = tel["per_key"], tel["starts"], tel["durs"]
     t_frames = video_frame_times(src, show_progress=show_progress)
-    cap = cv2.VideoCapture(str(src))
-    ok, first = cap.read()
-    cap.release()
-    if not ok:
-        raise UserError("the first video frame does not decode", where=str(src))
-    h, w = first.shape[:2]
+    w, h = common.first_frame_size(src)
     notes: list[str] = []
     dst = common.prepare_output(dst, force)
 

@@ -77,8 +77,6 @@ def import_video(src, dst, *, imu_csv=None, gnss_csv=None, calib=None, hfov_deg:
     time_offset: seconds added to the video's own timestamps (which start at 0) to put them
     on the clock of the CSVs. time_unit: unit of the CSVs' `t` column (s, ms, us, ns).
     """
-    import cv2
-
     src = Path(src)
     if not src.is_file():
         raise UserError("video file not found", where=str(src))
@@ -87,12 +85,7 @@ def import_video(src, dst, *, imu_csv=None, gnss_csv=None, calib=None, hfov_deg:
     if time_unit not in common.TIME_UNITS:
         raise UserError(f"--time-unit {time_unit!r}: expected one of {list(common.TIME_UNITS)}")
     t = video_frame_times(src, show_progress=show_progress) + float(time_offset)
-    cap = cv2.VideoCapture(str(src))
-    ok, first = cap.read()
-    cap.release()
-    if not ok:
-        raise UserError("the first frame does not decode", where=str(src))
-    h, w = first.shape[:2]
+    w, h = common.first_frame_size(src, "the first frame")
     dst = common.prepare_output(dst, force)
 
     notes = []

@@ -1,0 +1,66 @@
+"""What the frame analysis knows about one real background frame (bpy-free, plain data).
+
+The analysis stage runs once per background frame, before planning, and leaves
+`OUT/analysis/<frame_id>.json` (this model) plus `OUT/analysis/<frame_id>_road.png`
+(uint8 mask, 255 = drivable road, same size as the frame) when a road region was
+estimated. The planner, renderer, labels and report read these files; nothing else
+re-derives camera, hood, road or real objects.
+
+Conventions: pixels at the recording's resolution (u right, v down); world points in the
+ground-plane twin frame of the camera pose `T_world_cam` stored here (z up, ground z = 0);
+pitch > 0 tilts the optical axis up and roll > 0 turns the image clockwise as in
+`geometry.R_world_cam_from_ypr`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+SCHEMA_VERSION = 1
+
+
+@dataclass
+class CameraEstimate:
+    height_m: float
+    pitch_deg: float
+    roll_deg: float
+    fx: float | None = None                 # focal length (px) when re-estimated from vanishing points
+    confidence: float = 0.0                 # 0..1, the weakest of the estimates that were used
+    source: dict[str, str] = field(default_factory=dict)   # quantity -> "vanishing_point" | "imu" | "lane_width" | "cars" | "user" | "default" | "smoothed"
+    reasons: list[str] = field(default_factory=list)        # why a quantity fell back, one sentence each
+
+
+@dataclass
+class RealObject:
+    cls: str                                 # one of blendgen.CLASSES
+    score: float
+    box: list[float]                         # [x, y, w, h] px
+    footprint: list[list[float]] | None = None   # ground polygon (world x, y), None above the horizon
+    distance_m: float | None = None
+
+
+@dataclass
+class FrameAnalysis:
+    frame_id: str
+    width: int
+    height: int
+    camera: CameraEstimate
+    T_world_cam: list[list[float]] | None = None     # pose over the ground plane (ego motion for video)
+    horizon: list[list[float]] | None = None         # [[u0, v0], [u1, v1]] at u0 = 0 and u1 = width - 1
+    hood: list[list[float]] | None = None            # polygon (u, v) of the ego hood/dashboard; None: none seen
+    road_mask: str | None = None                     # file name of the road mask beside this JSON
+    road_direction_deg: float | None = None          # road yaw relative to the camera's heading (0 = straight ahead)
+    real_objects: list[RealObject] = field(default_factory=list)
+    decisions: list[dict[str, Any]] = field(default_factory=list)  # {"what", "value", "reason"}: what the manifest records
+    version: int = SCHEMA_VERSION
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FrameAnalysis":
+        d = dict(d)
+        d["camera"] = CameraEstimate(**d["camera"])
+        d["real_objects"] = [RealObject(**o) for o in d.get("real_objects", [])]
+        return cls(**d)

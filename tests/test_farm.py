@@ -38,15 +38,16 @@ class FileProcessor:
     """Writes OUT/items/<item>.bin atomically. Knobs (marker files make them one-shot):
     `raise_once`: items that raise on their first attempt; `hang_once`: an item that writes
     half its temp file, drops `hang.pid` and sleeps (the test SIGKILLs it there);
-    `always_fail`: items that always raise; `delay`: seconds per item."""
+    `always_fail`: items that always raise; `bad_input`: items whose input is bad (UserError);
+    `delay`: seconds per item."""
 
     def __init__(self, out: str, delay: float = 0.0, raise_once=(), hang_once=None,
-                 always_fail=()):
+                 always_fail=(), bad_input=()):
         self.out = Path(out)
         self.dir = self.out / "items"
         self.dir.mkdir(parents=True, exist_ok=True)
         self.delay, self.raise_once, self.hang_once = delay, set(raise_once), hang_once
-        self.always_fail = set(always_fail)
+        self.always_fail, self.bad_input = set(always_fail), set(bad_input)
         self.closed_marker = self.out / "closed.log"
 
     def path(self, item: str) -> Path:
@@ -57,6 +58,9 @@ class FileProcessor:
 
     def process(self, item: str) -> dict:
         clean_stale_temps(self.dir, item)  # only this item's leftovers
+        if item in self.bad_input:
+            atomic.append_line(self.out / "bad_input.log", item)
+            raise UserError(f"frame {item} does not decode as an image", where=f"frames/{item}.png")
         if item in self.always_fail:
             raise ValueError(f"item {item} is broken on purpose")
         marker = self.out / f"raised-{item}"
@@ -252,6 +256,32 @@ def test_permanent_failure_keeps_log_and_summary(tmp_path):
     s2 = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)},
                    workers=1, chunk=2, progress=False)
     assert s2.ok and s2.processed == 2 and s2.already_done == 4
+
+
+def test_bad_input_fails_that_item_alone(tmp_path):
+    """Issue 16: a UserError in one item (a corrupt frame) fails that item at once, with its
+    reason; its task neighbours are produced, nothing is retried, no worker is retired."""
+    out = tmp_path / "job"
+    ids = items(6)
+    bad = ["000002", "000003"]
+    s = run_tasks(out, "frames", ids, "test_farm:FileProcessor",
+                  {"out": str(out), "bad_input": bad}, workers=1, chunk=4, max_attempts=3,
+                  progress=False)
+    assert not s.ok and s.done == 4 and s.failed == [] and s.retired == []
+    assert sorted(completions(out)) == [i for i in ids if i not in bad]
+    assert (out / "bad_input.log").read_text().split() == bad  # each tried exactly once
+    assert s.workers_started == 1 and s.worker_deaths == 0
+    assert [f["item"] for f in s.failed_items] == bad
+    assert all("does not decode" in f["error"] for f in s.failed_items)
+    assert s.text().count("FAILED frame") == 2
+    report = status_report(out)
+    assert "failed 2" in report
+    assert report.count("FAILED frame 000002: frames/000002.png: frame 000002 does not decode") == 1
+    assert "FAILED task" not in report
+    # fixed input: a second run retries only the failed items
+    s2 = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)},
+                   workers=1, chunk=4, progress=False)
+    assert s2.ok and s2.processed == 2 and s2.already_done == 4 and s2.failed_items == []
 
 
 def test_processor_that_cannot_start_is_a_stage_error(tmp_path):

@@ -146,3 +146,33 @@ def test_imu_and_gnss_only_is_valid(tmp_path):
     root = _make(tmp_path / "r", n_frames=0)
     rec = read_recording(root)
     assert rec.n_frames == 0 and len(rec.imu) and rec.issues == []
+
+
+def test_bad_frames_fail_alone_with_their_reason(tmp_path):
+    """Issue 16: corrupt, zero-byte, wrong-size and missing images: the recording still reads,
+    each bad frame raises its own UserError, the good ones decode."""
+    root = _make(tmp_path / "r", n_frames=6)
+    png = (root / "img/1.png").read_bytes()
+    (root / "img/1.png").write_bytes(png[: len(png) // 2])  # truncated
+    (root / "img/2.png").write_bytes(b"")
+    cv2.imwrite(str(root / "img/3.png"), np.zeros((20, 30, 3), np.uint8))
+    (root / "img/4.png").unlink()
+    rec = read_recording(root)
+    assert any("1 image file(s) missing (rows 6)" in i for i in rec.issues)
+    for i, why in ((1, "does not decode"), (2, r"empty \(0 bytes\)"), (3, "is 30x20 but calib.yaml says 64x48"),
+                   (4, "image file is missing")):
+        with pytest.raises(UserError, match=why):
+            read_frame(rec, i)
+    assert read_frame(rec, 0).shape == read_frame(rec, 5).shape == (48, 64, 3)
+    assert [i for i, img in iter_frames(rec, skip_bad=True) if img is not None] == [0, 5]
+
+
+@pytest.mark.parametrize("entry", ["../../../../etc/hostname", "/etc/passwd", "link/x.png", "img/../../r2/x.png"])
+def test_frame_paths_stay_inside_the_recording(tmp_path, entry):
+    root = _make(tmp_path / "r", n_frames=2)
+    (tmp_path / "outside").mkdir()
+    cv2.imwrite(str(tmp_path / "outside/x.png"), np.zeros((48, 64, 3), np.uint8))
+    (root / "link").symlink_to(tmp_path / "outside")
+    folder.write_frames_csv(root, [0.0, 0.2], ["img/0.png", entry])
+    with pytest.raises(UserError, match=r"frames.csv: row 3: image path .* is not inside the recording folder"):
+        read_recording(root)

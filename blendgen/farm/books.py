@@ -38,6 +38,7 @@ class FarmSummary:
     processed: int             # items this run processed
     skipped: int               # items a worker found already complete (is_done)
     failed: list[dict] = field(default_factory=list)  # {task, items, attempts, error, log}
+    failed_items: list[dict] = field(default_factory=list)  # {item, error}: bad input, no retry
     elapsed_s: float = 0.0
     workers_started: int = 0
     worker_deaths: int = 0     # unexpected worker exits (crash, kill, OOM)
@@ -48,7 +49,7 @@ class FarmSummary:
 
     @property
     def ok(self) -> bool:
-        return not self.failed and self.done == self.total
+        return not self.failed and not self.failed_items and self.done == self.total
 
     @property
     def rate(self) -> float:
@@ -65,6 +66,8 @@ class FarmSummary:
             items = ", ".join(f["items"][:5]) + (" ..." if len(f["items"]) > 5 else "")
             lines.append(f"  FAILED task {f['task']} [{items}] after {f['attempts']} attempt(s):"
                          f" {f['error']}\n    log: {f['log']}")
+        for f in self.failed_items:
+            lines.append(f"  FAILED frame {f['item']}: {f['error']}")
         return "\n".join(lines)
 
 
@@ -188,6 +191,15 @@ class Books:
         if self.bar is not None:
             self.bar.update(1)
 
+    def on_item_failed(self, task_id: int, worker: str, ev: dict) -> None:
+        """An item raised UserError: it alone fails, at once (no retry, worker not blamed)."""
+        self.ledger.item_failed(self.stage, ev["item"], worker, ev["error"])
+        with contextlib.suppress(OSError), open(self.ledger.task(task_id)["log_path"], "a",
+                                                encoding="utf-8") as f:
+            f.write(f"[blendgen.farm supervisor] frame {ev['item']} failed: {ev['error']}\n")
+        if self.bar is not None:
+            self.bar.update(1)
+
     def on_task_done(self, task_id: int) -> None:
         self.ledger.task_done(task_id)
 
@@ -226,6 +238,7 @@ class Books:
     def finish(self, state: str | None = None) -> FarmSummary:
         self.flush()
         self.summary.failed = self.ledger.failed_tasks(self.run_id)
+        self.summary.failed_items = self.ledger.failed_items(self.stage, self.run_id)
         self.summary.elapsed_s = time.perf_counter() - self._t0
         if state is None:
             state = "done" if self.summary.ok else "failed"

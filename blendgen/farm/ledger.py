@@ -29,7 +29,7 @@ CREATE TABLE IF NOT EXISTS runs(
     n_items INT, n_done_at_start INT);
 CREATE TABLE IF NOT EXISTS items(
     stage TEXT NOT NULL, item TEXT NOT NULL, state TEXT NOT NULL, task_id INT,
-    run_id INT, worker TEXT, finished REAL, in_manifest INT NOT NULL DEFAULT 0,
+    run_id INT, worker TEXT, finished REAL, in_manifest INT NOT NULL DEFAULT 0, error TEXT,
     PRIMARY KEY(stage, item));
 CREATE TABLE IF NOT EXISTS tasks(
     task_id INTEGER PRIMARY KEY AUTOINCREMENT, stage TEXT NOT NULL, run_id INT NOT NULL,
@@ -78,6 +78,9 @@ class Ledger:
         try:
             self.conn = connect(self.path)
             self.conn.executescript(_SCHEMA)
+            cols = {r[1] for r in self.conn.execute("PRAGMA table_info(items)")}
+            if "error" not in cols:  # ledgers written before per-item failures
+                self.conn.execute("ALTER TABLE items ADD COLUMN error TEXT")
             row = self.conn.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
         except sqlite3.DatabaseError as e:
             raise UserError(f"the ledger is not a readable SQLite database ({e})",
@@ -119,7 +122,8 @@ class Ledger:
                       ((run_id, stage, it) for it in items))
         done = {r["item"] for r in c.execute(
             "SELECT item FROM items WHERE stage=? AND run_id=? AND state='done'", (stage, run_id))}
-        c.execute("UPDATE items SET state='pending', task_id=NULL, worker=NULL "
+        # frames that failed on their own input get another chance (the user may have fixed it)
+        c.execute("UPDATE items SET state='pending', task_id=NULL, worker=NULL, error=NULL "
                   "WHERE stage=? AND run_id=? AND state!='done'", (stage, run_id))
         c.execute("UPDATE runs SET n_done_at_start=? WHERE run_id=?", (len(done), run_id))
         todo = [it for it in items if it not in done]
@@ -153,7 +157,8 @@ class Ledger:
     def remaining_items(self, task_id: int) -> list[str]:
         row = self.task(task_id)
         pending = {r["item"] for r in self.conn.execute(
-            "SELECT item FROM items WHERE stage=? AND task_id=? AND state!='done'",
+            "SELECT item FROM items WHERE stage=? AND task_id=? AND state NOT IN "
+            "('done', 'failed')",
             (row["stage"], task_id))}
         return [it for it in json.loads(row["items"]) if it in pending]
 
@@ -169,7 +174,7 @@ class Ledger:
                   (worker, now, now + lease_s, log_path, task_id))
         row = self.task(task_id)
         c.execute("UPDATE items SET state='running', worker=? WHERE stage=? AND task_id=? AND "
-                  "state!='done'", (worker, row["stage"], task_id))
+                  "state NOT IN ('done', 'failed')", (worker, row["stage"], task_id))
         c.execute("INSERT OR REPLACE INTO attempts(task_id, attempt, worker, started, log_path) "
                   "VALUES(?,?,?,?,?)", (task_id, row["attempts"], worker, now, log_path))
         return int(row["attempts"])
@@ -184,6 +189,11 @@ class Ledger:
         self.conn.execute("UPDATE items SET state='done', worker=?, finished=?, in_manifest=? "
                           "WHERE stage=? AND item=?",
                           (worker, time.time(), int(in_manifest), stage, item))
+
+    def item_failed(self, stage: str, item: str, worker: str, error: str) -> None:
+        """The item's own input is bad (UserError): it fails alone, with no retry."""
+        self.conn.execute("UPDATE items SET state='failed', worker=?, finished=?, error=? "
+                          "WHERE stage=? AND item=?", (worker, time.time(), error, stage, item))
 
     def task_done(self, task_id: int) -> None:
         now = time.time()
@@ -209,7 +219,7 @@ class Ledger:
         self.conn.execute("UPDATE attempts SET finished=?, outcome='failed', error=? "
                           "WHERE task_id=? AND attempt=?", (now, error, task_id, row["attempts"]))
         self.conn.execute("UPDATE items SET state=? WHERE stage=? AND task_id=? AND "
-                          "state!='done'", (state, row["stage"], task_id))
+                          "state NOT IN ('done', 'failed')", (state, row["stage"], task_id))
         return final
 
     def release(self, task_id: int) -> None:
@@ -220,7 +230,7 @@ class Ledger:
         self.conn.execute("DELETE FROM attempts WHERE task_id=? AND attempt=?",
                           (task_id, row["attempts"]))
         self.conn.execute("UPDATE items SET state='pending', worker=NULL WHERE stage=? AND "
-                          "task_id=? AND state!='done'", (row["stage"], task_id))
+                          "task_id=? AND state NOT IN ('done', 'failed')", (row["stage"], task_id))
 
     # -- workers ---------------------------------------------------------------------------
     def worker_started(self, run_id: int, worker: str, host: str, pid: int,
@@ -243,6 +253,13 @@ class Ledger:
                                  "WHERE run_id=? AND state='failed' ORDER BY task_id", (run_id,))
         return [{"task": r["task_id"], "items": json.loads(r["items"]), "attempts": r["attempts"],
                  "error": r["error"], "log": r["log_path"]} for r in rows]
+
+    def failed_items(self, stage: str, run_id: int) -> list[dict]:
+        """Items that failed on their own input (not with a failed task)."""
+        rows = self.conn.execute("SELECT item, error FROM items WHERE stage=? AND run_id=? AND "
+                                 "state='failed' AND error IS NOT NULL ORDER BY item",
+                                 (stage, run_id))
+        return [{"item": r["item"], "error": r["error"]} for r in rows]
 
     def count_items(self, stage: str, run_id: int) -> dict[str, int]:
         rows = self.conn.execute("SELECT state, count(*) AS n FROM items WHERE stage=? AND "

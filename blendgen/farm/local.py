@@ -225,6 +225,10 @@ class LocalEngine:
                 w.items_left.remove(ev["item"])
             if not ev.get("skipped"):
                 w.processed += 1
+        elif kind == "item_failed" and ev.get("task") == w.task:
+            self.books.on_item_failed(w.task, w.name, ev)
+            with contextlib.suppress(ValueError):
+                w.items_left.remove(ev["item"])
         elif kind == "error" and ev.get("task") == w.task:
             w.error = f"item {ev['item']}: {ev['error']}"
         elif kind == "task_end" and ev.get("task") == w.task:

@@ -84,9 +84,13 @@ def redirect_output(log_path: str | os.PathLike) -> Iterator[None]:
 def run_items(proc: Any, items: list[str], emit: Callable[[dict], None]) -> bool:
     """Run `items` in order through `proc`, emitting one event per item.
 
-    Events: {"ev": "item", "item", "skipped", "record", "is_done_s", "process_s"} and, on the
-    first exception, {"ev": "error", "item", "error"} (the traceback goes to stderr, i.e. the
-    task's log) after which the rest of the task is abandoned. Returns True when all ran.
+    Events: {"ev": "item", "item", "skipped", "record", "is_done_s", "process_s"};
+    {"ev": "item_failed", "item", "error"} when an item raises UserError (bad input of that
+    item alone, e.g. a corrupt frame: retrying cannot help and the worker is healthy, so the
+    task goes on with the next item); and, on the first other exception,
+    {"ev": "error", "item", "error"} (the traceback goes to stderr, i.e. the task's log)
+    after which the rest of the task is abandoned. Returns True when no item raised anything
+    but UserError.
     """
     for item in items:
         t0 = time.perf_counter()
@@ -103,6 +107,10 @@ def run_items(proc: Any, items: list[str], emit: Callable[[dict], None]) -> bool
                     raise TypeError(f"process({item!r}) returned {type(record).__name__}, "
                                     "expected a dict (the manifest record)")
                 json.dumps(record)  # fail here, on the worker, if it is not JSON-able
+        except UserError as e:
+            print(f"[blendgen.farm] item {item} failed: {e}", file=sys.stderr, flush=True)
+            emit({"ev": "item_failed", "item": item, "error": str(e)[:2000]})
+            continue
         except Exception as e:  # the supervisor decides about retries; keep the evidence
             traceback.print_exc()
             sys.stderr.flush()

@@ -176,6 +176,8 @@ class RayEngine:
         for ev in res["events"]:
             if ev["ev"] == "item":
                 self.books.on_item(tid, attempt, res["worker"], ev)
+            elif ev["ev"] == "item_failed":
+                self.books.on_item_failed(tid, res["worker"], ev)
             elif ev["ev"] == "error":
                 error = f"item {ev['item']}: {ev['error']} (on {res['worker']})"
         if res["ok"]:

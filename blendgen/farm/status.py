@@ -90,4 +90,8 @@ def _stage_lines(conn, run, alive: bool | None, now: float) -> list[str]:
                      f"attempt(s): {t['error']}")
         if t["log_path"] and os.path.exists(t["log_path"]):
             lines.append(f"    log: {t['log_path']}")
+    if "error" in {r[1] for r in conn.execute("PRAGMA table_info(items)")}:
+        for r in conn.execute("SELECT item, error FROM items WHERE stage=? AND run_id=? AND "
+                              "state='failed' AND error IS NOT NULL ORDER BY item", (stage, rid)):
+            lines.append(f"  FAILED frame {r['item']}: {r['error']}")
     return lines

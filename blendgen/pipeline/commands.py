@@ -8,6 +8,8 @@ from pathlib import Path
 from blendgen.errors import UserError
 from blendgen.job.schema import load_job
 
+FRAMES_FAILED_EXIT = 3  # the run went to the end, but some frames failed (listed with reasons)
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run a job: sync -> plan -> render -> post -> labels",
@@ -42,7 +44,7 @@ def cmd_run(args) -> int:
                     address=args.address, progress=not args.quiet)
     summary = runner.run()
     print_summary(summary)
-    return 1 if summary["frames"]["failed"] else 0
+    return FRAMES_FAILED_EXIT if summary["frames"]["failed"] else 0
 
 
 def cmd_validate(args) -> int:

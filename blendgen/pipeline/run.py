@@ -79,8 +79,9 @@ class Runner:
         summary = self._farm("record", ids, "blendgen.recording.synthetic:BackgroundRenderer",
                              {"recording_dir": str(root), "twin_path": str(job.twin_path), "render": render,
                               "samples": s.samples, "lighting": lighting})
-        if summary.failed:
-            raise StageError(f"record: {len(summary.failed)} background frame(s) failed; see `blendgen status "
+        if summary.failed or summary.failed_items:
+            raise StageError(f"record: {len(summary.failed) + len(summary.failed_items)} background task(s)/"
+                             f"frame(s) failed; see `blendgen status "
                              f"{self.folder.root}`")
         write_frames_csv(root, frame_t, [f"frames/{i}.png" for i in ids])
 
@@ -223,10 +224,16 @@ class Runner:
             for inst in read_frame_labels(self.folder.frame_dir(i) / "labels.json")["instances"]:
                 if not inst.get("ignore"):
                     per_class[inst["cls"]] += 1
-        failed = list(getattr(farm_summary, "failed", []) or [])
+        # every frame not done is listed once, with the reason it failed
+        reasons = {f["item"]: f["error"] for f in getattr(farm_summary, "failed_items", [])}
+        for task in getattr(farm_summary, "failed", []) or []:
+            reasons.update({i: f"task {task['task']} failed: {task['error']}" for i in task["items"]})
+        done_set = set(done)
+        failed = [{"frame": i, "reason": reasons[i]} for i in ids if i in reasons and i not in done_set]
         summary = {
             "job": self.job.name, "output": str(self.folder.root),
             "frames": {"total": len(ids), "done": len(done), "failed": len(failed)},
+            "failed_frames": failed,
             "labels_per_class": dict(sorted(per_class.items())),
             "seconds_per_stage": self.times, "skipped_stages": self.skipped,
             "outputs": {"labels": str(self.folder.labels), "report": str(self.folder.root / "report" / "index.md"),
@@ -242,6 +249,8 @@ def print_summary(s: dict) -> None:
     print()
     print(f"blendgen: job {s['job']!r} — {f['done']}/{f['total']} frames done"
           + (f", {f['failed']} FAILED" if f["failed"] else ""))
+    for f in s.get("failed_frames", []):
+        print(f"  FAILED {f['frame']}: {f['reason']}")
     if s["labels_per_class"]:
         print("  labels:  " + ", ".join(f"{k} {v}" for k, v in s["labels_per_class"].items()))
     else:

@@ -151,9 +151,21 @@ def _read_frames(rec: Recording) -> None:
         rows = _rows(path)
         ts = np.array([_num(r[0], path, i) for i, r in enumerate(rows)], dtype=float)
         files = [r[1].strip() for r in rows]
+        root = rec.root.resolve()
+        missing = []
         for i, f in enumerate(files):
-            if not (rec.root / f).exists():
-                raise UserError(f"row {i + 2}: image file {f!r} does not exist", where=str(path))
+            p = rec.root / f
+            # confined to the recording folder: no absolute paths, `..`, or symlinks out of it
+            if not f or Path(f).is_absolute() or not p.resolve().is_relative_to(root):
+                raise UserError(f"row {i + 2}: image path {_quote(f)} is not inside the recording "
+                                f"folder; expected a relative path such as frames/000000.png",
+                                where=str(path))
+            if not p.is_file():
+                missing.append(i)
+        if missing:  # those frames fail alone (read_frame names each); the others still work
+            rows_s = ", ".join(str(i + 2) for i in missing[:5]) + (" ..." if len(missing) > 5 else "")
+            rec.issues.append(f"{path.name}: {len(missing)} image file(s) missing (rows {rows_s}), "
+                              f"first {_quote(files[missing[0]])}")
         rec.frames_t, rec.frame_files = ts, files
     elif header[:2] == ["t", "index"]:
         videos = [p for p in rec.root.iterdir() if p.suffix.lower() in (".mp4", ".mov", ".avi", ".mkv")]
@@ -176,9 +188,14 @@ def read_frame(rec: Recording, i: int) -> np.ndarray:
 
     if rec.frame_files is not None:
         path = rec.root / rec.frame_files[i]
+        if not path.is_file():
+            raise UserError(f"frame {i} ({rec.frame_files[i]}): image file is missing", where=str(path))
+        if path.stat().st_size == 0:
+            raise UserError(f"frame {i} ({rec.frame_files[i]}): image file is empty (0 bytes)", where=str(path))
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if img is None:
-            raise UserError(f"frame {i} ({rec.frame_files[i]}) does not decode as an image", where=str(path))
+            raise UserError(f"frame {i} ({rec.frame_files[i]}) does not decode as an image "
+                            "(corrupt or truncated?)", where=str(path))
     else:
         cap = _video(rec)
         cap.set(cv2.CAP_PROP_POS_FRAMES, int(rec.frame_index[i]))
@@ -243,6 +260,12 @@ def _video(rec: Recording):
             raise UserError("video cannot be opened", where=key)
         _VIDEO_CACHE[key] = cap
     return _VIDEO_CACHE[key]
+
+
+def _quote(value: str, limit: int = 80) -> str:
+    """repr() of a user's value, cut so that an error message stays one readable line."""
+    r = repr(value)
+    return r if len(r) <= limit else r[:limit] + f"... ({len(value)} chars)"
 
 
 def _header(path: Path) -> list[str]:

@@ -6,6 +6,7 @@ imported by the worker subprocesses as `test_farm:FileProcessor` (tests/ on PYTH
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -437,6 +438,54 @@ def test_status_report_counts(tmp_path):
 
 
 # -- Ray engine ------------------------------------------------------------------------------
+LOOPBACK_IPS = ("127.0.0.1", "::1", "::ffff:127.0.0.1")
+
+
+@pytest.mark.ray
+@pytest.mark.timeout(300)
+def test_local_ray_listens_on_loopback_only(tmp_path):
+    """Issue 16: during a local Ray run no Ray or blendgen port listens beyond loopback."""
+    pytest.importorskip("ray")
+    psutil = pytest.importorskip("psutil")
+    out = tmp_path / "job"
+    seen: dict = {}
+    stop = threading.Event()
+
+    def watch():
+        me = psutil.Process()
+        while not stop.is_set():
+            procs = [me] + me.children(recursive=True)
+            for proc in procs:
+                with contextlib.suppress(psutil.Error):
+                    for c in proc.net_connections(kind="inet"):
+                        if c.status == psutil.CONN_LISTEN:
+                            seen[(proc.pid, c.laddr.ip, c.laddr.port)] = proc.name()
+            time.sleep(0.2)
+
+    t = threading.Thread(target=watch, daemon=True)
+    t.start()
+    try:
+        s = run_tasks(out, "frames", items(4), "test_farm:FileProcessor",
+                      {"out": str(out), "delay": 0.5}, engine="ray", workers=1, chunk=2,
+                      progress=False)
+    finally:
+        stop.set()
+        t.join(5)
+    assert s.ok, s.text()
+    assert len(seen) >= 3, f"saw too few listening sockets to judge: {seen}"
+    exposed = {k: v for k, v in seen.items() if k[1] not in LOOPBACK_IPS}
+    assert exposed == {}, f"listening beyond loopback: {exposed}"
+
+
+def test_ray_cluster_run_needs_a_token(tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    for k in ("RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
+        monkeypatch.delenv(k, raising=False)
+    with pytest.raises(UserError, match="RAY_AUTH_TOKEN"):
+        run_tasks(tmp_path, "frames", items(2), "test_farm:FileProcessor", {"out": str(tmp_path)},
+                  engine="ray", address="127.0.0.1:6379", progress=False)
+
+
 @pytest.mark.ray
 @pytest.mark.timeout(300)
 def test_ray_cluster_survives_node_removal(tmp_path, monkeypatch):
@@ -450,6 +499,8 @@ def test_ray_cluster_survives_node_removal(tmp_path, monkeypatch):
     # told this is not a multi-host cluster (see docs/farm.md, "loopback-only cluster").
     monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
     monkeypatch.setattr(ray_constants, "ENABLE_RAY_CLUSTER", False)
+    # a cluster run needs the cluster's token; this one uses Ray's default token file
+    monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(Path.home() / ".ray" / "auth_token"))
     out = tmp_path / "job"
     ids = items(24)
     small = {"object_store_memory": 80 * 2**20, "node_ip_address": "127.0.0.1"}

@@ -25,6 +25,30 @@ from .local import worker_env
 from .processor import close_processor, load_processor, redirect_output, rss_mb, run_items
 
 NODE_MAX_FAILURES_IN_ROW = 3
+TOKEN_ENV = ("RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")  # Ray's own token settings
+LOOPBACK = "127.0.0.1"
+# Ray's switch for "not a multi-host cluster": with it off, a private Ray binds every server
+# (GCS, raylet, workers, agents) to loopback instead of all interfaces (measured with psutil,
+# tests/test_farm.py::test_local_ray_listens_on_loopback_only).
+_CLUSTER_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+@contextlib.contextmanager
+def _loopback_only():
+    """While a private Ray starts: this process and the servers it spawns use loopback."""
+    from ray._private import ray_constants
+
+    old_env, old_flag = os.environ.get(_CLUSTER_ENV), ray_constants.ENABLE_RAY_CLUSTER
+    os.environ[_CLUSTER_ENV] = "0"
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = old_flag
+        if old_env is None:
+            os.environ.pop(_CLUSTER_ENV, None)
+        else:
+            os.environ[_CLUSTER_ENV] = old_env
 
 _CACHE: dict[tuple[str, str], object] = {}  # per Ray worker process: the warm processor
 
@@ -91,9 +115,17 @@ class RayEngine:
                   logging_level="WARNING", log_to_driver=False)
         try:
             if self.address:
+                if not any(os.environ.get(k) for k in TOKEN_ENV):
+                    raise UserError(
+                        "a Ray cluster run needs the cluster's authentication token: set "
+                        "RAY_AUTH_TOKEN (the token) or RAY_AUTH_TOKEN_PATH (a file holding it); "
+                        "see docs/farm.md 'Ray cluster'", where="farm.address")
+                os.environ["RAY_AUTH_MODE"] = "token"  # never talk to a cluster without it
                 ray.init(address=self.address, **kw)
             else:  # a private single-machine Ray, gone when the job ends
-                ray.init(num_cpus=self.workers, include_dashboard=False, **kw)
+                with _loopback_only():
+                    ray.init(num_cpus=self.workers, include_dashboard=False,
+                             _node_ip_address=LOOPBACK, **kw)
         except (ConnectionError, RuntimeError, ValueError) as e:
             raise UserError(f"cannot connect to the Ray cluster at {self.address!r}: {e}",
                             where="farm.address") from e

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import sys
+import tempfile
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import (BaseModel, ConfigDict, Field, ValidationError, field_validator,
-                      model_validator)
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError,
+                      field_validator, model_validator)
 
 from blendgen import CLASSES
 from blendgen.errors import UserError
@@ -22,13 +25,22 @@ from blendgen.validation import error_lines, read_yaml_mapping
 BUILTIN_TWINS_DIR = Path(__file__).resolve().parents[2] / "assets_procedural" / "twins"
 SCENARIOS = ("jaywalker", "cut_in", "near_collision", "occluded_pedestrian", "cyclist_overtake")
 EXPORT_FORMATS = ("coco", "yolo", "kitti")
+MAX_OBJECTS = 100  # per frame; beyond this the planner cannot place them in any view
 
 PosInt = Annotated[int, Field(gt=0)]
 PosFloat = Annotated[float, Field(gt=0)]
 
 
+def _yaml_bool(v: Any) -> Any:
+    """YAML reads an unquoted on/off/yes/no as a boolean: take it as the word it was."""
+    return {True: "on", False: "off"}.get(v, v) if isinstance(v, bool) else v
+
+
+OnOff = BeforeValidator(_yaml_bool)
+
+
 class Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 class Synthetic(Section):
@@ -62,7 +74,8 @@ class Sync(Section):
 
 
 class Inject(Section):
-    objects_per_frame: tuple[Annotated[int, Field(ge=0)], Annotated[int, Field(ge=0)]] = (2, 6)
+    objects_per_frame: tuple[Annotated[int, Field(ge=0, le=MAX_OBJECTS)],
+                             Annotated[int, Field(ge=0, le=MAX_OBJECTS)]] = (2, 6)
     classes: dict[str, Annotated[float, Field(ge=0)]] = Field(
         default_factory=lambda: {"car": 3.0, "person": 2.0, "bicycle": 1.0})
     scenarios: list[str] = Field(default_factory=list)
@@ -76,8 +89,9 @@ class Inject(Section):
         unknown = [k for k in v if k not in CLASSES]
         if unknown:
             raise ValueError(f"unknown class {unknown[0]!r}; expected one of {sorted(CLASSES)}")
-        if v and sum(v.values()) <= 0:
-            raise ValueError("class weights must not all be zero")
+        if sum(v.values()) <= 0:
+            raise ValueError(f"expected at least one class with a positive weight, e.g. {{car: 1}}; "
+                             f"classes: {sorted(CLASSES)}")
         return v
 
     @field_validator("scenarios")
@@ -105,14 +119,14 @@ class Render(Section):
     adaptive_threshold: Annotated[float, Field(ge=0, le=1)] = 0.02
     max_bounces: Annotated[int, Field(ge=0, le=64)] = 4
     region: bool = True  # render only the projected bounds of objects and their shadows
-    motion_blur: Literal["auto", "on", "off"] = "auto"
+    motion_blur: Annotated[Literal["auto", "on", "off"], OnOff] = "auto"
     shutter_s: Annotated[float, Field(ge=0, le=1)] = 1.0 / 120
     device: Literal["CPU", "GPU"] = "CPU"
     threads: Annotated[int, Field(ge=0)] = 0  # 0: all cores of the worker
 
 
 class Post(Section):
-    illumination: Literal["auto", "off"] = "auto"
+    illumination: Annotated[Literal["auto", "off"], OnOff] = "auto"
     color_transfer: Literal["reinhard", "mkl", "histogram", "none"] = "reinhard"
     shadows: bool = True
     sensor_match: bool = True
@@ -152,8 +166,8 @@ class GroundPlane(Section):
 
 
 class Job(Section):
-    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")]
-    seed: Annotated[int, Field(ge=0)] = 0
+    name: Annotated[str, Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")]
+    seed: Annotated[int, Field(ge=0, strict=True)] = 0  # strict: `seed: true` is not 1
     recording: Path | None = None
     synthetic: Synthetic | None = None
     twin: str | None = None  # built-in twin name or path to a twin YAML
@@ -239,6 +253,10 @@ def parse_job(data: Any, *, source: str = "job", job_dir: Path | None = None) ->
 def _check_files(job: Job, source: str) -> None:
     if job.recording is not None and not job.recording_dir.is_dir():
         raise UserError(f"recording: folder {job.recording_dir} does not exist", where=source)
+    _check_output(job.out_dir, source)
+    if job.render.device == "GPU" and job.farm.engine == "local" and not _has_gpu():
+        raise UserError("render.device: GPU, but this machine shows no GPU device (/dev/nvidia*, /dev/dri, "
+                        "/dev/kfd); use CPU", where=source)
     tp = job.twin_path
     if tp is not None and not tp.is_file():
         names = sorted(p.stem for p in BUILTIN_TWINS_DIR.glob("*.yaml"))
@@ -246,6 +264,24 @@ def _check_files(job: Job, source: str) -> None:
                         f"({tp})", where=source)
     if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
         raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)
+
+
+def _check_output(out: Path, source: str) -> None:
+    """`output` must be a folder we can create and write: refuse a file or a read-only place."""
+    p = out
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if not p.is_dir():
+        raise UserError(f"output: {p} is a file, expected a folder (or a path to create one)", where=source)
+    try:  # a real probe: os.access says yes to root even on read-only or virtual filesystems
+        tempfile.TemporaryFile(dir=p).close()
+    except OSError as e:
+        raise UserError(f"output: cannot write in {p} ({e.strerror}); choose another folder",
+                        where=source) from None
+
+
+def _has_gpu() -> bool:
+    return any(Path(p).exists() for p in ("/dev/nvidia0", "/dev/dri", "/dev/kfd")) or sys.platform == "darwin"
 
 
 def load_job(path: str | Path) -> Job:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from blendgen import atomic
 from blendgen.errors import UserError
 from blendgen.geometry import Camera
 from blendgen.recording.model import ImuNoise, Recording
+from blendgen.validation import load_yaml_text, quote
 
 IMU_COLUMNS = ["t", "wx", "wy", "wz", "ax", "ay", "az"]
 GT_COLUMNS = ["t", "x", "y", "z", "qw", "qx", "qy", "qz"]
@@ -83,10 +85,7 @@ def _read_calib(root: Path) -> Recording:
     path = root / "calib.yaml"
     if not path.exists():
         raise UserError("calib.yaml is missing (camera intrinsics, T_cam_imu, IMU noise)", where=str(path))
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as e:
-        raise UserError(f"not valid YAML: {e}", where=str(path)) from None
+    data = load_yaml_text(path, "calib") or {}
     if not isinstance(data, dict):
         raise UserError("expected a mapping at the top level", where=str(path))
     camera = None
@@ -99,16 +98,25 @@ def _read_calib(root: Path) -> Recording:
     if "imu" not in data:
         missing_calib.append("imu noise (Kalibr defaults of an automotive MEMS IMU assumed)")
     if "T_cam_imu" in data:
-        T = np.asarray(data["T_cam_imu"], dtype=float)
+        try:
+            T = np.asarray(data["T_cam_imu"], dtype=float)
+        except (TypeError, ValueError):
+            T = np.zeros(0)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or abs(np.linalg.det(T[:3, :3]) - 1) > 1e-3:
             raise UserError("T_cam_imu: expected a 4x4 rigid transform (rotation with det 1)", where=str(path))
     noise = ImuNoise()
     for k, v in (data.get("imu") or {}).items():
         if not hasattr(noise, k):
             raise UserError(f"imu.{k}: unknown field; expected one of {list(vars(noise))}", where=str(path))
-        if not isinstance(v, (int, float)) or not v > 0:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
             raise UserError(f"imu.{k}: expected a positive number, got {v!r}", where=str(path))
         setattr(noise, k, float(v))
+    if data.get("time_origin_utc") is not None:
+        try:
+            datetime.fromisoformat(str(data["time_origin_utc"]).replace("Z", "+00:00"))
+        except ValueError:
+            raise UserError(f"time_origin_utc: {quote(str(data['time_origin_utc']))} is not an ISO 8601 "
+                            "time; expected e.g. 2024-06-21T10:30:00Z", where=str(path)) from None
     known = {"camera", "T_cam_imu", "imu", "timeshift_cam_imu"}
     ts = data.get("timeshift_cam_imu", 0.0)
     if not isinstance(ts, (int, float)) or not np.isfinite(ts):
@@ -137,6 +145,9 @@ def _parse_camera(cam: dict, path: Path) -> Camera:
     if len(dist) not in (0, 4, 5):
         raise UserError("camera.distortion_coeffs: expected 4 or 5 numbers (k1 k2 p1 p2 [k3])", where=str(path))
     dist = (dist + [0.0] * 5)[:5]
+    if not all(math.isfinite(v) for v in (fx, fy, cx, cy, *dist)):
+        raise UserError(f"camera: intrinsics and distortion must be finite numbers, got intrinsics "
+                        f"{[fx, fy, cx, cy]}", where=str(path))
     if min(fx, fy) <= 0 or min(w, h) <= 0:
         raise UserError("camera: focal lengths and resolution must be positive", where=str(path))
     return Camera(w, h, fx, fy, cx, cy, dist)
@@ -157,7 +168,7 @@ def _read_frames(rec: Recording) -> None:
             p = rec.root / f
             # confined to the recording folder: no absolute paths, `..`, or symlinks out of it
             if not f or Path(f).is_absolute() or not p.resolve().is_relative_to(root):
-                raise UserError(f"row {i + 2}: image path {_quote(f)} is not inside the recording "
+                raise UserError(f"row {i + 2}: image path {quote(f)} is not inside the recording "
                                 f"folder; expected a relative path such as frames/000000.png",
                                 where=str(path))
             if not p.is_file():
@@ -165,7 +176,7 @@ def _read_frames(rec: Recording) -> None:
         if missing:  # those frames fail alone (read_frame names each); the others still work
             rows_s = ", ".join(str(i + 2) for i in missing[:5]) + (" ..." if len(missing) > 5 else "")
             rec.issues.append(f"{path.name}: {len(missing)} image file(s) missing (rows {rows_s}), "
-                              f"first {_quote(files[missing[0]])}")
+                              f"first {quote(files[missing[0]])}")
         rec.frames_t, rec.frame_files = ts, files
     elif header[:2] == ["t", "index"]:
         videos = [p for p in rec.root.iterdir() if p.suffix.lower() in (".mp4", ".mov", ".avi", ".mkv")]
@@ -260,12 +271,6 @@ def _video(rec: Recording):
             raise UserError("video cannot be opened", where=key)
         _VIDEO_CACHE[key] = cap
     return _VIDEO_CACHE[key]
-
-
-def _quote(value: str, limit: int = 80) -> str:
-    """repr() of a user's value, cut so that an error message stays one readable line."""
-    r = repr(value)
-    return r if len(r) <= limit else r[:limit] + f"... ({len(value)} chars)"
 
 
 def _header(path: Path) -> list[str]:

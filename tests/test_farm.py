@@ -14,6 +14,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -50,6 +51,8 @@ class FileProcessor:
         self.delay, self.raise_once, self.hang_once = delay, set(raise_once), hang_once
         self.always_fail, self.bad_input = set(always_fail), set(bad_input)
         self.closed_marker = self.out / "closed.log"
+        # like the render session: a private temp folder, which a killed worker cannot remove
+        atomic.append_line(self.out / "tmpdirs.log", tempfile.mkdtemp(prefix="blendgen_render_"))
 
     def path(self, item: str) -> Path:
         return self.dir / f"{item}.bin"
@@ -228,6 +231,10 @@ def test_local_failures_raise_once_and_sigkilled_worker(tmp_path):
     assert "transient failure on 000013" in errors and "SIGKILL" in errors
     for _, _, log in failed_attempts:
         assert Path(log).exists()
+    # Issue 16: workers' temp folders (the SIGKILLed one's too) live under OUT and are gone
+    tmpdirs = (out / "tmpdirs.log").read_text().split()
+    assert len(tmpdirs) >= 3 and all(d.startswith(str(out / ".blendgen" / "tmp")) for d in tmpdirs)
+    assert [d for d in tmpdirs if Path(d).exists()] == []
     # workers closed their processors on the way out (warm sessions are shut down cleanly)
     assert len((out / "closed.log").read_text().split()) >= 2
     # running again: nothing is dispatched, nothing is redone
@@ -475,6 +482,8 @@ def test_local_ray_listens_on_loopback_only(tmp_path):
     assert len(seen) >= 3, f"saw too few listening sockets to judge: {seen}"
     exposed = {k: v for k, v in seen.items() if k[1] not in LOOPBACK_IPS}
     assert exposed == {}, f"listening beyond loopback: {exposed}"
+    tmpdirs = (out / "tmpdirs.log").read_text().split()  # Ray workers' temp folders: gone too
+    assert tmpdirs and [d for d in tmpdirs if Path(d).exists()] == []
 
 
 def test_ray_cluster_run_needs_a_token(tmp_path, monkeypatch):

@@ -104,6 +104,7 @@ class Books:
         self.stage, self.seed, self.max_attempts = stage, seed, max_attempts
         self.meta_dir = self.out_dir / LEDGER_DIR
         self.log_dir = self.meta_dir / "logs" / stage
+        self.tmp_dir = self.meta_dir / "tmp" / stage  # workers' TMPDIR (run_tasks empties it)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self._lock = self._take_lock()
         self.manifest = self.out_dir / MANIFEST

@@ -30,9 +30,12 @@ SLOT_MAX_FAILURES_IN_ROW = 3  # a slot failing this many times in a row gets no 
 STOP_GRACE_S = 10.0           # time a stopping worker gets to close() its processor
 
 
-def worker_env() -> dict[str, str]:
-    """Environment for a worker: blendgen importable, no bpy-internal module paths."""
+def worker_env(tmp_dir: str | os.PathLike | None = None) -> dict[str, str]:
+    """Environment for a worker: blendgen importable, no bpy-internal module paths, and
+    temp files in `tmp_dir` (which the supervisor removes when the stage ends)."""
     env = os.environ.copy()
+    if tmp_dir is not None:
+        env["TMPDIR"] = str(tmp_dir)
     root = str(Path(blendgen.__file__).resolve().parents[1])
     parts = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and not _bpy_path(p)]
     env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in parts if p != root])
@@ -132,7 +135,7 @@ class LocalEngine:
                 [sys.executable, "-m", "blendgen.farm.worker", "--rfd", str(to_r), "--wfd",
                  str(from_w), "--ppid", str(os.getpid())],
                 pass_fds=(to_r, from_w), stdin=subprocess.DEVNULL, stdout=logf,
-                stderr=subprocess.STDOUT, env=worker_env(), close_fds=True)
+                stderr=subprocess.STDOUT, env=worker_env(self.books.tmp_dir), close_fds=True)
         os.close(to_r)
         os.close(from_w)
         os.set_blocking(from_r, False)

@@ -111,7 +111,8 @@ class RayEngine:
     def _init(self, ray) -> None:
         # Ray workers start from the raylet, never from this process: bpy cannot leak into
         # them; PYTHONPATH makes blendgen (and the processor's module) importable there.
-        kw = dict(runtime_env={"env_vars": {"PYTHONPATH": worker_env()["PYTHONPATH"]}},
+        env = worker_env(self.books.tmp_dir)
+        kw = dict(runtime_env={"env_vars": {k: env[k] for k in ("PYTHONPATH", "TMPDIR")}},
                   logging_level="WARNING", log_to_driver=False)
         try:
             if self.address:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 from ..errors import UserError
@@ -40,6 +41,11 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
         raise UserError(f"processor_args must be JSON-able ({e})", where="farm") from e
     books = Books(Path(out_dir), stage, list(items), chunk=chunk, engine=engine,
                   workers=workers, seed=seed, max_attempts=max_attempts, progress=progress)
+    # Workers' temp files (Blender's, the render session's) go under OUT, not /tmp, so that
+    # what a killed worker leaves is removed here: before (a killed earlier run) and after.
+    tmp = books.tmp_dir
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
     try:
         if engine == "local":
             from .local import LocalEngine
@@ -54,4 +60,6 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
     except BaseException as e:
         books.finish("interrupted" if isinstance(e, KeyboardInterrupt) else "failed")
         raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return books.finish()

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from blendgen import __version__, atomic
+from blendgen.farm.processor import clean_stale_temps
 from blendgen.farm.seeds import frame_seed
 from blendgen.job.schema import parse_job
 from blendgen.pipeline.outputs import JobFolder
@@ -95,6 +96,7 @@ class FrameProcessor:
             self.session = RenderSession(job.twin_path, job.ground_plane, job.render, self.camera)
         fdir = self.folder.frame_dir(frame_id)
         fdir.mkdir(parents=True, exist_ok=True)
+        clean_stale_temps(fdir)  # what a killed attempt left (only this worker writes here)
         exr = fdir / "render.exr"
         info = self.session.render_frame(plan, exr, render_outputs(job))
         passes = read_passes(exr)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
+import os
 from pathlib import Path
 
 import yaml
@@ -54,6 +57,24 @@ class JobFolder:
         d = self.frame_dir(frame_id)
         names = FRAME_OUTPUTS + (("render.exr",) if save_exr else ())
         return all((d / n).exists() for n in names)
+
+    # ---- one blendgen process per folder, for every stage (the farm's own lock covers a
+    # farm stage only; sync, plan and export write here too)
+    @contextlib.contextmanager
+    def lock(self):
+        self.state.mkdir(parents=True, exist_ok=True)
+        with open(self.state / "job.lock", "a+") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                f.seek(0)
+                raise UserError(f"another blendgen is running on this folder ({f.read().strip() or 'unknown pid'}); "
+                                "wait for it or stop it first", where=str(self.root)) from None
+            f.seek(0)
+            f.truncate()
+            f.write(f"pid {os.getpid()}\n")
+            f.flush()
+            yield
 
     # ---- the resolved job: one output folder holds one job
     def claim(self, job: Job) -> None:

@@ -195,6 +195,25 @@ class Runner:
 
     # ------------------------------------------------------------------ run
     def run(self) -> dict:
+        self._check_frames()  # before anything is written: a corrected job must still fit
+        with self.folder.lock():
+            return self._run()
+
+    def _check_frames(self) -> None:
+        job = self.job
+        if job.synthetic is not None:
+            n = int(np.floor(job.synthetic.duration_s * job.synthetic.fps + 1e-9)) + 1  # as `record` makes it
+        else:
+            n = read_recording(job.recording_dir, require_frames=True).n_frames
+        if job.frames.start >= n:
+            raise UserError(f"frames.start is {job.frames.start}, but the recording {job.recording_dir} has {n} "
+                            f"frames (0..{n - 1}); nothing was written", where="job")
+
+    def _run(self) -> dict:
+        from blendgen.farm import clean_stale_temps
+
+        for d in (self.folder.root, self.folder.labels, self.folder.root / "report", self.folder.state):
+            clean_stale_temps(d)  # what a killed earlier run left (we hold the folder's lock)
         self.folder.claim(self.job)
         t_all = time.perf_counter()
 

@@ -23,11 +23,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("validate", help="check a job without doing any work")
-    p.add_argument("job", type=Path)
+    p = sub.add_parser("validate", help="check a job and its recording without doing any work",
+                       description="Check a job file (every field, the files it names) and the recording "
+                                   "it uses, as `blendgen import --check` does: calib, CSV headers, "
+                                   "monotonic times, physical ranges, and that every image decodes at the "
+                                   "calibrated size. Renders nothing. Exit code 2 when something is wrong.")
+    p.add_argument("job", type=Path, help="job YAML")
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("status", help="what is done, running, failed and left in a job folder")
+    p = sub.add_parser("status", help="what is done, running, failed and left in a job folder",
+                       description="Read a job folder's ledger (also while the job runs): per stage, the "
+                                   "frames done, running, failed and left, the rate and ETA, and each "
+                                   "failed frame or task with its reason and log.")
     p.add_argument("out", type=Path, help="the job's output folder")
     p.set_defaults(func=cmd_status)
 
@@ -55,6 +62,16 @@ def cmd_validate(args) -> int:
     print(f"{args.job}: valid job {job.name!r} (content hash {job.content_hash()})")
     print(f"  input:  {src}; {scene}")
     print(f"  output: {job.out_dir}")
+    if job.recording is None:
+        return 0
+    from blendgen.recording.importers import check_recording, format_findings
+
+    findings = check_recording(job.recording_dir)
+    print(format_findings(findings))
+    errors = [str(f.message) for f in findings if f.level == "error"]
+    if errors:
+        raise UserError(f"the recording {job.recording_dir} has {len(errors)} problem(s):\n  "
+                        + "\n  ".join(errors), where=str(args.job))
     return 0
 
 

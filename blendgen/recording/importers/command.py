@@ -19,6 +19,16 @@ _OPTIONS = {
 }
 
 
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Shows an option's default only when it has one (no "(default: None)")."""
+
+    def _get_help_string(self, action):
+        h = action.help or ""
+        if action.option_strings and action.default not in (None, False, argparse.SUPPRESS):
+            h += " (default: %(default)s)"
+        return h
+
+
 def register(subparsers) -> None:
     from blendgen.recording.importers import FORMATS
 
@@ -27,7 +37,7 @@ def register(subparsers) -> None:
                        "blendgen recording folder, then check it",
         description="Convert FORMAT's SRC into the recording folder DST (DESIGN.md) and print a check of "
                     "what is missing or odd. `blendgen import --check DST` checks an existing folder.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_DefaultsFormatter)
     p.add_argument("format", nargs="?", choices=list(FORMATS), help="source format")
     p.add_argument("src", nargs="?", help="source file or folder")
     p.add_argument("dst", nargs="?", help="recording folder to write")

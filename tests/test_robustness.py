@@ -67,6 +67,28 @@ def test_folder_lock_covers_every_stage(tmp_path):
     assert not (job.out_dir / "poses.csv").exists() and not (job.out_dir / "job.resolved.yaml").exists()
 
 
+def _plan(tmp_path: Path, out: str, **frames) -> list[dict]:
+    import json
+
+    job = load_job(_job(tmp_path, output=out, seed=5, frames=frames,
+                        inject={"objects_per_frame": [3, 3], "classes": {"car": 1}, "min_projected_px": 1}))
+    runner = Runner(job, progress=False)
+    runner.frames = lambda ids: None  # stop before rendering (no bpy here)
+    runner.export = lambda ids: {}
+    runner.report = lambda: None
+    runner.run()
+    return [json.loads(line) for line in (job.out_dir / "plan.jsonl").read_text().splitlines()]
+
+
+def test_layout_seed_depends_on_the_first_frame(tmp_path):
+    a = _plan(tmp_path, "a", stop=3)
+    a2 = _plan(tmp_path / "again", "a", stop=3)
+    b = _plan(tmp_path / "other", "b", start=3, stop=6)
+    assert a == a2  # same job, same seed: the same plan
+    assert a[0]["objects"] and b[0]["objects"]
+    assert a[0]["objects"] != b[0]["objects"]  # not the same first layout whatever the frame id
+
+
 def test_stale_temps_of_a_killed_run_are_removed_on_resume(tmp_path):
     job = load_job(_job(tmp_path, frames={"stop": 1}))
     out = job.out_dir

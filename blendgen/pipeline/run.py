@@ -130,6 +130,7 @@ class Runner:
         return lut
 
     def plan(self, rec, poses) -> list[str]:
+        from blendgen.farm.seeds import frame_seed
         from blendgen.scene.planner import plan_sequence
 
         job = self.job
@@ -144,7 +145,9 @@ class Runner:
             return ids
         w, h = job.render.resolution or (rec.camera.width, rec.camera.height)
         camera = rec.camera.scaled(w, h)
-        plans = plan_sequence(self.twin, camera, sel, job.inject, job.seed)
+        # the layout's stream starts from (seed, first frame id): a job starting at another frame
+        # gets its own layout, not the same one shifted (README: seed + frame id)
+        plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]))
         n_obj = sum(len(p.objects) for p in plans)
         self._say(3, "plan", f"{len(plans)} frames, {n_obj} objects")
         atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))

@@ -176,3 +176,19 @@ def test_frame_paths_stay_inside_the_recording(tmp_path, entry):
     folder.write_frames_csv(root, [0.0, 0.2], ["img/0.png", entry])
     with pytest.raises(UserError, match=r"frames.csv: row 3: image path .* is not inside the recording folder"):
         read_recording(root)
+
+
+def test_groundtruth_tum_reads_in_evo(tmp_path):
+    """Issue 16: groundtruth.tum beside groundtruth.csv, in the TUM order evo expects."""
+    from scipy.spatial.transform import Rotation
+
+    root = _make(tmp_path / "r")
+    q = Rotation.from_euler("z", [[0.1], [0.2], [0.3]]).as_quat()  # x y z w
+    gt = np.column_stack([[0.0, 0.1, 0.2], np.arange(9).reshape(3, 3), q[:, 3], q[:, :3]])
+    folder.write_groundtruth(root, gt)
+    assert read_recording(root).groundtruth.shape == (3, 8)
+    file_interface = pytest.importorskip("evo.tools.file_interface")
+    traj = file_interface.read_tum_trajectory_file(str(root / "groundtruth.tum"))
+    assert np.allclose(traj.timestamps, [0.0, 0.1, 0.2])
+    assert np.allclose(traj.positions_xyz, np.arange(9).reshape(3, 3))
+    assert np.allclose(traj.orientations_quat_wxyz, gt[:, 4:8], atol=1e-8)

@@ -396,4 +396,10 @@ def write_gnss(root: Path, gnss, columns: list[str] | None = None) -> None:
 
 
 def write_groundtruth(root: Path, gt) -> None:
+    """groundtruth.csv, and the same poses as groundtruth.tum (`t x y z qx qy qz qw`, space
+    separated) so that evo reads them: `evo_ape tum recording/groundtruth.tum poses.tum`."""
     write_csv(root / "groundtruth.csv", GT_COLUMNS, gt)
+    arr = np.asarray(gt, dtype=float).reshape(-1, len(GT_COLUMNS))
+    buf = io.StringIO()
+    np.savetxt(buf, arr[:, [0, 1, 2, 3, 5, 6, 7, 4]], fmt="%.9f")
+    atomic.write_text(root / "groundtruth.tum", buf.getvalue())

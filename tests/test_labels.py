@@ -11,7 +11,7 @@ from blendgen.errors import UserError
 from blendgen.labels.export import export_labels, find_frame_labels
 from blendgen.labels.frame_labels import read_frame_labels, write_frame_labels
 from blendgen.labels.instances import decode_mask, extract_instances
-from blendgen.labels.kitti import parse_label_line
+from blendgen.labels.kitti import DEVKIT_TYPES, KITTI_TYPES, parse_label_line
 from blendgen.labels.yolo import NAMES
 
 from labels_fixtures import CAMERA, H, W, hull_mask, make_frame, synthetic_instances
@@ -205,7 +205,7 @@ def test_export_round_trips(tmp_path):
             k = parse_label_line(line)
             x0, y0, bw, bh = i["bbox"]
             assert k["bbox"] == pytest.approx([x0, y0, x0 + bw, y0 + bh], abs=0.006)
-            if i["ignore"]:
+            if i["ignore"] or KITTI_TYPES["kitti"][i["cls"]] == "DontCare":
                 assert k["type"] == "DontCare"
             else:
                 assert k["location"] == pytest.approx(i["box3d_cam"]["location"], abs=0.006)
@@ -218,6 +218,53 @@ def test_export_round_trips(tmp_path):
     before = (out / "labels/coco.json").read_bytes()
     export_labels(out, list(reversed(paths)), ["coco"])
     assert (out / "labels/coco.json").read_bytes() == before
+
+
+def check_devkit_line(line: str) -> str:
+    """The KITTI object devkit's label format (readme.txt of devkit_object): 15 fields,
+    one of its 9 types, truncated 0..1, occluded 0..3, alpha and rotation_y in [-pi, pi]
+    (DontCare: -1 -1 -10 ... -1000 ... -10)."""
+    f = line.split(" ")
+    assert len(f) == 15, line
+    assert f[0] in DEVKIT_TYPES, line
+    v = [float(x) for x in f[1:]]
+    if f[0] == "DontCare":
+        assert v[:3] == [-1, -1, -10] and v[7:] == [-1, -1, -1, -1000, -1000, -1000, -10], line
+    else:
+        assert 0 <= v[0] <= 1 and int(f[2]) in (0, 1, 2, 3) and f[2].isdigit(), line
+        assert -np.pi - 0.01 <= v[2] <= np.pi + 0.01 and -np.pi - 0.01 <= v[13] <= np.pi + 0.01, line
+        assert min(v[7:10]) > 0, line  # h w l
+    assert v[3] <= v[5] and v[4] <= v[6], line  # left <= right, top <= bottom
+    return f[0]
+
+
+def test_kitti_types_pass_the_devkit_format(tmp_path):
+    """Issue 16: the default KITTI export uses only KITTI's types; 'extended' keeps ours."""
+    out = _write_out(tmp_path, 4)
+    s = export_labels(out, find_frame_labels(out), ["kitti"])
+    assert s["kitti"]["types"] == "kitti" and s["kitti"]["type_of_class"]["bicycle"] == "Cyclist"
+    types = [check_devkit_line(line) for p in sorted((out / "labels/kitti/label_2").glob("*.txt"))
+             for line in p.read_text().splitlines()]
+    assert len(types) > 4 and {"Car", "Pedestrian"} <= set(types)
+    export_labels(out, find_frame_labels(out), ["kitti"], kitti_types="extended")
+    ext = {ln.split()[0] for p in (out / "labels/kitti/label_2").glob("*.txt") for ln in p.read_text().splitlines()}
+    assert ext - set(DEVKIT_TYPES)  # e.g. Bicycle, Bus: descriptive, not KITTI's
+
+
+def test_yolo_split_by_frame_is_seeded(tmp_path):
+    out = _write_out(tmp_path, 10)
+    s = export_labels(out, find_frame_labels(out), ["yolo"], yolo_val_fraction=0.3, seed=4)
+    y = out / "labels/yolo"
+    train, val = ((y / f).read_text().splitlines() for f in ("train.txt", "val.txt"))
+    assert (s["yolo"]["train_frames"], s["yolo"]["val_frames"]) == (7, 3) and len(val) == 3
+    assert not set(train) & set(val) and len(set(train) | set(val)) == 10
+    assert "val: val.txt" in (y / "data.yaml").read_text() and (y / "seg/val.txt").read_text().splitlines() == val
+    export_labels(out, find_frame_labels(out), ["yolo"], yolo_val_fraction=0.3, seed=4)
+    assert (y / "val.txt").read_text().splitlines() == val  # same seed, same split
+    export_labels(out, find_frame_labels(out), ["yolo"], yolo_val_fraction=0.3, seed=5)
+    assert (y / "val.txt").read_text().splitlines() != val
+    export_labels(out, find_frame_labels(out), ["yolo"])
+    assert not (y / "val.txt").exists() and "val: train.txt" in (y / "data.yaml").read_text()
 
 
 def test_export_rejects_unknown_format_and_missing_image(tmp_path):

@@ -140,6 +140,8 @@ class Export(Section):
     min_visible_px: Annotated[int, Field(ge=0)] = 64
     small_objects: Literal["drop", "ignore"] = "drop"
     save_exr: bool = True
+    kitti_types: Literal["kitti", "extended"] = "kitti"  # docs/labels.md: KITTI's own types, or one per class
+    yolo_val_fraction: Annotated[float, Field(ge=0, le=0.9)] = 0.0  # share of frames in YOLO's val split (seeded)
 
 
 class Farm(Section):

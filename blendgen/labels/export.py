@@ -14,7 +14,8 @@ from blendgen.labels.yolo import write_yolo
 FORMATS = ("coco", "yolo", "kitti")
 
 
-def export_labels(out_dir: Path, frame_label_paths: list[Path], formats: list[str]) -> dict:
+def export_labels(out_dir: Path, frame_label_paths: list[Path], formats: list[str], *,
+                  kitti_types: str = "kitti", yolo_val_fraction: float = 0.0, seed: int = 0) -> dict:
     """Write OUT/labels/{coco.json, yolo/, kitti/} for the given frames; returns a summary.
 
     Frames are exported in frame-id order so that re-exports are byte-identical.
@@ -42,9 +43,9 @@ def export_labels(out_dir: Path, frame_label_paths: list[Path], formats: list[st
         write_coco(labels / "coco.json", frames, out_dir)
         summary["coco"] = str(labels / "coco.json")
     if "yolo" in formats:
-        summary["yolo"] = write_yolo(labels / "yolo", frames)
+        summary["yolo"] = write_yolo(labels / "yolo", frames, yolo_val_fraction, seed)
     if "kitti" in formats:
-        summary["kitti"] = write_kitti(labels / "kitti", frames)
+        summary["kitti"] = write_kitti(labels / "kitti", frames, kitti_types)
     return summary
 
 

@@ -3,8 +3,13 @@
 label_2 line: `type truncated occluded alpha left top right bottom h w l x y z rotation_y`.
 The 2D box uses COCO's pixel-edge convention (right = x + w). The 3D box is exact (from the
 plan): (x, y, z) is the bottom-face centre in camera coordinates. Objects marked ignore are
-written as `DontCare` (KITTI's ignore regions). KITTI has no bus, motorcycle, bicycle or
-traffic light types: those keep descriptive CamelCase names that KITTI readers accept.
+written as `DontCare` (KITTI's ignore regions).
+
+Types (`export.kitti_types`): "kitti" (default) uses only the devkit's types, which KITTI
+tools keep (they drop any other): person Pedestrian, car Car, truck Truck, bicycle Cyclist
+(blendgen's bicycles carry a rider, like KITTI's Cyclist box), bus and motorcycle Misc, traffic
+light DontCare (not an object class in KITTI: an ignore region). "extended" keeps a type per
+blendgen class (Bicycle, Motorcycle, Bus, TrafficLight), which KITTI's own tools drop.
 """
 
 from __future__ import annotations
@@ -16,8 +21,13 @@ import numpy as np
 from blendgen import atomic
 from blendgen.labels.yolo import link_image
 
-KITTI_TYPE = {"person": "Pedestrian", "bicycle": "Bicycle", "car": "Car", "motorcycle": "Motorcycle",
-              "bus": "Bus", "truck": "Truck", "traffic light": "TrafficLight"}
+KITTI_TYPES = {  # export.kitti_types -> blendgen class -> KITTI type
+    "kitti": {"person": "Pedestrian", "bicycle": "Cyclist", "car": "Car", "motorcycle": "Misc",
+              "bus": "Misc", "truck": "Truck", "traffic light": "DontCare"},
+    "extended": {"person": "Pedestrian", "bicycle": "Bicycle", "car": "Car", "motorcycle": "Motorcycle",
+                 "bus": "Bus", "truck": "Truck", "traffic light": "TrafficLight"},
+}
+DEVKIT_TYPES = ("Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc", "DontCare")
 
 
 def occluded_state(occlusion: float | None) -> int:
@@ -27,15 +37,16 @@ def occluded_state(occlusion: float | None) -> int:
     return 0 if occlusion <= 0.1 else (1 if occlusion <= 0.5 else 2)
 
 
-def label_line(inst: dict) -> str:
+def label_line(inst: dict, types: str = "kitti") -> str:
     x, y, w, h = (float(v) for v in inst["bbox"])
     box = f"{x:.2f} {y:.2f} {x + w:.2f} {y + h:.2f}"
-    if inst["ignore"]:
+    kind = KITTI_TYPES[types][inst["cls"]]
+    if inst["ignore"] or kind == "DontCare":
         return f"DontCare -1 -1 -10 {box} -1 -1 -1 -1000 -1000 -1000 -10"
     b = inst["box3d_cam"]
     hh, ww, ll = b["dimensions_hwl"]
     lx, ly, lz = b["location"]
-    return (f"{KITTI_TYPE[inst['cls']]} {float(inst.get('truncation') or 0.0):.2f} "
+    return (f"{kind} {float(inst.get('truncation') or 0.0):.2f} "
             f"{occluded_state(inst.get('occlusion'))} {b['alpha']:.2f} {box} "
             f"{hh:.2f} {ww:.2f} {ll:.2f} {lx:.2f} {ly:.2f} {lz:.2f} {b['rotation_y']:.2f}")
 
@@ -57,14 +68,15 @@ def parse_label_line(line: str) -> dict:
             "location": [float(v) for v in f[11:14]], "rotation_y": float(f[14])}
 
 
-def write_kitti(root: Path, frames: list[dict]) -> dict:
+def write_kitti(root: Path, frames: list[dict], types: str = "kitti") -> dict:
     n_calib = 0
     for fr in frames:
         fid = fr["frame_id"]
         atomic.write_text(root / "label_2" / f"{fid}.txt",
-                          "".join(label_line(i) + "\n" for i in fr["instances"]))
+                          "".join(label_line(i, types) + "\n" for i in fr["instances"]))
         link_image(root / "image_2" / (fid + Path(fr["image_path"]).suffix), fr["image_path"])
         if fr.get("camera"):
             atomic.write_text(root / "calib" / f"{fid}.txt", calib_text(fr["camera"]))
             n_calib += 1
-    return {"dir": str(root), "label_files": len(frames), "calib_files": n_calib}
+    return {"dir": str(root), "label_files": len(frames), "calib_files": n_calib, "types": types,
+            "type_of_class": KITTI_TYPES[types]}

@@ -61,26 +61,44 @@ def segment_line(inst: dict, W: int, H: int) -> str:
     return f"{NAMES.index(inst['cls'])} " + " ".join(f"{v:.6f}" for v in pts.ravel())
 
 
-def data_yaml(root: Path) -> str:
+def data_yaml(root: Path, val: str = "train.txt") -> str:
     names = "\n".join(f"  {i}: {n}" for i, n in enumerate(NAMES))
-    # val = train: blendgen writes one split; users split by track or sequence themselves.
-    return f"path: {root.resolve()}\ntrain: train.txt\nval: train.txt\nnames:\n{names}\n"
+    return f"path: {root.resolve()}\ntrain: train.txt\nval: {val}\nnames:\n{names}\n"
 
 
-def write_yolo(root: Path, frames: list[dict]) -> dict:
+def val_frames(frame_ids: list[str], fraction: float, seed: int) -> set[str]:
+    """The frames of the validation split: round(fraction * n) of them (at least one when
+    fraction > 0 and there are two frames), drawn with the job's seed, so the split is the
+    same on every export of the same frames."""
+    if fraction <= 0 or len(frame_ids) < 2:
+        return set()
+    k = min(len(frame_ids) - 1, max(1, round(fraction * len(frame_ids))))
+    pick = np.random.default_rng(seed).permutation(len(frame_ids))[:k]
+    return {sorted(frame_ids)[i] for i in pick}
+
+
+def write_yolo(root: Path, frames: list[dict], val_fraction: float = 0.0, seed: int = 0) -> dict:
+    """With val_fraction 0, `val` = `train` (one split); otherwise val.txt holds that share of
+    the frames (by frame, seeded) and train.txt the rest."""
     files = 0
+    val = val_frames([fr["frame_id"] for fr in frames], val_fraction, seed)
     for sub, make_line in ((root, box_line), (root / "seg", segment_line)):
-        listing = []
+        listing, val_listing = [], []
         for fr in frames:
             name = fr["frame_id"] + Path(fr["image_path"]).suffix
             link_image(sub / "images" / name, fr["image_path"])
             lines = [make_line(i, fr["width"], fr["height"]) for i in fr["instances"] if not i["ignore"]]
             atomic.write_text(sub / "labels" / f"{fr['frame_id']}.txt", "".join(l + "\n" for l in lines))
-            listing.append(f"./images/{name}")
+            (val_listing if fr["frame_id"] in val else listing).append(f"./images/{name}")
             files += 1
         atomic.write_text(sub / "train.txt", "".join(l + "\n" for l in listing))
-        atomic.write_text(sub / "data.yaml", data_yaml(sub))
-    return {"dir": str(root), "label_files": files}
+        if val:
+            atomic.write_text(sub / "val.txt", "".join(l + "\n" for l in val_listing))
+        else:
+            (sub / "val.txt").unlink(missing_ok=True)
+        atomic.write_text(sub / "data.yaml", data_yaml(sub, "val.txt" if val else "train.txt"))
+    return {"dir": str(root), "label_files": files, "train_frames": len(frames) - len(val),
+            "val_frames": len(val)}
 
 
 def link_image(link: Path, target: Path) -> None:

@@ -169,13 +169,16 @@ class Runner:
 
         done = [self.folder.frame_dir(i) / "labels.json" for i in ids
                 if self.folder.frame_done(i, self.job.export.save_exr)]
-        key = {"frames": [p.parent.name for p in done], "formats": self.job.export.formats}
+        ex = self.job.export
+        key = {"frames": [p.parent.name for p in done], "formats": ex.formats, "kitti_types": ex.kitti_types,
+               "yolo_val_fraction": ex.yolo_val_fraction}
         if self.folder.stage_done("export") and self.folder.stage_info("export").get("key") == key:
             self.skipped.append("export")
             self._say(5, "export", f"labels up to date ({self.folder.labels})")
             return self.folder.stage_info("export").get("result", {})
         self._say(5, "export", f"{len(done)} frames -> {', '.join(self.job.export.formats)}")
-        result = export_labels(self.folder.root, done, self.job.export.formats)
+        result = export_labels(self.folder.root, done, ex.formats, kitti_types=ex.kitti_types,
+                               yolo_val_fraction=ex.yolo_val_fraction, seed=self.job.seed)
         self.folder.mark_stage("export", {"key": key, "result": result})
         return result
 

@@ -60,3 +60,48 @@ def test_report_on_empty_output_and_cli(tmp_path):
     assert "No finished frames yet" in text and "Not run" in text
     assert main(["report", str(out)]) == 0
     assert main(["report", str(tmp_path / "missing")]) == 2
+
+
+def test_report_shows_clean_composites_and_separate_stage_tables(tmp_path):
+    """Issue 16: clean composites beside annotated ones (outlines, not fills), and the
+    recording synthesis timed apart from the frame work, with frames/min of the latter."""
+    out = _out(tmp_path, n=2)
+    with open(out / "manifest.jsonl", "a") as f:
+        f.write("\n")  # after the fixture's torn line
+    append_line(out / "manifest.jsonl", json.dumps(
+        {"stage": "record", "frame_id": "f000000", "timings": {"render_background": 9.0}}))
+    (out / "run_summary.json").write_text(json.dumps(
+        {"seconds_per_stage": {"record": 50.0, "sync": 1.0, "plan": 1.0, "frames": 10.0, "export": 0.0},
+         "throughput": {"frames": 2, "frame_work_s": 12.0, "frames_per_min": 10.0}}))
+    for k in range(2):  # smooth composites: JPEG keeps them, so tiles compare to them
+        yy, xx = np.mgrid[0:H, 0:W]
+        cv2.imwrite(str(out / f"frames/f{k:06d}/composite.png"),
+                    np.dstack([xx * 255 // W, yy * 255 // H, np.full((H, W), 90)]).astype(np.uint8))
+    text = build_report(out).read_text()
+    rec, frames = text.index("### Recording synthesis"), text.index("### Frame work")
+    assert rec < frames and "render_background" in text[rec:frames] and "render_background" not in text[frames:]
+    assert "| **total frame work** | **12.0** |" in text and "**10.0 frames/min**" in text
+    sheet = cv2.imread(str(out / "report/contact_sheet.jpg"))
+    tile = 480
+    clean, annotated = sheet[:, :tile].astype(int), sheet[:, tile + 4:2 * tile + 4].astype(int)
+    composite = cv2.imread(str(out / "frames/f000000/composite.png"))
+    small = cv2.resize(composite, (tile, round(composite.shape[0] * tile / composite.shape[1])),
+                       interpolation=cv2.INTER_AREA).astype(int)
+    h = small.shape[0]
+    # the clean tile is the composite (JPEG-close, caption aside); the annotated one differs
+    # only on outlines, boxes and tags: most of its pixels still show the composite
+    assert np.median(np.abs(clean[20:h] - small[20:h])) < 12
+    same = np.abs(annotated[:h] - small).max(axis=2) < 24
+    assert 0.5 < same.mean() < 0.99
+
+
+def test_label_tags_do_not_overlap():
+    from blendgen.report.draw import _free_spot
+
+    placed = []
+    for _ in range(12):  # twelve objects whose boxes start at the same place
+        placed.append(_free_spot((100, 40, 80, 14), placed, 480, 270))
+    for i, (x, y, w, h) in enumerate(placed):
+        for px, py, pw, ph in placed[i + 1:]:
+            assert not (x < px + pw and px < x + w and y < py + ph and py < y + h)
+        assert 0 <= x and x + w < 480 and 0 <= y and y + h < 270

@@ -261,12 +261,24 @@ class Runner:
             "failed_frames": failed,
             "labels_per_class": dict(sorted(per_class.items())),
             "seconds_per_stage": self.times, "skipped_stages": self.skipped,
+            "throughput": self._throughput(farm_summary),
             "outputs": {"labels": str(self.folder.labels), "report": str(self.folder.root / "report" / "index.md"),
                         "manifest": str(self.folder.manifest), "frames": str(self.folder.root / "frames")},
             "export": export,
         }
         atomic.write_json(self.folder.summary, summary, indent=2)
         return summary
+
+    def _throughput(self, farm_summary) -> dict:
+        """Frames/min of the frame work alone (sync, plan, frames, export): what a real
+        recording costs. The synthetic `record` stage is the demo's own recording, not work
+        done per augmented frame, so it is left out."""
+        from blendgen.report.build import FRAME_WORK
+
+        frames = getattr(farm_summary, "processed", 0)
+        work_s = sum(self.times.get(k, 0.0) for k in FRAME_WORK)
+        return {"frames": frames, "frame_work_s": round(work_s, 3),
+                "frames_per_min": round(60 * frames / work_s, 2) if frames and work_s > 0 else None}
 
 
 def print_summary(s: dict) -> None:
@@ -283,5 +295,9 @@ def print_summary(s: dict) -> None:
     times = s["seconds_per_stage"]
     print("  time:    " + ", ".join(f"{k} {v:.1f}s" for k, v in times.items())
           + (f"  (skipped, already done: {', '.join(s['skipped_stages'])})" if s["skipped_stages"] else ""))
+    tp = s.get("throughput") or {}
+    if tp.get("frames_per_min"):
+        print(f"  speed:   {tp['frames_per_min']:.1f} frames/min of frame work ({tp['frames']} frames in "
+              f"{tp['frame_work_s']:.1f} s of sync+plan+frames+export; recording synthesis not counted)")
     o = s["outputs"]
     print(f"  outputs: {o['frames']}/<frame>/composite.png, {o['labels']}/, {o['report']}")

@@ -15,8 +15,8 @@ from blendgen.labels.export import find_frame_labels
 from blendgen.labels.frame_labels import read_frame_labels
 from blendgen.report.draw import CLASS_BGR, contact_sheet, draw_labels
 
-SHEET_FRAMES = 12
-TILE_W = 400
+SHEET_FRAMES = 8
+TILE_W = 480
 
 
 def build_report(out_dir: Path) -> Path:
@@ -63,10 +63,13 @@ def _sheet_section(rep: Path, frames: list[dict]) -> list[str]:
             img = np.full((f["height"], f["width"], 3), 64, np.uint8)  # missing composite: grey tile
         scale = TILE_W / img.shape[1]
         small = cv2.resize(img, (TILE_W, max(1, round(img.shape[0] * scale))), interpolation=cv2.INTER_AREA)
-        tiles.append((f["frame_id"], draw_labels(small, f["instances"], scale=scale)))
-    atomic.write_image(rep / "contact_sheet.jpg", contact_sheet(tiles, tile_w=TILE_W), [cv2.IMWRITE_JPEG_QUALITY, 88])
+        # the clean composite (to judge how it looks) beside the same with its labels
+        tiles += [(f["frame_id"], small), (f"{f['frame_id']} labels", draw_labels(small, f["instances"], scale=scale))]
+    atomic.write_image(rep / "contact_sheet.jpg", contact_sheet(tiles, cols=4, tile_w=TILE_W),
+                       [cv2.IMWRITE_JPEG_QUALITY, 90])
     legend = ", ".join(f"{n} = rgb{tuple(reversed(c))}" for n, c in CLASS_BGR.items())
-    return lines + [f"{len(tiles)} of {len(frames)} frames, masks and boxes drawn ({legend}; grey = ignore).",
+    return lines + [f"{len(tiles) // 2} of {len(frames)} frames: each composite as written, then with mask outlines, "
+                    f"boxes and `class #track` tags ({legend}; grey = ignore).",
                     "", "![contact sheet](contact_sheet.jpg)", ""]
 
 
@@ -163,6 +166,12 @@ def read_manifest(path: Path) -> list[dict]:
     return out
 
 
+STAGE_TITLES = {"record": "Recording synthesis (`record`: Cycles renders the synthetic recording's own "
+                          "frames; a real recording skips it)",
+                "frames": "Frame work (`frames`: render + post + labels of each augmented frame)"}
+FRAME_WORK = ("sync", "plan", "frames", "export")  # what a real recording costs; `record` is not part of it
+
+
 def _timing_section(rep: Path, out_dir: Path) -> list[str]:
     import matplotlib
 
@@ -170,41 +179,58 @@ def _timing_section(rep: Path, out_dir: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     lines = ["## Time per stage", ""]
-    stages = defaultdict(list)
     latest = {}
     for rec in read_manifest(out_dir / "manifest.jsonl"):
         if isinstance(rec.get("timings"), dict) and "frame_id" in rec:
             latest[(rec.get("stage"), rec["frame_id"])] = rec  # a redone frame counts once
-    for rec in latest.values():
+    by_stage: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for (stage, _), rec in latest.items():
         for k, v in rec["timings"].items():
             if isinstance(v, (int, float)) and np.isfinite(v):
-                stages[k].append(float(v))
-    if stages:
-        lines += [f"Per frame, from `manifest.jsonl` ({len(latest)} records):", "",
-                  "| stage | frames | median (s) | mean (s) | total (s) |", "|---|---:|---:|---:|---:|"]
-        for k, v in stages.items():
-            lines.append(f"| {k} | {len(v)} | {np.median(v):.3f} | {np.mean(v):.3f} | {np.sum(v):.1f} |")
-        parts = [k for k in stages if k != "total"]
-        fig, ax = plt.subplots(figsize=(6, 3))
-        ax.barh(parts, [np.median(stages[k]) for k in parts], color="tab:blue")
-        ax.set_xlabel("median seconds per frame"), ax.invert_yaxis()
-        _save(fig, rep / "stage_times.png")
-        lines += ["", "![time per stage](stage_times.png)", ""]
-    else:
+                by_stage[stage][k].append(float(v))
+    if not by_stage:
         lines += ["No `manifest.jsonl` records with timings yet.", ""]
-    summary = out_dir / "run_summary.json"
-    if summary.exists():
-        try:
-            s = json.loads(summary.read_text())
-        except json.JSONDecodeError:
-            s = {}
-        times = s.get("seconds_per_stage") if isinstance(s, dict) else None
-        if isinstance(times, dict) and times:
-            lines += ["Whole run, from `run_summary.json` (the previous run when this report is part of it):", "",
-                      "| stage | seconds |", "|---|---:|"]
-            lines += [f"| {k} | {v:.1f} |" for k, v in times.items() if isinstance(v, (int, float))]
-            lines.append("")
+    for stage in sorted(by_stage, key=lambda st: (st != "record", str(st))):
+        parts = by_stage[stage]
+        n = max(len(v) for v in parts.values())
+        lines += [f"### {STAGE_TITLES.get(stage, f'`{stage}`')}", "",
+                  f"Per frame, from `manifest.jsonl` ({n} frames):", "",
+                  "| step | frames | median (s) | mean (s) | total (s) |", "|---|---:|---:|---:|---:|"]
+        for k, v in parts.items():
+            lines.append(f"| {k} | {len(v)} | {np.median(v):.3f} | {np.mean(v):.3f} | {np.sum(v):.1f} |")
+        lines.append("")
+        if stage == "frames":
+            steps = [k for k in parts if k != "total"]
+            fig, ax = plt.subplots(figsize=(6, 3))
+            ax.barh(steps, [np.median(parts[k]) for k in steps], color="tab:blue")
+            ax.set_xlabel("median seconds per frame"), ax.set_title("frame work, per frame")
+            ax.invert_yaxis()
+            _save(fig, rep / "stage_times.png")
+            lines += ["![time per step of the frame work](stage_times.png)", ""]
+    lines += _run_times(out_dir)
     return lines
+
+
+def _run_times(out_dir: Path) -> list[str]:
+    try:
+        s = json.loads((out_dir / "run_summary.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return []
+    times = s.get("seconds_per_stage") if isinstance(s, dict) else None
+    if not isinstance(times, dict) or not times:
+        return []
+    times = {k: v for k, v in times.items() if isinstance(v, (int, float))}
+    lines = ["### Whole run", "", "From `run_summary.json` (the previous run when this report is part of it).", ""]
+    if "record" in times:
+        lines += ["| recording synthesis | seconds |", "|---|---:|", f"| record | {times['record']:.1f} |", ""]
+    work = {k: v for k, v in times.items() if k in FRAME_WORK}
+    lines += ["| frame work | seconds |", "|---|---:|"] + [f"| {k} | {v:.1f} |" for k, v in work.items()]
+    lines.append(f"| **total frame work** | **{sum(work.values()):.1f}** |")
+    tp = s.get("throughput") or {}
+    if tp.get("frames_per_min"):
+        lines += ["", f"Frame work throughput: **{tp['frames_per_min']:.1f} frames/min** ({tp['frames']} frames in "
+                      f"{tp['frame_work_s']:.1f} s; recording synthesis not counted)."]
+    return lines + [""]
 
 
 def _save(fig, path: Path) -> None:

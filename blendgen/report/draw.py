@@ -1,4 +1,4 @@
-"""Contact sheet: composites with their instance masks and boxes drawn."""
+"""Contact sheet: clean composites next to the same with mask outlines, boxes and tags."""
 
 from __future__ import annotations
 
@@ -15,32 +15,56 @@ CLASS_BGR = {"person": (60, 20, 220), "bicycle": (0, 200, 255), "car": (255, 144
 assert set(CLASS_BGR) == set(CLASSES)
 
 
-def draw_labels(img: np.ndarray, instances: list[dict], alpha: float = 0.45, scale: float = 1.0) -> np.ndarray:
-    """Masks blended in the class colour, boxes, and `class #track` tags; ignored objects grey.
+def draw_labels(img: np.ndarray, instances: list[dict], scale: float = 1.0) -> np.ndarray:
+    """Mask outlines in the class colour (not fills: the composite stays visible to judge),
+    boxes, and `class #track` tags placed so that they do not cover each other; ignored
+    objects grey.
 
     `img` may be the composite resized by `scale`: masks and boxes are scaled to it, so the
     text stays sharp on a contact sheet.
     """
     H, W = img.shape[:2]
-    overlay = img.copy()
+    out = img.copy()
+    thick = max(1, round(W / 500))
     for inst in instances:
         colour = (160, 160, 160) if inst["ignore"] else CLASS_BGR[inst["cls"]]
         m = decode_mask(inst["segmentation"])
         if m.shape != (H, W):
             m = cv2.resize(m, (W, H), interpolation=cv2.INTER_NEAREST)
-        overlay[m.astype(bool)] = colour
-    out = cv2.addWeighted(overlay, alpha, img, 1 - alpha, 0)
-    thick = max(1, round(W / 800))
+        contours, _ = cv2.findContours(m.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        cv2.drawContours(out, contours, -1, (0, 0, 0), thick + 2, cv2.LINE_AA)  # dark halo: readable on any background
+        cv2.drawContours(out, contours, -1, colour, thick, cv2.LINE_AA)
+    boxes = []
     for inst in instances:
         colour = (160, 160, 160) if inst["ignore"] else CLASS_BGR[inst["cls"]]
         x, y, w, h = (v * scale for v in inst["bbox"])
-        cv2.rectangle(out, (int(x), int(y)), (max(int(x + w) - 1, int(x)), max(int(y + h) - 1, int(y))),
-                      colour, thick)
-        tag = f"{inst['cls']} #{inst.get('track_id', inst['id'])}"
-        org = (int(x), max(int(y) - 3, 10))
-        cv2.putText(out, tag, org, cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick, (0, 0, 0), thick + 2, cv2.LINE_AA)
-        cv2.putText(out, tag, org, cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick, colour, thick, cv2.LINE_AA)
+        box = (int(x), int(y), max(int(x + w) - 1, int(x)), max(int(y + h) - 1, int(y)))
+        cv2.rectangle(out, box[:2], box[2:], colour, 1, cv2.LINE_AA)
+        boxes.append((box, colour, f"{inst['cls']} #{inst.get('track_id', inst['id'])}"))
+    placed: list[tuple[int, int, int, int]] = []
+    font, fs = cv2.FONT_HERSHEY_SIMPLEX, 0.45 * max(1.0, W / 800)
+    for (x0, y0, x1, y1), colour, tag in sorted(boxes, key=lambda b: (b[0][1], b[0][0])):
+        (tw, th), base = cv2.getTextSize(tag, font, fs, 1)
+        rect = _free_spot((x0, y0 - th - base - 2, tw + 4, th + base + 2), placed, W, H)
+        placed.append(rect)
+        rx, ry, rw, rh = rect
+        cv2.rectangle(out, (rx, ry), (rx + rw, ry + rh), (0, 0, 0), -1)  # solid tag: text always legible
+        cv2.putText(out, tag, (rx + 2, ry + rh - base - 1), font, fs, colour, 1, cv2.LINE_AA)
     return out
+
+
+def _free_spot(rect, placed, W, H):
+    """`rect` (x, y, w, h) moved down in steps of its height until it overlaps no placed tag."""
+    x, y, w, h = rect
+    x = min(max(0, x), max(0, W - w - 1))
+    y = max(0, y)
+    for _ in range(2 * H // max(h, 1) + 1):
+        if not any(x < px + pw and px < x + w and y < py + ph and py < y + h for px, py, pw, ph in placed):
+            break
+        y += h + 1
+        if y + h >= H:  # ran off the bottom: try the next column of tags to the right, from the top
+            y, x = 0, min(x + w + 2, max(0, W - w - 1))
+    return x, y, w, h
 
 
 def contact_sheet(tiles: list[tuple[str, np.ndarray]], cols: int = 4, tile_w: int = 400) -> np.ndarray:

@@ -210,7 +210,8 @@ class Runner:
         if job.synthetic is not None:
             n = int(np.floor(job.synthetic.duration_s * job.synthetic.fps + 1e-9)) + 1  # as `record` makes it
         else:
-            n = read_recording(job.recording_dir, require_frames=True).n_frames
+            self._rec = read_recording(job.recording_dir, require_frames=True)  # read once: _run uses it
+            n = self._rec.n_frames
         if job.frames.start >= n:
             raise UserError(f"frames.start is {job.frames.start}, but the recording {job.recording_dir} has {n} "
                             f"frames (0..{n - 1}); nothing was written", where="job")
@@ -218,7 +219,10 @@ class Runner:
     def _run(self) -> dict:
         from blendgen.farm import clean_stale_temps
 
-        for d in (self.folder.root, self.folder.labels, self.folder.root / "report", self.folder.state):
+        dirs = [self.folder.root, self.folder.labels, self.folder.root / "report", self.folder.state]
+        if self.job.synthetic is not None:  # the recording blendgen makes is ours to clean too
+            dirs += [self.job.recording_dir, self.job.recording_dir / "frames"]
+        for d in dirs:
             clean_stale_temps(d)  # what a killed earlier run left (we hold the folder's lock)
         self.folder.claim(self.job)
         t_all = time.perf_counter()
@@ -230,7 +234,7 @@ class Runner:
             return out
 
         timed("record", self.record)
-        rec = read_recording(self.job.recording_dir, require_frames=True)
+        rec = getattr(self, "_rec", None) or read_recording(self.job.recording_dir, require_frames=True)
         poses = timed("sync", self.sync, rec)
         ids = timed("plan", self.plan, rec, poses)
         farm_summary = timed("frames", self.frames, ids)

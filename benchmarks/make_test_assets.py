@@ -1,6 +1,7 @@
 """Write a small asset library exported from Blender, with sidecars (docs/assets.md).
 
     python benchmarks/make_test_assets.py OUT_DIR [--formats glb gltf blend obj fbx usd]
+    python benchmarks/make_test_assets.py OUT_DIR --procedural 3   # GLBs of every class
 
 Builds a car-like asset (body, cabin, four wheels that are linked duplicates of one mesh,
 a textured number plate) and a person-like asset (legs, torso, arms, head) in Blender,
@@ -182,12 +183,54 @@ def make_assets(out: Path, formats=tuple(EXT)) -> dict:
     return dims
 
 
+def make_procedural_library(out: Path, per_class: int = 3, classes=None, seed: int = 0) -> dict:
+    """Export blendgen's own procedural objects (assets_procedural) as GLB files with sidecars:
+    `per_class` random variants of each class, two-wheelers parked (no rider), facing +x.
+    A library with every class and the procedural objects' materials, for benchmarks such as
+    bench_realism.py's "library assets" variant. Returns {file name: measured dims}."""
+    import bpy
+    import numpy as np
+
+    from assets_procedural.objects import build_object
+    from blendgen import CLASSES
+    from blendgen.scene.catalog import sample_variant, shape_extent
+    from blendgen.scene.plan import PlacedObject
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    made = {}
+    for cls in classes or list(CLASSES):
+        for i in range(per_class):
+            bpy.ops.wm.read_factory_settings(use_empty=True)
+            variant, _ = sample_variant(cls, rng)
+            variant.pop("rider", None)  # parked: a rider is a person of their own
+            dims = shape_extent(cls, variant)
+            state = "red" if cls == "traffic light" else None
+            root = build_object(PlacedObject(i + 1, cls, (0.0, 0.0, 0.0), 0.0, dims, variant, state=state))
+            _select(bpy, root)
+            name = f"{cls.replace(' ', '_')}_{i}.glb"
+            _export(bpy, "glb", out / name)
+            side = {"class": cls, "front": "+x", "licence": "CC0-1.0 (blendgen procedural object)"}
+            if cls == "traffic light":
+                side["mount_height_m"] = round(float(variant["mount_height_m"]), 3)
+            _sidecar(out / name, side)
+            made[name] = [round(float(x), 4) for x in dims]
+    return made
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("--formats", nargs="+", choices=list(EXT), default=list(EXT))
+    ap.add_argument("--procedural", type=int, metavar="N", default=0,
+                    help="instead: N GLB exports of blendgen's procedural objects per class")
+    ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    dims = make_assets(args.out, args.formats)
+    if args.procedural:
+        dims = make_procedural_library(args.out, args.procedural, seed=args.seed)
+    else:
+        dims = make_assets(args.out, args.formats)
     print(json.dumps(dims))
 
 

@@ -213,6 +213,26 @@ def test_every_format_imports_with_its_real_dims(library):
         assert v.max(axis=0) == pytest.approx([2.21, 0.9, 1.45], abs=1e-4)
 
 
+@pytest.mark.bpy
+def test_procedural_objects_exported_as_glb_keep_their_dims(tmp_path):
+    """Every class round-trips through glTF (the library make_test_assets --procedural
+    writes for benchmarks): the catalog measures what the procedural builder made."""
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "make_test_assets.py"), str(tmp_path),
+                        "--procedural", "1"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    made = json.loads(r.stdout.strip().splitlines()[-1])
+    import bpy  # noqa: F401
+
+    from blendgen.render.assets import inspect
+    from blendgen.scene.assets import discover
+
+    entries = {Path(ref.file).name: inspect(ref) for ref in discover([tmp_path])}
+    assert set(entries) == set(made) and len(made) == 7
+    for name, dims in made.items():
+        assert entries[name]["dims"] == pytest.approx(dims, abs=1e-3), name
+        assert entries[name]["scale"] == pytest.approx(1.0)
+
+
 def _verts(me, M) -> np.ndarray:
     co = np.empty(len(me.vertices) * 3)
     me.vertices.foreach_get("co", co)

@@ -40,20 +40,20 @@ def _import_file(path: Path, fmt: str) -> None:
         raise ValueError(fmt)
 
 
-def _append_blend(path: Path, variants: list[str] | None, coll) -> None:
-    """Append the .blend's collections named in `variants` (or objects of that name); without
-    variants every object of the file (what is linked to scenes, instancing included)."""
+def _append_blend(path: Path, variant: str | None, coll) -> None:
+    """Append the .blend's collection (or object) named `variant`; without a variant every
+    object of the file."""
     with bpy.data.libraries.load(str(path), link=False) as (src, dst):
         have_c, have_o = list(src.collections), list(src.objects)
-        if variants:
-            missing = [v for v in variants if v not in have_c and v not in have_o]
-            if missing:
-                raise UserError(f"variant {missing[0]!r} is neither a collection nor an object of the file "
-                                f"(collections: {have_c[:20]}, objects: {have_o[:20]})", where=str(path))
-            dst.collections = [v for v in variants if v in have_c]
-            dst.objects = [v for v in variants if v not in have_c]
-        else:
+        if variant is None:
             dst.objects = have_o
+        elif variant in have_c:
+            dst.collections = [variant]
+        elif variant in have_o:
+            dst.objects = [variant]
+        else:
+            raise UserError(f"variant {variant!r} is neither a collection nor an object of the file "
+                            f"(collections: {have_c[:20]}, objects: {have_o[:20]})", where=str(path))
     for c in dst.collections:
         if c is not None:
             coll.children.link(c)
@@ -63,12 +63,12 @@ def _append_blend(path: Path, variants: list[str] | None, coll) -> None:
 
 
 class _Import:
-    """A file's objects in a temporary collection of the scene, removed on exit; `parts(v)`
-    bakes what a variant draws (modifiers, collection/geometry-node instances and linked
+    """A file's objects in a temporary collection of the scene, removed on exit; `parts()`
+    bakes what the asset (its variant) draws (modifiers, collection/geometry-node instances and linked
     duplicates included) into (mesh, 4x4 world matrix) pairs."""
 
-    def __init__(self, ref: AssetRef, variants: list[str] | None):
-        self.ref, self.variants = ref, variants
+    def __init__(self, ref: AssetRef):
+        self.ref = ref
 
     def __enter__(self):
         scene = bpy.context.scene
@@ -80,7 +80,7 @@ class _Import:
         path = Path(self.ref.file)
         try:
             if self.ref.format == "blend":
-                _append_blend(path, self.variants, self.coll)
+                _append_blend(path, self.ref.variant, self.coll)
             else:
                 _import_file(path, self.ref.format)
         except UserError:
@@ -98,8 +98,9 @@ class _Import:
         bpy.context.view_layer.update()
         return self
 
-    def roots(self, variant: str | None) -> set[str] | None:
-        """Names of the objects a variant draws (None: all)."""
+    def roots(self) -> set[str] | None:
+        """Names of the objects the asset's variant draws (None: all)."""
+        variant = self.ref.variant
         if variant is None:
             return None
         if self.ref.format == "blend":
@@ -113,10 +114,10 @@ class _Import:
                             where=self.ref.file)
         return {ob.name, *(c.name for c in ob.children_recursive)}
 
-    def parts(self, variant: str | None) -> list[tuple[object, np.ndarray]]:
-        keep = self.roots(variant)
+    def parts(self) -> list[tuple[object, np.ndarray]]:
+        keep = self.roots()
         dg = bpy.context.evaluated_depsgraph_get()
-        baked: dict[str, object] = {}
+        baked: dict[tuple[str, str], object] = {}
         names = {o.name for o in self.objects}
         out = []
         for inst in dg.object_instances:
@@ -127,11 +128,11 @@ class _Import:
             owner = (inst.parent if inst.is_instance else ob).original
             if owner.name not in names or (keep is not None and owner.name not in keep):
                 continue
-            # One baked mesh per source object: linked duplicates and instances share it.
-            key = ob.original.name if ob.original is not None else ob.name
+            # One baked mesh per source object and its evaluated data: every instance of it shares it.
+            key = (ob.original.name, ob.data.name if ob.data is not None else "")
             if key not in baked:
                 me = bpy.data.meshes.new_from_object(ob, preserve_all_data_layers=True, depsgraph=dg)
-                me.name = f"{LIB_PREFIX}_{Path(self.ref.file).stem}_{key}"
+                me.name = f"{LIB_PREFIX}_{Path(self.ref.file).stem}_{key[0]}"
                 baked[key] = me
             if len(baked[key].polygons):
                 out.append((baked[key], np.array(inst.matrix_world)))
@@ -178,8 +179,8 @@ def _free(parts) -> None:
 def inspect(ref: AssetRef) -> dict:
     """Import the asset once, measure it, and return its catalog entry (UserError if bad)."""
     spec = ref.spec
-    with _Import(ref, spec.variants) as imp:
-        parts = imp.parts(ref.variant)
+    with _Import(ref) as imp:
+        parts = imp.parts()
         textures = imp.textures()
         missing = [t["file"] or t["name"] for t in textures if t["missing"]]
         lo, hi, tris = _bounds(parts) if parts else (None, None, 0)
@@ -238,8 +239,8 @@ class AssetLibrary:
         node = variant.get("node")
         ref = AssetRef(variant["file"], variant["format"], node, {}, None, variant["fingerprint"])
         T = np.asarray(variant["transform"], float)
-        with _Import(ref, [node] if node else None) as imp:
-            parts = imp.parts(ref.variant)
+        with _Import(ref) as imp:
+            parts = imp.parts()
         for me, _ in parts:
             me.use_fake_user = True  # the template outlives the instances that use it
         self.templates[key] = [(me, Matrix((T @ M).tolist())) for me, M in parts]

@@ -16,9 +16,11 @@ import hashlib
 import json
 import re
 import struct
+from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
+from urllib.parse import unquote
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -146,10 +148,9 @@ def discover(paths: list[Path]) -> list[AssetRef]:
                                 where=f"inject.assets: {p}")
         for f in files:
             refs.extend(asset_refs(f.resolve()))
-    keys = [r.key for r in refs]
-    dup = next((k for k in keys if keys.count(k) > 1), None)
+    dup = [k for k, n in Counter(r.key for r in refs).items() if n > 1]
     if dup:
-        raise UserError("asset listed twice in inject.assets", where=dup)
+        raise UserError("asset listed twice in inject.assets", where=dup[0])
     return refs
 
 
@@ -193,9 +194,11 @@ def asset_refs(file: Path) -> list[AssetRef]:
 # ----------------------------------------------------------------------------- headers
 
 def check_file(file: Path, fmt: str) -> None:
-    """Read the file's header and the files it references, without Blender."""
+    """Read the file's header (glTF and OBJ: the whole text) and the files it references,
+    without Blender."""
     try:
-        data = file.read_bytes()
+        with open(file, "rb") as f:
+            data = f.read() if fmt in ("gltf", "obj") else f.read(8192)
     except OSError as e:
         raise UserError(f"cannot read the asset file ({e.strerror})", where=str(file)) from None
     if not data:
@@ -233,15 +236,9 @@ def _check_gltf(file: Path, data: bytes) -> None:
     for kind, what in (("buffers", "buffer"), ("images", "texture")):
         for i, item in enumerate(doc.get(kind) or []):
             uri = item.get("uri")
-            if uri and not uri.startswith("data:") and not (file.parent / _unquote(uri)).is_file():
+            if uri and not uri.startswith("data:") and not (file.parent / unquote(uri)).is_file():
                 raise UserError(f"missing {what} file {uri!r} ({kind}[{i}]; looked in {file.parent})",
                                 where=str(file))
-
-
-def _unquote(uri: str) -> str:
-    from urllib.parse import unquote
-
-    return unquote(uri)
 
 
 def _check_blend(file: Path, data: bytes) -> None:
@@ -376,10 +373,6 @@ def _corners(lo, hi):
 # ----------------------------------------------------------------------------- catalog
 
 CATALOG_NAME = "assets.json"
-
-
-def read_catalog(path: Path) -> list[dict]:
-    return json.loads(Path(path).read_text())["assets"]
 
 
 def asset_variant(entry: dict) -> dict:

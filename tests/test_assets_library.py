@@ -329,14 +329,16 @@ bpy.ops.wm.save_as_mainfile(filepath={str(lib / 'notex.blend')!r})
     (lib / "wrongvariant.yaml").write_text("class: car\nvariants: [car_green]\n")
     (lib / "carperson.glb").write_bytes((library / "glb" / "car.glb").read_bytes())
     (lib / "carperson.yaml").write_text("class: person\n")  # a car's shape called a person
+    (lib / "corrupt.fbx").write_bytes(b"Kaydara FBX Binary  \x00\x1a\x00" + b"garbage" * 4)  # header only
+    (lib / "corrupt.yaml").write_text(CAR)
     job = write_job(tmp_path, ["lib"])
     r = subprocess.run([sys.executable, "-m", "blendgen.cli", "run", str(job), "--quiet"],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2, r.stderr[-3000:]
     err = r.stderr
-    assert "4 bad library asset(s); nothing was rendered" in err and "Traceback" not in err, err
+    assert "5 bad library asset(s); nothing was rendered" in err and "Traceback" not in err, err
     for expected in (f"{lib / 'nogeo.blend'}: no geometry", f"{lib / 'notex.blend'}: missing texture",
                      f"{lib / 'wrongvariant.blend'}#car_green: variant 'car_green' is neither",
-                     f"{lib / 'carperson.glb'}: absurd size"):
+                     f"{lib / 'carperson.glb'}: absurd size", f"{lib / 'corrupt.fbx'}: Blender's fbx importer failed"):
         assert expected in err, (expected, err)
     assert not (tmp_path / "out" / "frames").exists() and not (tmp_path / "out" / "plan.jsonl").exists()

@@ -83,9 +83,11 @@ class _Import:
                 _append_blend(path, self.ref.variant, self.coll)
             else:
                 _import_file(path, self.ref.format)
-        except UserError:
-            raise
-        except Exception as e:  # the importer's own words: it knows what is wrong with the file
+        except Exception as e:
+            self.__exit__()
+            if isinstance(e, UserError):
+                raise
+            # the importer's own words: it knows what is wrong with the file
             raise UserError(f"Blender's {self.ref.format} importer failed: {str(e).strip()[:400]}",
                             where=str(path)) from None
         finally:

@@ -69,10 +69,13 @@ def write_job(root: Path, assets: list[str], **inject) -> Path:
 
 def test_normalisation_scales_units_and_turns_axes():
     car = Sidecar(**{"class": "car"})
-    # a car exported in centimetres, facing -y: scaled into the catalog's range, x forward
+    # a car exported in centimetres, facing -y: read as centimetres, turned to x forward
     n = normalisation(car, np.array([-90.0, -221.0, 0.0]), np.array([90.0, 221.0, 145.0]), where="car")
     assert n["front"] == "-y" and n["front_inferred"]
-    assert n["dims"][0] == pytest.approx(5.6) and n["dims"][1] / n["dims"][0] == pytest.approx(180 / 442, rel=1e-3)
+    assert n["dims"] == pytest.approx([4.42, 1.80, 1.45]) and n["scale"] == pytest.approx(0.01)
+    # no unit makes 100 a car's length: the nearest real length, proportions kept
+    n100 = normalisation(car, np.zeros(3), np.array([18.0, 100.0, 14.0]), where="car")
+    assert n100["dims"] == pytest.approx([5.6, 1.008, 0.784])
     T = np.array(n["transform"])
     front = T[:3, :3] @ np.array([0, -221.0, 72.5]) + T[:3, 3]  # middle of the front face
     assert front[0] == pytest.approx(n["dims"][0] / 2) and abs(front[1]) < 1e-9

@@ -48,6 +48,7 @@ CLASS_DIMS = {
 }
 KEY_DIM = {"person": 2, "traffic light": 2}  # others: length
 ABSURD = 2.0  # a size this factor outside the range is an error, not something to rescale
+UNITS = (1.0, 0.01, 0.001, 0.0254, 0.1)  # metres per model unit tried for an asset without size
 
 
 def axis_vector(a: str) -> np.ndarray:
@@ -345,8 +346,9 @@ def normalisation(spec: Sidecar, lo: np.ndarray, hi: np.ndarray, where: str) -> 
         scale = spec.height_m / dims0[2]
     elif spec.length_m is not None:
         scale = spec.length_m / dims0[0]
-    else:  # no stated size: keep it if real, else bring it into range (cm, mm, inch exports)
-        scale = float(np.clip(dims0[k], lo_k, hi_k) / dims0[k])
+    else:  # no stated size: a unit that makes it real (m, cm, mm, inch, dm), else the nearest real size
+        scale = next((u for u in UNITS if lo_k <= dims0[k] * u <= hi_k), None)
+        scale = scale or float(np.clip(dims0[k], lo_k, hi_k) / dims0[k])
     dims = dims0 * scale
     names = ("length", "width", "height")
     for i in range(3):

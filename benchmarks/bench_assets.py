@@ -60,25 +60,31 @@ def _job(work: Path, share: float, name: str) -> Path:
     return p
 
 
+def _area(region) -> int:
+    return (region[2] - region[0]) * (region[3] - region[1]) if region else 0
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--per-class", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--work", type=Path, default=ROOT / "benchmarks" / "results" / "tmp" / "assets")
+    ap.add_argument("--resume", action="store_true", help="keep the work folder's finished runs (rescore)")
     args = ap.parse_args()
     if not PHOTOS.is_dir() or not DETECTOR.is_file():
         raise SystemExit(f"needs {PHOTOS} and {DETECTOR}")
     work = args.work
-    shutil.rmtree(work, ignore_errors=True)
-    (work / "photos").mkdir(parents=True)
-    for f in sorted(PHOTOS.glob("*.jpg")):
-        for k in range(args.repeat):
-            shutil.copy(f, work / "photos" / f"{f.stem}_{k}.jpg")
-    _cli("import", "images", "photos", "rec", "--hfov", "55", cwd=work)
-    r = subprocess.run([sys.executable, str(HERE / "make_test_assets.py"), str(work / "lib"), "--procedural",
-                        str(args.per_class)], capture_output=True, text=True)
-    if r.returncode != 0:
-        raise SystemExit(r.stderr[-3000:])
+    if not (args.resume and (work / "rec").is_dir()):
+        shutil.rmtree(work, ignore_errors=True)
+        (work / "photos").mkdir(parents=True)
+        for f in sorted(PHOTOS.glob("*.jpg")):
+            for k in range(args.repeat):
+                shutil.copy(f, work / "photos" / f"{f.stem}_{k}.jpg")
+        _cli("import", "images", "photos", "rec", "--hfov", "55", cwd=work)
+        r = subprocess.run([sys.executable, str(HERE / "make_test_assets.py"), str(work / "lib"), "--procedural",
+                            str(args.per_class)], capture_output=True, text=True)
+        if r.returncode != 0:
+            raise SystemExit(r.stderr[-3000:])
 
     from blendgen.eval.realism import run_realism
 
@@ -93,23 +99,32 @@ def main() -> None:
         hits[name] = np.r_[np.ones(tp), np.zeros(n - tp)]
         manifest = (work / f"out_{name}" / "manifest.jsonl").read_text().splitlines()
         recs = [json.loads(line) for line in manifest if line.strip()]
-        render = [r["timings"]["render"] for r in recs if r.get("stage") == "frames"]
-        inspect = [r for r in recs if r.get("stage") == "assets"]
+        frames = [r for r in recs if r.get("stage") == "frames"]
+        render = [r["timings"]["render"] for r in frames]
+        # the plans differ (library dims), so also per rendered pixel: the region, else the frame
+        px = [_area(r["render"].get("region")) or r["render"]["canvas"][0] * r["render"]["canvas"][1] for r in frames]
+        inspect = [r["farm"]["process_s"] for r in recs if r.get("stage") == "assets"]
         rows[name] = {"objects": n, "found": tp, "recall": tp / n, "render_s": statistics.median(render),
-                      "frames": len(render), "assets": len(inspect)}
+                      "us_per_px": statistics.median(1e6 * t / p for t, p in zip(render, px)),
+                      "mpx": sum(px) / 1e6, "frames": len(render), "assets": len(inspect),
+                      "inspect_s": statistics.median(inspect)}
     rng = np.random.default_rng(0)
     a, b = hits["procedural"], hits["library"]
     diff = [rng.choice(b, len(b)).mean() - rng.choice(a, len(a)).mean() for _ in range(5000)]
     lo, hi = np.percentile(diff, [2.5, 97.5])
     per_class = res["table"]
 
-    table = ["| objects from | objects | found | recall@0.5 | render s/frame (median) | frames |",
-             "|---|---:|---:|---:|---:|---:|"]
+    table = ["| objects from | objects | found | recall@0.5 | render s/frame (median) | rendered Mpx | "
+             "render us/px (median) | frames |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for name, r in rows.items():
-        table.append(f"| {name} | {r['objects']} | {r['found']} | {r['recall']:.3f} | {r['render_s']:.2f} | {r['frames']} |")
+        table.append(f"| {name} | {r['objects']} | {r['found']} | {r['recall']:.3f} | {r['render_s']:.2f} | "
+                     f"{r['mpx']:.2f} | {r['us_per_px']:.1f} | {r['frames']} |")
     text = "\n".join(table)
+    lib, proc = rows["library"], rows["procedural"]
     summary = (f"library - procedural recall: {b.mean() - a.mean():+.3f} (bootstrap 95 % CI {lo:+.3f} .. {hi:+.3f}); "
-               f"render time ratio library/procedural {rows['library']['render_s'] / rows['procedural']['render_s']:.2f}")
+               f"render time ratio library/procedural {lib['render_s'] / proc['render_s']:.2f} per frame, "
+               f"{lib['us_per_px'] / proc['us_per_px']:.2f} per rendered pixel; assets step: "
+               f"{lib['inspect_s']:.3f} s per asset (median import + measure, {lib['assets']} assets)")
     print(text)
     print(summary)
 
@@ -123,8 +138,8 @@ def main() -> None:
     ax[0].bar(names, [rows[n]["recall"] for n in names], color=["#888", "#3a7"])
     ax[0].set_ylabel("YOLOX-Nano recall@0.5")
     ax[0].set_ylim(0, 1)
-    ax[1].bar(names, [rows[n]["render_s"] for n in names], color=["#888", "#3a7"])
-    ax[1].set_ylabel("render s / frame (median)")
+    ax[1].bar(names, [rows[n]["us_per_px"] for n in names], color=["#888", "#3a7"])
+    ax[1].set_ylabel("render us / rendered pixel (median)")
     fig.suptitle("procedural objects vs the same objects as a GLB library (Udacity photos)")
     fig.tight_layout()
     png = ROOT / "benchmarks" / "results" / "assets.png"

@@ -81,6 +81,10 @@ class Inject(Section):
     distance_m: tuple[PosFloat, PosFloat] = (4.0, 40.0)
     min_projected_px: Annotated[int, Field(ge=1)] = 24
     sequences: bool = True  # objects keep identity and move along their path across frames
+    # User asset libraries (docs/assets.md): folders or files of glTF/GLB, .blend, OBJ, FBX, USD
+    # with sidecars; for a class the library has, `asset_share` of its objects come from it.
+    assets: list[Path] = Field(default_factory=list)
+    asset_share: Annotated[float, Field(ge=0, le=1)] = 1.0
 
     @field_validator("classes")
     @classmethod
@@ -227,7 +231,12 @@ class Job(Section):
             d["twin"] = str(self.twin_path)
         if self.sync.lut is not None:
             d["sync"]["lut"] = str(self.path(self.sync.lut))
+        d["inject"]["assets"] = [str(p) for p in self.asset_paths]
         return d
+
+    @property
+    def asset_paths(self) -> list[Path]:
+        return [self.path(p) for p in self.inject.assets]
 
     def content_hash(self) -> str:
         """Hash of everything that changes results; `farm` (how work is spread) is left out
@@ -265,6 +274,10 @@ def _check_files(job: Job, source: str) -> None:
                         f"({tp})", where=source)
     if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
         raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)
+    if job.inject.assets:  # sidecars and file headers, without Blender (docs/assets.md)
+        from blendgen.scene.assets import discover
+
+        discover(job.asset_paths)
 
 
 def _check_output(out: Path, source: str) -> None:

@@ -62,6 +62,14 @@ def cmd_validate(args) -> int:
     print(f"{args.job}: valid job {job.name!r} (content hash {job.content_hash()})")
     print(f"  input:  {src}; {scene}")
     print(f"  output: {job.out_dir}")
+    if job.inject.assets:
+        from collections import Counter
+
+        from blendgen.scene.assets import discover
+
+        n = Counter(r.sidecar["class"] for r in discover(job.asset_paths))
+        print(f"  assets: {sum(n.values())} ({', '.join(f'{c} {k}' for c, k in sorted(n.items()))}); "
+              f"headers and sidecars checked, Blender measures them when the job runs")
     if job.recording is None:
         return 0
     from blendgen.recording.importers import check_recording, format_findings

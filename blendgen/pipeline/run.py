@@ -147,12 +147,35 @@ class Runner:
         camera = rec.camera.scaled(w, h)
         # the layout's stream starts from (seed, first frame id): a job starting at another frame
         # gets its own layout, not the same one shifted (README: seed + frame id)
-        plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]))
+        plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]),
+                              assets=self.assets())
         n_obj = sum(len(p.objects) for p in plans)
         self._say(3, "plan", f"{len(plans)} frames, {n_obj} objects")
         atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))
         self.folder.mark_stage("plan", {"frames": len(plans), "objects": n_obj})
         return ids
+
+    def assets(self):
+        """Import and measure every library asset once in a farm worker (resumable), write
+        OUT/assets.json, and stop with every bad asset named before anything is planned."""
+        from blendgen.scene.assets import CATALOG_NAME, AssetSampler, discover, result_path
+
+        if not self.job.inject.assets:
+            return None
+        refs = {result_path(self.folder.state, r).stem: r for r in discover(self.job.asset_paths)}
+        self._say(3, "plan", f"inspecting {len(refs)} library asset(s) in Blender")
+        summary = self._farm("assets", list(refs), "blendgen.render.assets:AssetInspector",
+                             {"refs": [r.to_dict() for r in refs.values()], "out_dir": str(self.folder.state)})
+        if summary.failed:
+            raise StageError(f"assets: {len(summary.failed)} inspection task(s) failed: "
+                             f"{summary.failed[0].get('error', '')[:500]}")
+        results = [json.loads(result_path(self.folder.state, r).read_text()) for r in refs.values()]
+        bad = [f"{r['key']}: {r['error']}" for r in results if r.get("error")]
+        if bad:
+            raise UserError(f"{len(bad)} bad library asset(s); nothing was rendered:\n  " + "\n  ".join(bad),
+                            where="inject.assets")
+        atomic.write_json(self.folder.root / CATALOG_NAME, {"version": 1, "assets": results}, indent=1)
+        return AssetSampler(results, self.job.inject.asset_share)
 
     def frames(self, ids: list[str]):
         left = [i for i in ids if not self.folder.frame_done(i, self.job.export.save_exr)]

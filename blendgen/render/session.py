@@ -82,6 +82,7 @@ class RenderSession:
         # "ground" (the whole road catches shadows) is the naive baseline the benchmark measures.
         self.catch_shadows_on = catch_shadows_on
         self._placed: dict[int, _Placed] = {}
+        self._assets = None  # blendgen.render.assets.AssetLibrary, made on the first library asset
         self._tmp = Path(tempfile.mkdtemp(prefix="blendgen_render_"))
         # Removed on close(), or when the session is collected / the worker exits.
         self._tmp_cleanup = weakref.finalize(self, shutil.rmtree, str(self._tmp), True)
@@ -307,8 +308,15 @@ class RenderSession:
             except ImportError as e:
                 raise StageError(f"cannot build objects: {e}") from None
             self._object_builder = build_object
+        builder = self._object_builder
+        if obj.variant.get("asset"):  # a user library asset (docs/assets.md)
+            from blendgen.render.assets import AssetLibrary
+
+            self._assets = self._assets or AssetLibrary()
+            self._assets.load(obj.variant)  # cached for the session, outside the object's blocks
+            builder = self._assets.instance
         before = {k: set(getattr(bpy.data, k).keys()) for k in DATA_KINDS}
-        root = self._object_builder(obj)
+        root = builder(obj)
         if root is None:
             raise StageError(f"object builder returned nothing for object {obj.id} ({obj.cls})")
         blocks = {k: sorted(set(getattr(bpy.data, k).keys()) - before[k]) for k in DATA_KINDS}

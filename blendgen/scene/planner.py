@@ -108,8 +108,9 @@ class _Ego:
 
 
 class Planner:
-    def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int):
+    def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int, assets=None):
         self.twin, self.camera, self.inject = twin, camera, inject
+        self.assets = assets  # blendgen.scene.assets.AssetSampler or None
         self.rng = np.random.default_rng(seed)
         self.poses = list(poses)
         self.ego = _Ego(self.poses, twin)
@@ -273,7 +274,8 @@ class Planner:
         return self.ego.cam[k, :2] + r * np.array([math.cos(b), math.sin(b)])
 
     def spawn(self, cls: str, k: int) -> Track | None:
-        variant, dims = sample_variant(cls, self.rng)
+        drawn = self.assets.draw(cls, self.rng) if self.assets is not None else None
+        variant, dims = drawn or sample_variant(cls, self.rng)
         p = self._view_point(k)
         if cls in VEHICLES or cls == "bicycle":
             return self._spawn_on_road(cls, variant, dims, k, p)
@@ -581,11 +583,12 @@ def signal_state(t: float) -> str:
     return SIGNAL_CYCLE[-1][0]
 
 
-def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int) -> list[FramePlan]:
+def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int, assets=None) -> list[FramePlan]:
     """Per-frame plans for `poses` = [(frame_id, t, T_world_cam)], deterministic per seed.
 
     `inject` is a `blendgen.job.schema.Inject`. With `inject.sequences` objects keep their id
-    and move along their lane/path across frames; otherwise every frame is planned afresh."""
+    and move along their lane/path across frames; otherwise every frame is planned afresh.
+    `assets` (an AssetSampler) mixes library assets in; scenario actors stay procedural."""
     if not poses:
         return []
-    return Planner(twin, camera, poses, inject, seed).run()
+    return Planner(twin, camera, poses, inject, seed, assets).run()

@@ -186,14 +186,14 @@ def test_malformed_job_text_in_process_cli(tmp_path, capsys, case, text, expecte
 
     path = tmp_path / "job.yaml"
     path.write_bytes(text if isinstance(text, bytes) else text.encode())
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: wall time on a loaded 2-core CI machine is noise
     rc = main(["validate", str(path)])
-    elapsed = time.perf_counter() - t0
+    elapsed = time.process_time() - t0
     err = capsys.readouterr().err
     assert rc == 2, err
     assert expected in err and str(path) in err and "Traceback" not in err, err
     assert len(err) < 2000  # what the message quotes is bounded
-    assert elapsed < 1.0, f"{case} took {elapsed:.2f} s"
+    assert elapsed < 1.0, f"{case} took {elapsed:.2f} CPU-s"
 
 
 def test_yaml_booleans_and_yaml12_floats_are_accepted(tmp_path, rec_dir):

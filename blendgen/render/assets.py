@@ -106,8 +106,10 @@ class _Import:
         if variant is None:
             return None
         if self.ref.format == "blend":
-            c = bpy.data.collections.get(variant)
-            if c is not None and c.name in [x.name for x in self.coll.children]:
+            # a second import of the same file renames its collections (car_red.001)
+            c = next((x for x in self.coll.children_recursive
+                      if x.name == variant or x.name.rsplit(".", 1)[0] == variant), None)
+            if c is not None:
                 return {o.name for o in c.all_objects}
         ob = next((o for o in self.objects if o.name == variant or o.name.split(".")[0] == variant), None)
         if ob is None:

@@ -427,12 +427,12 @@ class Twin:
             s = np.arange(0.0, rg.length + 1e-9, spacing_m)
             for i, dr, cd in rg.lanes:
                 p = rg.line.offset_point(s, np.full(len(s), cd))
-                for (x, y), si in zip(p, s):
+                lat, lon, alt = self.georef.to_geodetic(p[:, 0], p[:, 1], np.zeros(len(p)))  # vectorised
+                for k, ((x, y), si) in enumerate(zip(p, s)):
                     yaw = rg.tangent_yaw(si) + (0.0 if dr > 0 else math.pi)
                     yaw_deg = math.degrees(math.atan2(math.sin(yaw), math.cos(yaw)))
                     heading = (90.0 - yaw_deg) % 360.0
-                    lat, lon, alt = self.georef.to_geodetic(x, y, 0.0)
-                    rows.append((lat, lon, alt, heading, x, y, 0.0, yaw_deg))
+                    rows.append((float(lat[k]), float(lon[k]), float(alt[k]), heading, x, y, 0.0, yaw_deg))
         return rows
 
     def export_lut(self, path, spacing_m: float = 2.0) -> int:
@@ -455,10 +455,23 @@ class Twin:
 
 def load_twin(path) -> Twin:
     """Load and validate a twin YAML; bad input raises UserError naming the field."""
+    from blendgen.scene.map_import import map_format, map_twin_data
+
     path = Path(path)
-    data = read_yaml_mapping(path, "twin")
-    if not isinstance(data, dict):
-        raise UserError("expected a mapping of twin fields at the top level", where=str(path))
+    if map_format(path):  # a map named directly (`twin: town.xodr`)
+        data = map_twin_data(path)
+    else:
+        data = read_yaml_mapping(path, "twin")
+        if not isinstance(data, dict):
+            raise UserError("expected a mapping of twin fields at the top level", where=str(path))
+        if "source" in data:  # a twin folder from `blendgen twin import`: rebuilt from its map
+            src = path.parent / str(data["source"])
+            if not map_format(src) or set(data) - {"name", "source"}:
+                raise UserError(f"source: expected a map file (.xodr, .osm, .osm.pbf) and only `name` "
+                                f"beside it, got {sorted(data)}", where=str(path))
+            if not src.is_file():
+                raise UserError(f"source: map {src} does not exist", where=str(path))
+            data = {**map_twin_data(src), "name": str(data.get("name", src.stem))}
     try:
         spec = TwinSpec.model_validate(data)
     except ValidationError as e:

@@ -231,3 +231,39 @@ def test_malformed_maps_name_element_and_line(tmp_path, text, needle):
                         str(tmp_path / "out")], cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "out").exists()  # nothing half-written
+
+
+# ---------------------------------------------------------------- planner on a map
+@pytest.mark.data
+def test_planner_turns_through_junctions_and_walks_crosswalks():
+    from test_planner import CAM, drive
+
+    from blendgen.job.schema import Inject
+    from blendgen.scene.planner import plan_sequence
+
+    _need_maps()
+    twin = load_twin(MAPS / "intersection_3_5m_width_crosswalk.xodr")
+    route = twin.ego_route(70.0, 3)
+    d = np.diff(route, axis=0)
+    yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    assert abs(yaw[-1] - yaw[0]) > math.radians(60)  # the ego turns through the junction
+    assert all(twin.on_road(*p) for p in route)
+    assert any(twin.roads[k[0]].spec.junction for k in twin.lane_successors if twin.lane_successors[k])
+    tracks = {}
+    for seed in range(2):
+        poses = drive(twin.ego_route(70.0, seed), fps=2.5)
+        inj = Inject(classes={"car": 3, "person": 3}, objects_per_frame=(4, 6), distance_m=(5, 40))
+        for fp in plan_sequence(twin, CAM, poses, inj, seed):
+            for o in fp.objects:
+                tracks.setdefault((seed, o.id, o.cls), []).append((*o.position[:2], o.yaw))
+    cars = [np.array(v) for (_, _, c), v in tracks.items() if c == "car"]
+    people = [np.array(v) for (_, _, c), v in tracks.items() if c == "person"]
+    assert len(cars) >= 4 and len(people) >= 2
+    for t in cars:  # every car on a lane, heading along its travel direction
+        for x, y, h in t:
+            lane = twin.lane_at(x, y, heading=h)
+            assert lane is not None and abs(math.remainder(lane.yaw - h, 2 * math.pi)) < math.radians(35)
+    turned = [t for t in cars if len(t) > 2 and abs(np.unwrap(t[:, 2])[-1] - t[0, 2]) > math.radians(45)]
+    assert turned, "some car turns through the junction along a connecting road"
+    for t in people:  # pedestrians start on the map's crosswalks (the map has no sidewalks)
+        assert twin.on_crosswalk(t[0, 0], t[0, 1])

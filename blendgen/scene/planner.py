@@ -322,14 +322,20 @@ class Planner:
     def _spawn_person(self, variant, dims, k, p):
         tw = self.twin
         if tw.crosswalks and not any(rg.spec.sidewalk_m >= 1.0 for rg in tw.roads.values()):
-            # a map without sidewalks (many OpenDRIVE maps): pedestrians use its crosswalks
+            # a map without sidewalks (many OpenDRIVE maps): pedestrians cross on its crosswalks,
+            # which maps often put inside the junction
             c = np.array([cw.mean(0) for cw in tw.crosswalks])
             j = int(np.argmin(np.linalg.norm(c - p, axis=1)))
             if np.linalg.norm(c[j] - p) > 30:
                 return None
-            a, b = self.rng.uniform(0.15, 0.85, 2)
-            q = tw.crosswalks[j]
-            p = (1 - b) * ((1 - a) * q[0] + a * q[1]) + b * ((1 - a) * q[3] + a * q[2])
+            road, s0, s1 = tw.crosswalk_info[j]
+            rg = tw.roads[road]
+            s = float(self.rng.uniform(s0 + 0.3, s1 - 0.3)) if s1 - s0 > 0.6 else (s0 + s1) / 2
+            start = rg.line.offset_point(s, float(self.rng.uniform(-rg.hw_right + 0.5, rg.hw_left - 0.5)))[0]
+            _, t = rg.line.at(s)
+            across = np.array([-t[0, 1], t[0, 0]]) * (1 if self.rng.random() < 0.5 else -1)
+            return self.walk_track(k, variant, dims, start, across, float(self.rng.uniform(*SPEED["person"])),
+                                   tw.crosswalk_mask)
         if tw.on_crosswalk(*p) and not tw.in_junction(*p):
             lane_roads = [(rg, float(s[0]), float(d[0])) for rg in tw.roads.values()
                           for s, d, _ in [rg.line.project(p)]]

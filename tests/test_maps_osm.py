@@ -1,17 +1,13 @@
 """OpenStreetMap twins: an extract written here (a junction, sidewalks, a signal, a crossing,
 buildings with height and levels) becomes a twin; the bpy test builds and renders it."""
 
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from blendgen.cli import main as cli
 from blendgen.errors import UserError
 from blendgen.scene.twin import load_twin
 
-ROOT = Path(__file__).resolve().parents[1]
 TOWN = """<?xml version="1.0" encoding="UTF-8"?>
 <osm version="0.6" generator="blendgen-test">
   <node id="1" lat="48.13700" lon="11.57400"/>
@@ -63,9 +59,8 @@ def test_osm_extract_becomes_a_twin(town, tmp_path):
     lane = twin.lane_at(x.center[0] + 1.75, x.center[1] - 50)  # right of the way's centre-line
     assert lane.road == "w101" and lane.direction == 1  # one-way northbound
     assert twin.on_sidewalk(x.center[0] - 60, x.center[1] + 2 * 3.25 + 0.3 + 1.0)  # lanes, shoulder, walk
-    r = subprocess.run([sys.executable, "-m", "blendgen.cli", "twin", "import", "osm", str(town), str(tmp_path / "tw")],
-                       cwd=ROOT, capture_output=True, text=True)
-    assert r.returncode == 0 and (tmp_path / "tw" / "twin.png").stat().st_size > 10000, r.stderr
+    assert cli(["twin", "import", "osm", str(town), str(tmp_path / "tw")]) == 0
+    assert (tmp_path / "tw" / "twin.png").stat().st_size > 10000
 
 
 def test_osm_errors(tmp_path):

@@ -20,9 +20,6 @@ import numpy as np
 from blendgen.errors import UserError
 
 SAMPLE_M = 0.5        # reference-line sampling for the twin's polylines (chord error < 1 cm at R = 5 m)
-LANE_KINDS = {"driving", "sidewalk", "shoulder", "parking", "biking", "border", "curb", "median",
-              "restricted", "none", "stop", "entry", "exit", "onRamp", "offRamp", "bidirectional",
-              "connectingRamp", "walking", "slipLane", "rail", "tram", "bus", "taxi", "HOV"}
 DRIVE_KINDS = {"driving", "bidirectional", "entry", "exit", "onRamp", "offRamp", "connectingRamp",
                "slipLane", "bus", "taxi", "HOV"}
 EDGE_KINDS = {"shoulder", "parking", "biking", "border", "curb", "restricted", "stop"}
@@ -217,9 +214,6 @@ class OdrRoad:
         x, y, th = self.ref(s)
         t = np.asarray(t, dtype=float)
         return np.stack([x - t * np.sin(th), y + t * np.cos(th)], axis=-1)
-
-    def z(self, s) -> np.ndarray:
-        return _poly(self.elevation, s)
 
     def lane_center_t(self, sec: LaneSection, lane_id: int, s) -> np.ndarray:
         """Lateral offset t of a lane's centre at s within its section."""

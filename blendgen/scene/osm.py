@@ -46,6 +46,7 @@ def _road_class(tags) -> str | None:
 
 
 def twin_data_from_osm(path) -> dict:
+    import cv2
     import osmium
     import pymap3d
 
@@ -112,8 +113,6 @@ def twin_data_from_osm(path) -> dict:
             for k, r in enumerate(refs):
                 use.setdefault(r, []).append((rid, k, p))
         elif "building" in tags and len(refs) >= 4:
-            import cv2
-
             p = pts(refs, wid).astype(np.float32)
             (cx, cy), (w, h), ang = cv2.minAreaRect(p)
             if min(w, h) < 1.0:

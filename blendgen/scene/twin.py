@@ -196,6 +196,7 @@ class Twin:
                                 f"({rg.length:.1f} m)", where=str(path or spec.name))
             self._add_crosswalk(rg, c.s_m - c.width_m / 2, c.s_m + c.width_m / 2)
         self.structures = self._structures()
+        self._succ = None  # lane_successors, built on first use
         if self.structures:
             polys = [s.polygon for s in self.structures]
             self._st_center = np.array([p.mean(0) for p in polys])
@@ -434,16 +435,16 @@ class Twin:
         of one lies within 0.6 m of the start of the other and their headings agree
         within 45 degrees; hand-written twins (crossing roads, no connecting roads) have
         no links."""
-        if getattr(self, "_succ", None) is None:
+        if self._succ is None:
             keys, heads, tails = [], [], []
             for rg in self.roads.values():
                 for i, dr, cd in rg.lanes:
                     s0, s1 = (0.0, rg.length) if dr > 0 else (rg.length, 0.0)
                     p = rg.line.offset_point([s0, s1], [cd, cd])
-                    y = [rg.tangent_yaw(s0) + (0 if dr > 0 else math.pi), rg.tangent_yaw(s1) + (0 if dr > 0 else math.pi)]
+                    back = 0.0 if dr > 0 else math.pi
                     keys.append((rg.id, i, dr))
-                    heads.append((*p[0], y[0]))
-                    tails.append((*p[1], y[1]))
+                    heads.append((*p[0], rg.tangent_yaw(s0) + back))
+                    tails.append((*p[1], rg.tangent_yaw(s1) + back))
             heads, tails = np.array(heads).reshape(-1, 3), np.array(tails).reshape(-1, 3)
             self._succ = {}
             for a, t in zip(keys, tails):

@@ -125,6 +125,13 @@ def _road_z(k: int) -> float:
     return 0.0015 * (k % 12)
 
 
+def _top_z(tw: Twin, pt) -> float:
+    """Offset of the highest road surface at `pt`: paint there must lie above it, never
+    level with another road's asphalt (coplanar faces render black in Cycles)."""
+    return max([_road_z(k) for k, o in enumerate(tw.roads.values()) if o.carriageway(*o.line.project(pt)[:2])[0]]
+               or [0.0])
+
+
 def _roads(sc: _Scene, mats_spec):
     tw = sc.twin
     a_spec = mats_spec.get("asphalt")
@@ -197,10 +204,10 @@ def _roads(sc: _Scene, mats_spec):
     for sl in tw.stop_lines:
         rg = tw.roads[sl.road]
         _sweep(marks, rg, np.array([sl.s - 0.2, sl.s + 0.2]), [(sl.d0, MARK_Z), (sl.d1, MARK_Z)], "paint",
-               _road_z(list(tw.roads).index(sl.road)))
+               _top_z(tw, rg.line.offset_point(sl.s, (sl.d0 + sl.d1) / 2)))
     for road, s0, s1 in tw.crosswalk_info:
         rg = tw.roads[road]
-        zr = _road_z(list(tw.roads).index(road))
+        zr = _top_z(tw, rg.line.offset_point((s0 + s1) / 2, 0.0))
         for d in np.arange(-rg.hw_right + 0.4, rg.hw_left - 0.6, 1.0):
             _sweep(marks, rg, _samples(s0 + 0.2, s1 - 0.2, 0.5), [(d, MARK_Z), (d + 0.5, MARK_Z)], "paint", zr)
     sc.emit("markings", marks, {"paint": paint}, "marking")

@@ -490,6 +490,9 @@ class Twin:
                  and abs(self._lane_turn(k)) > math.radians(45)]
         preds = {k: [a for a, nx in self.lane_successors.items() if k in nx] for k in turns}
         turns = [k for k in turns if preds[k]]
+        # prefer junctions with crosswalks: the scenes then have pedestrians crossing
+        cw = {self.roads[r].spec.junction for r, _, _ in self.crosswalk_info} - {None}
+        turns = [k for k in turns if self.roads[k[0]].spec.junction in cw] or turns
         if not turns:
             return None
         k = turns[int(rng.integers(len(turns)))]

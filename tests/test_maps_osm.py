@@ -98,3 +98,15 @@ def test_osm_twin_builds_and_renders(town, tmp_path):
         assert img.shape == (90, 160, 3) and img[:25].mean() > img[-15:].mean()  # sky over the road
     finally:
         s.close()
+
+
+def test_osm_pbf_reads_like_xml(town, tmp_path):
+    import osmium
+
+    pbf = tmp_path / "town.osm.pbf"
+    with osmium.SimpleWriter(str(pbf)) as w:  # the reader library's own writer
+        for o in osmium.FileProcessor(str(town)):
+            w.add(o)
+    a, b = load_twin(town), load_twin(pbf)
+    assert set(a.roads) == set(b.roads) and len(b.crosswalks) == 1 and len(b.signal_slots) == len(a.signal_slots)
+    assert np.allclose(a.roads["w100"].line.pts, b.roads["w100"].line.pts, atol=1e-3)

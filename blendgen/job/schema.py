@@ -175,7 +175,7 @@ class Job(Section):
     seed: Annotated[int, Field(ge=0, strict=True)] = 0  # strict: `seed: true` is not 1
     recording: Path | None = None
     synthetic: Synthetic | None = None
-    twin: str | None = None  # built-in twin name or path to a twin YAML
+    twin: str | None = None  # built-in twin name, path to a twin YAML or a map (.xodr, .osm, .osm.pbf)
     ground_plane: GroundPlane | None = None  # for footage without a twin
     frames: Frames = Field(default_factory=Frames)
     sync: Sync = Field(default_factory=Sync)
@@ -219,7 +219,7 @@ class Job(Section):
         if self.twin is None:
             return None
         builtin = BUILTIN_TWINS_DIR / f"{self.twin}.yaml"
-        return builtin if "/" not in self.twin and not self.twin.endswith((".yaml", ".yml")) else self.path(self.twin)
+        return builtin if "/" not in self.twin and not self.twin.endswith((".yaml", ".yml", ".xodr", ".osm", ".pbf")) else self.path(self.twin)
 
     def resolved(self) -> dict[str, Any]:
         """The job with defaults filled in, paths absolute, as plain data."""
@@ -270,7 +270,7 @@ def _check_files(job: Job, source: str) -> None:
     tp = job.twin_path
     if tp is not None and not tp.is_file():
         names = sorted(p.stem for p in BUILTIN_TWINS_DIR.glob("*.yaml"))
-        raise UserError(f"twin: {job.twin!r} is neither a built-in twin {names} nor an existing YAML file "
+        raise UserError(f"twin: {job.twin!r} is neither a built-in twin {names} nor an existing YAML or map file "
                         f"({tp})", where=source)
     if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
         raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)

@@ -212,6 +212,10 @@ class Planner:
         rg = self.twin.roads[road]
         cd = next(c for i, dr, c in rg.lanes if i == index and dr == direction)
         tt = self._frames_from(k0)
+        chain = None if lat_profile is not None or speed <= 0 else self.twin.lane_chain(
+            road, index, direction, s0, speed * tt[-1] + dims[0], self.rng)
+        if chain is not None:  # a map's lane goes on through a junction: follow its connecting road
+            return self._chain_track(k0, cls, variant, dims, chain, speed * tt, lat * direction, scenario)
         s = s0 + direction * speed * tt
         ok = (s >= dims[0] / 2) & (s <= rg.length - dims[0] / 2)
         n = int(np.argmin(ok)) if not ok.all() else len(s)
@@ -227,6 +231,17 @@ class Planner:
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         m = self._limit(k0, xy)
         return self._track(cls, variant, dims, k0, xy[:m], np.zeros(m), wrap_angle(yaw[:m]), scenario)
+
+    def _chain_track(self, k0, cls, variant, dims, chain, dist, lat, scenario):
+        """A vehicle along a lane chain (through a junction); `lat` left of travel."""
+        n = int(np.searchsorted(dist, chain.length - dims[0] / 2, side="right"))
+        if n == 0:
+            return None
+        p, tan = chain.at(dist[:n])
+        xy = p + lat * np.stack([-tan[:, 1], tan[:, 0]], axis=1)
+        m = self._limit(k0, xy)
+        return self._track(cls, variant, dims, k0, xy[:m], np.zeros(m),
+                           wrap_angle(np.arctan2(tan[:m, 1], tan[:m, 0])), scenario)
 
     def walk_track(self, k0, variant, dims, start, direction_xy, speed, allowed, scenario=None,
                    stop_at=None) -> Track | None:
@@ -308,6 +323,21 @@ class Planner:
 
     def _spawn_person(self, variant, dims, k, p):
         tw = self.twin
+        if tw.crosswalks and not any(rg.spec.sidewalk_m >= 1.0 for rg in tw.roads.values()):
+            # a map without sidewalks (many OpenDRIVE maps): pedestrians cross on its crosswalks,
+            # which maps often put inside the junction
+            c = np.array([cw.mean(0) for cw in tw.crosswalks])
+            j = int(np.argmin(np.linalg.norm(c - p, axis=1)))
+            if np.linalg.norm(c[j] - p) > 30:
+                return None
+            road, s0, s1 = tw.crosswalk_info[j]
+            rg = tw.roads[road]
+            s = float(self.rng.uniform(s0 + 0.3, s1 - 0.3)) if s1 - s0 > 0.6 else (s0 + s1) / 2
+            start = rg.line.offset_point(s, float(self.rng.uniform(-rg.hw_right + 0.5, rg.hw_left - 0.5)))[0]
+            _, t = rg.line.at(s)
+            across = np.array([-t[0, 1], t[0, 0]]) * (1 if self.rng.random() < 0.5 else -1)
+            return self.walk_track(k, variant, dims, start, across, float(self.rng.uniform(*SPEED["person"])),
+                                   tw.crosswalk_mask)
         if tw.on_crosswalk(*p) and not tw.in_junction(*p):
             lane_roads = [(rg, float(s[0]), float(d[0])) for rg in tw.roads.values()
                           for s, d, _ in [rg.line.project(p)]]

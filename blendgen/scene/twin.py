@@ -196,6 +196,7 @@ class Twin:
                                 f"({rg.length:.1f} m)", where=str(path or spec.name))
             self._add_crosswalk(rg, c.s_m - c.width_m / 2, c.s_m + c.width_m / 2)
         self.structures = self._structures()
+        self._succ = None  # lane_successors, built on first use
         if self.structures:
             polys = [s.polygon for s in self.structures]
             self._st_center = np.array([p.mean(0) for p in polys])
@@ -406,10 +407,15 @@ class Twin:
 
     def ego_route(self, length_m: float, seed: int) -> np.ndarray:
         """An (N,2) polyline of `length_m` along the centre of one lane, in its direction,
-        starting and ending at least 5 m from the road ends (deterministic per seed)."""
+        starting and ending at least 5 m from the road ends (deterministic per seed). On a
+        map with junction connecting roads the route turns through a junction."""
         if length_m <= 0:
             raise UserError(f"ego_route: length_m must be > 0 (got {length_m})")
         rng = np.random.default_rng(seed)
+        if any(rg.spec.junction is not None for rg in self.roads.values()):
+            route = self._turning_route(length_m, rng)  # a map: turn through one of its junctions
+            if route is not None:
+                return route
         options = [(rg, i, dr) for rg in self.roads.values() for i, dr, _ in rg.lanes
                    if rg.length >= length_m + 10.0]
         if not options:
@@ -421,18 +427,98 @@ class Twin:
         s0, s1 = (a, a + length_m) if dr > 0 else (rg.length - a, rg.length - a - length_m)
         return self.lane_polyline(rg.id, i, dr, s0, s1, step=1.0)
 
+    # ---------------------------------------------------------------- lane topology (maps)
+    @property
+    def lane_successors(self) -> dict:
+        """{(road, index, direction): [lanes whose start meets this lane's end]}: where a
+        lane goes on through a map's junction (connecting roads). Lanes link when the end
+        of one lies within 0.6 m of the start of the other and their headings agree
+        within 45 degrees; hand-written twins (crossing roads, no connecting roads) have
+        no links."""
+        if self._succ is None:
+            keys, heads, tails = [], [], []
+            for rg in self.roads.values():
+                for i, dr, cd in rg.lanes:
+                    s0, s1 = (0.0, rg.length) if dr > 0 else (rg.length, 0.0)
+                    p = rg.line.offset_point([s0, s1], [cd, cd])
+                    back = 0.0 if dr > 0 else math.pi
+                    keys.append((rg.id, i, dr))
+                    heads.append((*p[0], rg.tangent_yaw(s0) + back))
+                    tails.append((*p[1], rg.tangent_yaw(s1) + back))
+            heads, tails = np.array(heads).reshape(-1, 3), np.array(tails).reshape(-1, 3)
+            self._succ = {}
+            for a, t in zip(keys, tails):
+                near = np.hypot(heads[:, 0] - t[0], heads[:, 1] - t[1]) < 0.6
+                agree = np.abs(np.remainder(heads[:, 2] - t[2] + math.pi, 2 * math.pi) - math.pi) < math.pi / 4
+                self._succ[a] = [keys[j] for j in np.nonzero(near & agree)[0] if keys[j][0] != a[0]]
+        return self._succ
+
+    def lane_chain(self, road: str, index: int, direction: int, s0: float, length_m: float, rng,
+                   prefer_turn: bool = False) -> Polyline | None:
+        """A lane-centre polyline from (road, s0) onward for `length_m`, continuing through
+        successor lanes (a random one at each fork; the sharpest turn if `prefer_turn`).
+        None when the lane has no successor (the caller keeps to its road)."""
+        key = (road, index, direction)
+        if not self.lane_successors.get(key):
+            return None
+        rg = self.roads[road]
+        end = rg.length if direction > 0 else 0.0
+        parts, total = [self.lane_polyline(road, index, direction, s0, end, step=0.5)], abs(end - s0)
+        while total < length_m:
+            nxt = self.lane_successors.get(key, [])
+            if not nxt:
+                break
+            if prefer_turn:
+                turn = [abs(self._lane_turn(k)) for k in nxt]
+                key = nxt[int(np.argmax(turn))]
+            else:
+                key = nxt[int(rng.integers(len(nxt)))]
+            r2 = self.roads[key[0]]
+            a, b = (0.0, r2.length) if key[2] > 0 else (r2.length, 0.0)
+            parts.append(self.lane_polyline(key[0], key[1], key[2], a, b, step=0.5)[1:])
+            total += r2.length
+        return Polyline(np.vstack(parts))
+
+    def _lane_turn(self, key) -> float:
+        rg = self.roads[key[0]]
+        return math.remainder(rg.tangent_yaw(rg.length) - rg.tangent_yaw(0.0), 2 * math.pi)
+
+    def _turning_route(self, length_m: float, rng) -> np.ndarray | None:
+        """A route of `length_m` along a lane that turns through a junction (maps with
+        connecting roads); the turn starts about 40% into the route."""
+        turns = [k for k in self.lane_successors if self.roads[k[0]].spec.junction is not None
+                 and abs(self._lane_turn(k)) > math.radians(45)]
+        preds = {k: [a for a, nx in self.lane_successors.items() if k in nx] for k in turns}
+        turns = [k for k in turns if preds[k]]
+        # prefer junctions with crosswalks: the scenes then have pedestrians crossing
+        cw = {self.roads[r].spec.junction for r, _, _ in self.crosswalk_info} - {None}
+        turns = [k for k in turns if self.roads[k[0]].spec.junction in cw] or turns
+        if not turns:
+            return None
+        k = turns[int(rng.integers(len(turns)))]
+        a = preds[k][int(rng.integers(len(preds[k])))]
+        ra = self.roads[a[0]]
+        lead = min(0.4 * length_m, ra.length - 5.0)
+        if lead <= 0:
+            return None
+        s0 = ra.length - lead if a[2] > 0 else lead
+        chain = self.lane_chain(a[0], a[1], a[2], s0, length_m, rng, prefer_turn=True)
+        if chain is None or chain.length < length_m:
+            return None
+        return chain.at(np.arange(0.0, length_m + 1e-9, 1.0))[0]
+
     def lut_rows(self, spacing_m: float) -> list[tuple]:
         rows = []
         for rg in self.roads.values():
             s = np.arange(0.0, rg.length + 1e-9, spacing_m)
             for i, dr, cd in rg.lanes:
                 p = rg.line.offset_point(s, np.full(len(s), cd))
-                for (x, y), si in zip(p, s):
+                lat, lon, alt = self.georef.to_geodetic(p[:, 0], p[:, 1], np.zeros(len(p)))  # vectorised
+                for k, ((x, y), si) in enumerate(zip(p, s)):
                     yaw = rg.tangent_yaw(si) + (0.0 if dr > 0 else math.pi)
                     yaw_deg = math.degrees(math.atan2(math.sin(yaw), math.cos(yaw)))
                     heading = (90.0 - yaw_deg) % 360.0
-                    lat, lon, alt = self.georef.to_geodetic(x, y, 0.0)
-                    rows.append((lat, lon, alt, heading, x, y, 0.0, yaw_deg))
+                    rows.append((float(lat[k]), float(lon[k]), float(alt[k]), heading, x, y, 0.0, yaw_deg))
         return rows
 
     def export_lut(self, path, spacing_m: float = 2.0) -> int:
@@ -455,10 +541,23 @@ class Twin:
 
 def load_twin(path) -> Twin:
     """Load and validate a twin YAML; bad input raises UserError naming the field."""
+    from blendgen.scene.map_import import map_format, map_twin_data
+
     path = Path(path)
-    data = read_yaml_mapping(path, "twin")
-    if not isinstance(data, dict):
-        raise UserError("expected a mapping of twin fields at the top level", where=str(path))
+    if map_format(path):  # a map named directly (`twin: town.xodr`)
+        data = map_twin_data(path)
+    else:
+        data = read_yaml_mapping(path, "twin")
+        if not isinstance(data, dict):
+            raise UserError("expected a mapping of twin fields at the top level", where=str(path))
+        if "source" in data:  # a twin folder from `blendgen twin import`: rebuilt from its map
+            src = path.parent / str(data["source"])
+            if not map_format(src) or set(data) - {"name", "source"}:
+                raise UserError(f"source: expected a map file (.xodr, .osm, .osm.pbf) and only `name` "
+                                f"beside it, got {sorted(data)}", where=str(path))
+            if not src.is_file():
+                raise UserError(f"source: map {src} does not exist", where=str(path))
+            data = {**map_twin_data(src), "name": str(data.get("name", src.stem))}
     try:
         spec = TwinSpec.model_validate(data)
     except ValidationError as e:

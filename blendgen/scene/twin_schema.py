@@ -56,6 +56,7 @@ class Road(_M):
     curb_height_m: Annotated[float, Field(ge=0, le=0.4)] = 0.15
     center_line: Literal["solid", "dashed", "double", "none"] = "dashed"
     speed_mps: Annotated[float, Field(gt=0, le=45)] = 12.0
+    junction: str | None = None  # id of the junction this connecting road belongs to (maps)
 
     @model_validator(mode="after")
     def _line(self):

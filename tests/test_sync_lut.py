@@ -89,3 +89,17 @@ def test_bad_files(tmp_path, text, match):
 def test_missing_file(tmp_path):
     with pytest.raises(UserError, match="LUT file not found"):
         Lut.load(tmp_path / "nope.csv")
+
+
+def test_one_row_per_heading_keeps_spacing_and_coverage():
+    """Rows sharing a position (one per heading) must not make the spacing 0 (issue 14)."""
+    rows, R, shift = _table(spacing=10.0)
+    rep = np.repeat(rows, 4, axis=0)
+    rep[:, 3] = np.tile([0.0, 90.0, 180.0, 270.0], len(rows))  # receiver headings
+    rep[:, 7] = rep[:, 3] * 0 + np.tile([90.0, 0.0, -90.0, 180.0], len(rows)) + 30.0  # same rotation
+    lut = Lut(rep)
+    assert lut.spacing_m == pytest.approx(Lut(rows).spacing_m, rel=1e-6) and lut.spacing_m > 9.0
+    # a fix 12 m from the nearest position (between rows, beside the road) is inside coverage
+    e, n = 45.0 * np.cos(0.3) - 12.0 * np.sin(0.3), 45.0 * np.sin(0.3) + 0.002 * 45**2 + 12.0 * np.cos(0.3)
+    lat, lon, alt = pymap3d.enu2geodetic(e, n, 0.45, *ORIGIN)
+    assert lut.query(lat, lon, alt).inside

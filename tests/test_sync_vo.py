@@ -68,6 +68,9 @@ def test_no_features_lens_cap(scene):
         res = vo.track(dark)
         assert res.status in ("few_features", "few_matches", "stationary")
         assert not res.has_direction
+    # all-black frames repeat exactly: they are featureless, not a good "repeated" pair
+    black = np.zeros((CAM.height, CAM.width), np.uint8)
+    assert [vo.track(black).status for _ in range(3)] == ["few_features"] * 3
     # and it recovers on the next textured frames
     vo.track(scene.render(CAM, _pose(5.0)))
     assert vo.track(scene.render(CAM, _pose(6.0))).status == "ok"

@@ -70,6 +70,7 @@ class Sync(Section):
     smooth: bool = True  # Rauch-Tung-Striebel pass after the filter (uses later data for earlier poses)
     pose_rate_hz: Annotated[float, Field(gt=0, le=200)] = 10.0  # output rate when the recording has no frames
     vo_speed_mps: Annotated[float, Field(gt=0)] = 10.0  # assumed speed for the scale of VO-only runs (no IMU, no GNSS)
+    road_vehicle: bool = True  # vehicle-frame constraints + mount/latency/lever-arm estimation; false for drones, handheld
 
 
 class Inject(Section):

@@ -65,4 +65,8 @@ def _run(args: argparse.Namespace) -> int:
     print(f"sync: {len(res.poses)} poses -> {Path(args.out) / 'poses.csv'} in {s['seconds']:.1f} s "
           f"(VO {good}/{max(len(res.poses) - 1, 0)} pairs, GNSS {upd.get('gnss', 0)} used / "
           f"{s.get('rejected', {}).get('gnss', 0)} rejected, {len(s.get('reader_issues', []))} reader issues)")
+    if "calibration" in s:
+        from blendgen.sync.calibration import describe
+
+        print("sync: " + describe(s["calibration"]))
     return 0

@@ -47,8 +47,10 @@ class Lut:
         # alone cannot fix the rotation, e.g. a single neighbour)
         self.row_rot = np.radians(table[:, 7]) - np.radians(90.0 - table[:, 3])
         self.tree = cKDTree(self.enu[:, :2])
-        nn, _ = self.tree.query(self.enu[:, :2], k=2)
-        spacing = float(np.median(nn[:, 1]))
+        # spacing between distinct surveyed positions: a LUT with one row per heading at each
+        # position (a normal layout) made it 0 and flagged 119 of 600 comma2k19 fixes outside
+        uniq = np.unique(np.round(self.enu[:, :2], 2), axis=0)
+        spacing = float(np.median(cKDTree(uniq).query(uniq, k=2)[0][:, 1])) if len(uniq) >= 2 else 0.0
         self.spacing_m = spacing
         self.coverage_m = float(coverage_m) if coverage_m is not None else max(3.0 * spacing, 5.0)
         self.k = min(k, len(table))

@@ -96,6 +96,26 @@ def offset_removed_errors(t_est, P_est, yaw_est, gt: np.ndarray, *, window_s: fl
     return out
 
 
+def camera_rotation_errors(result, gt: np.ndarray) -> dict:
+    """Median full 3-D rotation error and median |pitch error| of the optical axis (deg), with
+    the ground truth (t, x, y, z, qw, qx, qy, qz of T_world_cam) interpolated to the pose times;
+    plus the horizontal RMSE with nothing removed (m)."""
+    t = result.times
+    sel = (t >= gt[0, 0]) & (t <= gt[-1, 0])
+    rot, pitch, h = [], [], []
+    for (_, ti, T), ok in zip(result.poses, sel):
+        if not ok:
+            continue
+        k = int(np.argmin(np.abs(gt[:, 0] - ti)))
+        G = pose_from_xyz_quat(gt[k, 1:4], gt[k, 4:8])
+        rot.append(np.degrees(np.linalg.norm(so3.log(G[:3, :3].T @ T[:3, :3]))))
+        pitch.append(np.degrees(np.arcsin(np.clip(-T[2, 2], -1, 1)) - np.arcsin(np.clip(-G[2, 2], -1, 1))))
+        ref = np.array([np.interp(ti, gt[:, 0], gt[:, j]) for j in (1, 2)])
+        h.append(np.linalg.norm(T[:2, 3] - ref))
+    return {"rot3d_median_deg": float(np.median(rot)), "pitch_median_deg": float(np.median(np.abs(pitch))),
+            "h_rmse_raw_m": float(np.sqrt(np.mean(np.square(h))))}
+
+
 def comma_errors(result, rec, georef) -> dict:
     """Sync result vs comma2k19 ground truth, plus the same metrics for the raw GNSS fixes."""
     import pymap3d
@@ -103,6 +123,7 @@ def comma_errors(result, rec, georef) -> dict:
     P = result.positions()
     yaw = [np.arctan2(T[1, 2], T[0, 2]) for _, _, T in result.poses]
     out = {"sync": offset_removed_errors(result.times, P, yaw, rec.groundtruth)}
+    out["sync"].update(camera_rotation_errors(result, rec.groundtruth))
     g = rec.gnss
     e, n, u = pymap3d.geodetic2enu(g[:, 1], g[:, 2], g[:, 3], *georef)
     G = np.column_stack([e, n, u])

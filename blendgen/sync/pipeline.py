@@ -22,8 +22,8 @@ from blendgen import atomic
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
 from blendgen.recording.model import Recording
-from blendgen.sync import so3
-from blendgen.sync.ekf import EkfConfig, ErrorStateEkf
+from blendgen.sync import calibration, so3
+from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
@@ -32,6 +32,12 @@ from blendgen.sync.vo import OrbVo, VoConfig, VoResult
 VO_ROT_STD = 0.0015  # rad (0.09 deg), relative rotation between two frames
 VO_DIR_STD = 0.012  # rad (0.7 deg), direction of travel between two frames
 ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
+# vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
+# velocity of a car, and how far from level across a road is (crown, banking)
+NHC_LAT_STD, NHC_UP_STD, NHC_EVERY_S = 0.3, 0.1, 0.1
+LEVEL_STD = 0.05  # rad
+# below NHC_MIN_SPEED (pulling away, stopping) they biased the accelerometer (stop-and-go: 0.23 m/s^2)
+NHC_MIN_SPEED = 6.0  # m/s
 
 POSES_COLUMNS = ["t", "x", "y", "z", "qw", "qx", "qy", "qz",
                  "var_x", "var_y", "var_z", "var_rx", "var_ry", "var_rz",
@@ -263,33 +269,71 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     if yaw0 is not None:
         R0 = so3.yaw_rotation(yaw0 - np.arctan2(f0[1], f0[0])) @ R0
     p0 = g_xyz[0].copy() if use_gnss else np.zeros(3)
+    # the vehicle frame: forward along the camera's optical axis made level, up from gravity;
+    # the filter estimates how the IMU is really mounted in it (road vehicles only)
+    calib = None
+    if use_imu and use_gnss and getattr(settings, "road_vehicle", True):
+        pri = calibration.read_priors(rec)
+        R_bv0 = calibration.nominal_vehicle_frame(fwd, R0.T @ np.array([0.0, 0.0, 1.0]))
+        calib = (R_bv0, pri.mount_std, pri.latency_s, pri.latency_std_s, R_bv0 @ pri.lever_arm_v,
+                 pri.lever_arm_std_m)
     # the levelling above cannot see the car's own longitudinal acceleration: start with a
     # loose tilt prior, then (with the smoother) run again from the smoothed initial state
     P0 = np.concatenate([np.full(3, 4.0 if use_gnss else 1e-4), np.full(3, 4.0),
                          [0.15**2, 0.15**2, (yaw_std or 0.05) ** 2],
                          np.full(3, 0.01**2), np.full(3, ACC_BIAS_PRIOR**2)])
     smooth = bool(getattr(settings, "smooth", True))
-    passes = 2 if (smooth and use_imu) else 1
     vo_cache: dict[int, VoResult | None] = {}
-    x0 = (p0, v0, R0, np.zeros(3), np.zeros(3))
-    for k in range(passes):
-        last_pass = k == passes - 1
-        res, x0_s, var0 = _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids,
-                                       out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd,
-                                       imu, vo_cache, progress and k == 0)
-        if not last_pass:
-            x0 = x0_s
-            # second pass: start from the smoothed initial state, with its (inflated) uncertainty
-            P0 = np.maximum(var0 * 4.0, np.concatenate([np.full(3, 1e-4), np.full(3, 1e-4), np.full(3, 1e-6),
-                                                        np.full(3, 1e-8), np.full(3, 1e-6)]))
-    res.summary["passes"] = passes
+    args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
+            R_bc, p_bc, fwd, imu, vo_cache, calib)
+    res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress)
+    res.summary["passes"] = 1
+    if smooth and use_imu:
+        # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior
+        # stays the original one (mean 0, ACC_BIAS_PRIOR) and the tilt prior no tighter than that
+        # bias allows: starting from the first pass's bias with a tight prior counted the data
+        # twice and compounded the pitch / bias ambiguity (comma2k19: -0.47 -> -0.96 m/s^2).
+        p, v, R, bg = x0_s[:4]
+        floor = np.concatenate([np.full(6, 1e-4), np.full(3, (ACC_BIAS_PRIOR / 9.81) ** 2), np.full(3, 1e-8),
+                                np.zeros(3)])
+        P1 = np.maximum(var0[:15] * 4.0, floor)
+        P1[12:15] = ACC_BIAS_PRIOR**2
+        res2, _, _ = _filter_pass(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P1, *args, False)
+        # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
+        z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
+        if z2 <= max(z1, 3.0):
+            res = res2
+            res.summary["passes"] = 2
+        else:
+            res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
     return res
 
 
+def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: float = 30.0) -> float:
+    """How long the GNSS height errors stay correlated: the lag at which the autocorrelation of
+    the fixes' heights about their 20 s moving average drops below 1/e (white noise: one fix).
+    Measured on the fixes alone, so a wrong filter cannot talk itself into distrusting them."""
+    if len(gt_t) < 20:
+        return 1.0
+    dt = float(np.median(np.diff(gt_t)))
+    n_win = max(3, int(window_s / dt) | 1)
+    z = g_xyz[:, 2]
+    pad = np.pad(z, n_win // 2, mode="edge")
+    r = z - np.convolve(pad, np.ones(n_win) / n_win, mode="valid")
+    r = r - r.mean()
+    n = len(r)
+    acf = np.correlate(r, r, mode="full")[n - 1:] / max(float(r @ r), 1e-12)
+    below = np.flatnonzero(acf < np.exp(-1.0))
+    lag = int(below[0]) if below.size else n
+    return float(np.clip(lag * dt, dt, max_s))
+
+
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
-                 gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, progress):
+                 gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, progress):
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
+    if calib is not None:
+        ekf.enable_calibration(*calib)
     ekf.yaw_only_motion = not use_imu and not use_vo
     if use_imu:
         ekf.bg, ekf.ba = bg0.copy(), ba0.copy()
@@ -299,6 +343,13 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
 
     stationary = _stationary_imu(imu, cfg) if use_imu else np.zeros(0, bool)
     next_nhc_t = -np.inf
+    # GNSS height errors can be slow (comma2k19: 15 m swings over 10 s): with the car held on
+    # the road surface (vehicle-frame constraint), fixes within their correlation time z_corr_s
+    # (measured on the fixes) count as one height measurement, else the height -- and
+    # through it the pitch -- follows the receiver's wander (vertical std 2x horizontal)
+    rate = 1.0 / max(float(np.median(np.diff(gt_t))), 1e-3) if len(gt_t) > 1 else 1.0
+    z_corr_s = _height_error_correlation_s(gt_t, g_xyz) if calib is not None else 0.0
+    z_scale = 2.0 * np.sqrt(max(z_corr_s * rate, 1.0))
 
     # --- event queue: (time, order, kind, index); order makes IMU come before others at equal t
     ev_t = [imu[1:, 0], gt_t if use_gnss else np.zeros(0), out_t]
@@ -342,16 +393,16 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
         elif kind == 1:
             advance(t)
             s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
-            ok = ekf.update_position(g_xyz[i], (s, s, 2 * s), kind="gnss")
+            ok = ekf.update_position(g_xyz[i], (s, s, s * z_scale), kind="gnss")
             pending.append("gnss" if ok else "gnss_rejected")
             speed = float(np.linalg.norm(ekf.v[:2]))
-            if use_imu and not use_vo and speed > 2.0 and t >= next_nhc_t:
-                # weak prior that the camera looks along the direction of travel (a mount yaw
-                # of d degrees biases the heading by at most d); decisive only when nothing else
-                # observes the heading (straight drive at constant speed). VO measures the
-                # camera's direction of travel itself, so it replaces this prior.
-                ekf.update_no_sideslip(fwd, 0.1 + 0.05 * speed)
-                next_nhc_t = t + 1.0
+            if calib is not None and speed > NHC_MIN_SPEED and t >= next_nhc_t:
+                # the car neither slides sideways nor leaves the road (in the vehicle frame,
+                # the mount estimated) and is level across on average: this is what separates
+                # the mount from the heading and from the accelerometer bias
+                ekf.update_vehicle_velocity(NHC_LAT_STD, NHC_UP_STD)
+                ekf.update_vehicle_level(LEVEL_STD)
+                next_nhc_t = t + NHC_EVERY_S
             if not g_inside[i]:
                 pending.append("lut_outside")
             if not use_imu and not use_vo:
@@ -418,18 +469,22 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
         T_bc = make_pose(R_bc, p_bc)
         sm = ekf.smooth(marks)
         x0_s, var0 = sm[0]
-        for k, ((p, v, R, bg, ba), var) in enumerate(sm[1:]):
+        for k, ((p, v, R, *_), var) in enumerate(sm[1:]):
             if np.all(np.isfinite(p)) and np.all(np.isfinite(R)):
                 poses[k] = (poses[k][0], poses[k][1], make_pose(R, p) @ T_bc)
                 covs[k] = np.concatenate([var[0:3], var[6:9]])
     st = ekf.stats
-    P = ekf.P[:15, :15]
+    P = ekf.P[:NC, :NC]
     summary = {"cov_min_eig": float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()),
                "cov_asym": float(np.abs(P - P.T).max()), "imu_steps": st.imu_steps, "imu_gaps": st.imu_gaps,
                "imu_saturated": st.saturated,
                "updates": dict(st.updates), "rejected": dict(st.rejected),
                "gyro_bias": ekf.bg.round(5).tolist(), "accel_bias": ekf.ba.round(4).tolist(),
                "vo_status": _count(q["vo_status"] for q in quality)}
+    if calib is not None:
+        # constant states: the last filtered estimate is the smoothed one
+        summary["gnss_height_corr_s"] = round(z_corr_s, 2)
+        summary["calibration"] = calibration.report((ekf.R_bv, ekf.tau, ekf.lever), np.diag(ekf.P)[CALIB], R_bc)
     return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary), x0_s, var0
 
 

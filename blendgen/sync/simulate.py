@@ -241,18 +241,23 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
                         resolution=(480, 270), hfov_deg: float = 70.0, speed: float = 8.0,
                         imu: bool = True, gnss: bool = True, gnss_std: float = 1.0, frames: bool = True,
                         dropout=None, imu_gap=None, dark_frames=None, seed: int = 0,
-                        scene: StreetScene | None = None):
+                        scene: StreetScene | None = None, imu_mount_rpy_deg=(0.0, 0.0, 0.0)):
     """An in-memory Recording (images kept in `rec.extra['images']`) and its ground truth.
 
+    imu_mount_rpy_deg: the IMU rotated (roll, pitch, yaw; about the vehicle's x, y, z) in the
+    vehicle; the camera stays where it is, so T_cam_imu includes that rotation.
     Returns (rec, traj, T_cam_imu). `rec.groundtruth` holds T_world_cam per frame.
     """
     traj = make_trajectory(kind, duration + 1.0, speed=speed)
-    T_cam_imu = default_T_cam_imu()
+    R_body_imu = Rotation.from_euler("xyz", np.radians(imu_mount_rpy_deg)).as_matrix()
+    T_cam_imu = default_T_cam_imu() @ make_pose(R_body_imu, np.zeros(3))
     T_imu_cam = invert_pose(T_cam_imu)
     cam = Camera.from_hfov(resolution[0], resolution[1], hfov_deg)
     rec = Recording(root=None, camera=cam if frames else None, T_cam_imu=T_cam_imu)
     if imu:
         data = simulate_imu(traj, seed=seed)
+        data[:, 1:4] = data[:, 1:4] @ R_body_imu  # body -> IMU axes (R^T x, row-wise)
+        data[:, 4:7] = data[:, 4:7] @ R_body_imu
         if imu_gap is not None:
             data = data[(data[:, 0] < imu_gap[0]) | (data[:, 0] >= imu_gap[1])]
         rec.imu = data
@@ -265,8 +270,9 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     images = []
     scene = scene or (StreetScene() if frames else None)
     rng = np.random.default_rng(seed + 7)
+    T_body_cam = make_pose(R_body_imu, np.zeros(3)) @ T_imu_cam
     for i, t in enumerate(ft):
-        T_wc = traj.pose(t) @ T_imu_cam
+        T_wc = traj.pose(t) @ T_body_cam
         gt.append(T_wc)
         if frames:
             img = scene.render(cam, T_wc, rng=rng)

@@ -150,6 +150,10 @@ class OrbVo:
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         prev = self.prev
         if prev is not None and prev[0].shape == gray.shape and _same_image(prev[0], gray):
+            if len(prev[1]) < self.cfg.min_features:
+                # two identical featureless frames (black, lens cap): nothing seen, not a
+                # good "repeated" pair (the summary counted them as good)
+                return VoResult("few_features", n_features=len(prev[1]))
             return VoResult("repeated", n_features=len(prev[1]))
         px, desc = self._features(gray)
         b = self._bearings(px)

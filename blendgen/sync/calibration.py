@@ -1,0 +1,117 @@
+"""Priors for the quantities sync estimates (calib.yaml `vehicle:` and `gnss:`), and their report.
+
+calib.yaml (all optional; the defaults below are the priors when a key is absent):
+
+    vehicle:
+      mount_std_deg: [2.0, 5.0, 2.0]  # roll, pitch, yaw of the vehicle frame in the IMU frame
+    gnss:
+      latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency
+      latency_std_s: 0.0             # > 0 estimates it (e.g. 0.05)
+      lever_arm_m: [0.0, 0.0, 0.0]     # antenna in the vehicle frame (x forward, y left, z up)
+      lever_arm_std_m: 0.0           # > 0 estimates it (e.g. 0.3)
+
+The vehicle frame (x forward, y left, z up) is the frame in which the car neither slides
+sideways nor leaves the road; its nominal orientation in the IMU frame is built from the
+camera's optical axis (forward) and gravity at the start (up), and the filter estimates the
+rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from blendgen.errors import UserError
+
+# the optical axis is pointed roughly along the road by whoever mounted the camera: a few
+# degrees of pitch are normal; yaw is held tighter because on a straight drive only the car's
+# acceleration observes it (and the prior then decides); roll comes from the level-on-average road
+DEFAULT_MOUNT_STD_DEG = (2.0, 5.0, 2.0)
+
+
+@dataclass
+class CalibPriors:
+    mount_std: np.ndarray  # rad, roll/pitch/yaw
+    latency_s: float = 0.0
+    latency_std_s: float = 0.0
+    lever_arm_v: np.ndarray = None  # vehicle frame
+    lever_arm_std_m: float = 0.0
+
+
+def _vec(section: dict, key: str, n: int, default, where: str) -> np.ndarray:
+    v = section.get(key, default)
+    try:
+        arr = np.asarray(v, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.size == 1 and n > 1:
+        arr = np.full(n, float(arr[0]))
+    if arr.size != n or not np.all(np.isfinite(arr)):
+        raise UserError(f"{key}: expected {n} finite number(s), got {v!r}", where=where)
+    return arr
+
+
+def read_priors(rec) -> CalibPriors:
+    where = str(rec.root / "calib.yaml") if rec.root is not None else "calib.yaml"
+    out = []
+    for name in ("vehicle", "gnss"):
+        sec = rec.extra.get(name) or {}
+        if not isinstance(sec, dict):
+            raise UserError(f"{name}: expected a mapping, got {sec!r}", where=where)
+        out.append(sec)
+    veh, gnss = out
+    mount = np.radians(_vec(veh, "mount_std_deg", 3, DEFAULT_MOUNT_STD_DEG, where + " vehicle"))
+    lat = _vec(gnss, "latency_s", 1, 0.0, where + " gnss")[0]
+    lat_std = _vec(gnss, "latency_std_s", 1, 0.0, where + " gnss")[0]
+    lever = _vec(gnss, "lever_arm_m", 3, [0.0, 0.0, 0.0], where + " gnss")
+    lever_std = _vec(gnss, "lever_arm_std_m", 1, 0.0, where + " gnss")[0]
+    if np.any(mount < 0) or lat_std < 0 or lever_std < 0:
+        raise UserError("standard deviations must not be negative", where=where)
+    return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std))
+
+
+def nominal_vehicle_frame(forward_b: np.ndarray, up_b: np.ndarray) -> np.ndarray:
+    """R_body_vehicle with x along the forward axis made horizontal, z up."""
+    z = up_b / np.linalg.norm(up_b)
+    x = forward_b - z * (z @ forward_b)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def camera_mount_angles(R_bv: np.ndarray, R_bc: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw) in degrees of the camera relative to the vehicle: pitch > 0 looks
+    down, yaw > 0 looks left, roll > 0 turns the image clockwise."""
+    R_vc = R_bv.T @ R_bc
+    z, x = R_vc[:, 2], R_vc[:, 0]
+    pitch = np.arcsin(np.clip(-z[2], -1, 1))
+    yaw = np.arctan2(z[1], z[0])
+    roll = np.arcsin(np.clip(-x[2], -1, 1))
+    return np.degrees([roll, pitch, yaw])
+
+
+def describe(cal: dict) -> str:
+    """One line for the command: the estimated mount, latency and lever arm with 1-sigma."""
+    r, p, y = cal["camera_mount_rpy_deg"]
+    sr, sp, sy = cal["mount_std_deg"]
+    out = (f"camera in vehicle: pitch {p:+.2f} +- {sp:.2f} deg (down), yaw {y:+.2f} +- {sy:.2f} deg (left), "
+           f"roll {r:+.2f} +- {sr:.2f} deg")
+    tau, st = cal["gnss_latency_s"], cal["gnss_latency_std_s"]
+    out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s" if st > 0 else
+            f"; GNSS latency {tau:.3f} s as given (set gnss.latency_std_s in calib.yaml to estimate it)")
+    la, ls = cal["lever_arm_m"], cal["lever_arm_std_m"]
+    lever = f"[{la[0]:+.2f}, {la[1]:+.2f}, {la[2]:+.2f}] m"
+    return out + (f"; lever arm {lever} +- {max(ls):.2f} m" if max(ls) > 0 else f"; lever arm {lever} as given")
+
+
+def report(ekf_state, var: np.ndarray, R_bc: np.ndarray) -> dict:
+    """The estimated calibration with 1-sigma uncertainties (from the smoothed covariance)."""
+    R_bv, tau, lever_b = ekf_state
+    sd = np.sqrt(np.maximum(var, 0.0))
+    return {
+        "camera_mount_rpy_deg": np.round(camera_mount_angles(R_bv, R_bc), 3).tolist(),
+        "mount_std_deg": np.round(np.degrees(sd[0:3]), 3).tolist(),
+        "imu_to_vehicle_R": np.round(R_bv.T, 6).tolist(),
+        "gnss_latency_s": round(float(tau), 4), "gnss_latency_std_s": round(float(sd[3]), 4),
+        "lever_arm_m": np.round(R_bv.T @ lever_b, 3).tolist(), "lever_arm_std_m": np.round(sd[4:7], 3).tolist(),
+    }

@@ -122,7 +122,7 @@ def make_recordings(args) -> dict[str, dict]:
 def job_yaml(name: str, rec: str, rec_dir: Path, out_dir: Path, *, illumination: str, assets: Path | None,
              per_frame: tuple[int, int]) -> dict:
     inject = {"objects_per_frame": list(per_frame),
-              "classes": {c: 1.0 for c in CLASSES}, "distance_m": [6, 30], "sequences": False}
+              "classes": {c: 1.0 for c in CLASSES}, "distance_m": [9, 35], "sequences": False}
     if assets is not None:
         inject["assets"] = [str(assets)]
         inject["classes"] = {c: 1.0 for c in CLASSES}
@@ -220,7 +220,7 @@ def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
                 comp, _ = composite_frame(real, passes, settings=post, illumination=illum,
                                           seed=frame_seed(13, fid))
                 if vname == "ct=reinhard" and (i < 2 * len(set(recs[rec]["names"])) or BDD_NIGHT in src):
-                    cv2.imwrite(str(look / f"{rec}_{fid}_{src}.jpg"), _draw(comp, gts), [cv2.IMWRITE_JPEG_QUALITY, 90])
+                    cv2.imwrite(str(look / f"{rec}_{fid}_{src}.png"), _draw(comp, gts))
                 dts = [{**d, "image_id": fid} for d in det(comp)]
                 res = evaluate(gts + bg, dts, list(CLASSES.values()), iou_thr=IOU_THR, score_thr=SCORE_THR,
                                return_hits=True)

@@ -82,7 +82,7 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for s in (1, -1):
         vv, f = box((0.05, 0.30, 0.09), (L / 2 - 0.045, s * (hw - 0.28), zl))
         mb.add(vv, f, "lamp_head")
-        vv, f = box((0.05, 0.28, 0.10), (-L / 2 + 0.03, s * (hw - 0.25), deck - 0.16))
+        vv, f = box((0.06, 0.40, 0.13), (-L / 2 + 0.035, s * (hw - 0.24), deck - 0.15))
         mb.add(vv, f, "lamp_tail")
         vv, f = box((0.18, (W / 2 - hw) + 0.06, 0.11), (x_ws - 0.12, s * (W / 2 - (W / 2 - hw + 0.06) / 2), belt + 0.06))
         mb.add(vv, f, "paint")

@@ -5,6 +5,7 @@ The 2D box uses COCO's pixel-edge convention (right = x + w). The 3D box is exac
 plan): (x, y, z) is the bottom-face centre in camera coordinates. Objects marked ignore are
 written as `DontCare` (KITTI's ignore regions). KITTI has no bus, motorcycle, bicycle or
 traffic light types: those keep descriptive CamelCase names that KITTI readers accept.
+Riders are separate person instances (COCO's convention); KITTI names them Cyclist.
 """
 
 from __future__ import annotations
@@ -18,6 +19,15 @@ from blendgen.labels.yolo import link_image
 
 KITTI_TYPE = {"person": "Pedestrian", "bicycle": "Bicycle", "car": "Car", "motorcycle": "Motorcycle",
               "bus": "Bus", "truck": "Truck", "traffic light": "TrafficLight"}
+
+
+def kitti_type(inst: dict) -> str:
+    """KITTI type; a person riding a bicycle is KITTI's Cyclist (their own box: the bicycle
+    stays a separate Bicycle instance), a motorcycle rider a Motorcyclist."""
+    rides = inst.get("rides")
+    if inst["cls"] == "person" and rides:
+        return "Cyclist" if rides["cls"] == "bicycle" else "Motorcyclist"
+    return KITTI_TYPE[inst["cls"]]
 
 
 def occluded_state(occlusion: float | None) -> int:
@@ -35,7 +45,7 @@ def label_line(inst: dict) -> str:
     b = inst["box3d_cam"]
     hh, ww, ll = b["dimensions_hwl"]
     lx, ly, lz = b["location"]
-    return (f"{KITTI_TYPE[inst['cls']]} {float(inst.get('truncation') or 0.0):.2f} "
+    return (f"{kitti_type(inst)} {float(inst.get('truncation') or 0.0):.2f} "
             f"{occluded_state(inst.get('occlusion'))} {b['alpha']:.2f} {box} "
             f"{hh:.2f} {ww:.2f} {ll:.2f} {lx:.2f} {ly:.2f} {lz:.2f} {b['rotation_y']:.2f}")
 

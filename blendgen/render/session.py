@@ -527,6 +527,10 @@ class RenderSession:
         info["objects"] = self._sync_objects(plan, kept)
         self._set_camera(plan.T_world_cam)
         self._apply_lighting(lighting, background=False)
+        info["lamps_on"] = bool(lighting.get("lights_on", False))  # head/tail lamps: night and dusk
+        from assets_procedural.materials import set_vehicle_lamps
+
+        set_vehicle_lamps(info["lamps_on"])
         self._set_twin_mode("composite", catcher=bool(eff.shadow_catcher.value))
         by_id = {int(o.id): o for o in plan.objects}
         patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.sun_direction(lighting))

@@ -389,6 +389,7 @@ def main() -> None:
                     help="objects per frame")
     ap.add_argument("--quick", action="store_true", help="1 copy of each still, 2 video frames (smoke run)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from cached sets")
+    ap.add_argument("--rescore", action="store_true", help="score the set's existing renders again (no rendering)")
     args = ap.parse_args()
     global TMP
     if args.quick:
@@ -399,11 +400,15 @@ def main() -> None:
         raise SystemExit(f"needs {MODEL}")
     if not args.table_only:
         recs = make_recordings(args)
-        outs = render_set(name, recs, args)
-        meta = {"set": args.set, "objects_rev": args.objects_rev,
-                "rev": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                                      text=True).stdout.strip()}
-        atomic.write_json(TMP / name / "meta.json", meta)
+        if args.rescore:
+            outs = {rec: TMP / name / rec for rec in recs}
+            (TMP / name / "scores.json").unlink(missing_ok=True)
+        else:
+            outs = render_set(name, recs, args)
+            meta = {"set": args.set, "objects_rev": args.objects_rev,
+                    "rev": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                          text=True).stdout.strip()}
+            atomic.write_json(TMP / name / "meta.json", meta)
         score_set(name, recs, outs, args)
     sets = {p.parent.name: json.loads(p.read_text()) for p in sorted(TMP.glob("*/scores.json"))}
     cmd = "PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_realism.py " + " ".join(sys.argv[1:])

@@ -26,8 +26,9 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
     rider = v.get("rider", {})
     paint = v.get("paint") or v.get("mount", {}).get("variant", {}).get("paint", (0.5, 0.5, 0.5))  # rider: helmet
     seed = int(v.get("seed", obj.id))
-    # metallic flake paint on most cars (solid on some whites and on buses); grime in 4 levels
-    metallic = 0.0 if (obj.cls == "bus" or (v.get("paint_name") == "white" and seed % 2)) else 0.7
+    # metallic flake paint on mid and dark colours (light metallic paint flared into big sun
+    # highlights on real photos); solid on light colours and buses; grime in 4 levels
+    metallic = 0.0 if (obj.cls == "bus" or max(paint[:3]) > 0.6) else 0.5
     wear = (seed // 7 % 4) / 4 * (0.9 if obj.cls in ("truck", "bus") else 0.6)
     out = {}
     for s in slots:

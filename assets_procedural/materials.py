@@ -26,10 +26,16 @@ def _bsdf(m):
 
 def principled(name: str, color, roughness=0.5, metallic=0.0, coat=0.0, coat_roughness=0.03,
                transmission=0.0, ior=1.45, emission=None, emission_strength=0.0, subsurface=0.0,
-               sheen=0.0, alpha=1.0):
+               sheen=0.0):
     m, new = _new(name)
     if not new:
         return m
+    return _setup(m, color, roughness, metallic, coat, coat_roughness, transmission, ior, emission,
+                  emission_strength, subsurface, sheen)
+
+
+def _setup(m, color, roughness=0.5, metallic=0.0, coat=0.0, coat_roughness=0.03, transmission=0.0, ior=1.45,
+           emission=None, emission_strength=0.0, subsurface=0.0, sheen=0.0):
     b = _bsdf(m)
     b.inputs["Base Color"].default_value = (*color[:3], 1.0)
     b.inputs["Roughness"].default_value = roughness
@@ -44,19 +50,63 @@ def principled(name: str, color, roughness=0.5, metallic=0.0, coat=0.0, coat_rou
         b.inputs["Emission Color"].default_value = (*emission[:3], 1.0)
         b.inputs["Emission Strength"].default_value = emission_strength
     m.diffuse_color = (*color[:3], 1.0)
-    m["blendgen_kind"] = name.split("_")[0]
+    m["blendgen_kind"] = m.name.split("_")[0]
     return m
 
 
 # ---- object materials
-def paint(color):
-    """Car paint: base coat under a glossy clear coat."""
-    return principled(_key("paint", color), color, roughness=0.35, metallic=0.3, coat=1.0, coat_roughness=0.02)
+def paint(color, metallic=0.3, wear=0.0):
+    """Car paint: a base coat with metallic flakes (fine Voronoi bump on the base layer only)
+    under a glossy clear coat; `wear` adds road grime toward the sills and wheel arches."""
+    m, new = _new(_key(f"paint_m{metallic:.1f}w{wear:.1f}", color))
+    if not new:
+        return m
+    _setup(m, color, roughness=0.38, metallic=metallic, coat=1.0, coat_roughness=0.03)
+    nt, b = m.node_tree, _bsdf(m)
+    coord = nt.nodes.new("ShaderNodeTexCoord").outputs["Object"]
+    if metallic > 0.2:
+        flakes = nt.nodes.new("ShaderNodeTexVoronoi")
+        flakes.inputs["Scale"].default_value = 900.0
+        nt.links.new(coord, flakes.inputs["Vector"])
+        bump = nt.nodes.new("ShaderNodeBump")
+        bump.inputs["Strength"].default_value = 0.08
+        nt.links.new(flakes.outputs["Distance"], bump.inputs["Height"])
+        nt.links.new(bump.outputs["Normal"], b.inputs["Normal"])  # the coat stays smooth
+    if wear > 0:
+        grime = _grime_mask(nt, coord, wear)
+        dirt = nt.nodes.new("ShaderNodeMix")
+        dirt.data_type = "RGBA"
+        nt.links.new(grime, dirt.inputs["Factor"])
+        dirt.inputs["A"].default_value = (*color[:3], 1.0)
+        dirt.inputs["B"].default_value = (0.10, 0.085, 0.065, 1.0)
+        nt.links.new(dirt.outputs["Result"], b.inputs["Base Color"])
+        rough = nt.nodes.new("ShaderNodeMapRange")
+        nt.links.new(grime, rough.inputs["Value"])
+        rough.inputs["To Min"].default_value, rough.inputs["To Max"].default_value = 0.03, 0.6
+        nt.links.new(rough.outputs["Result"], b.inputs["Coat Roughness"])
+    return m
 
 
-def glass(tint=(0.05, 0.07, 0.08)):
-    return principled(_key("glass", tint), tint, roughness=0.02, transmission=0.0, metallic=0.0, ior=1.5,
-                      coat=1.0, coat_roughness=0.0)
+def _grime_mask(nt, coord, wear):
+    """0..1 grime: strongest at the bottom (object z in metres), broken up by noise."""
+    sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+    nt.links.new(coord, sep.inputs[0])
+    low = nt.nodes.new("ShaderNodeMapRange")
+    nt.links.new(sep.outputs["Z"], low.inputs["Value"])
+    low.inputs["From Min"].default_value, low.inputs["From Max"].default_value = 0.1, 0.9
+    low.inputs["To Min"].default_value, low.inputs["To Max"].default_value = wear, 0.0
+    n = _noise(nt, 3.0, 6.0, coord)
+    mul = nt.nodes.new("ShaderNodeMath")
+    mul.operation = "MULTIPLY"
+    nt.links.new(low.outputs["Result"], mul.inputs[0])
+    nt.links.new(n.outputs["Factor"], mul.inputs[1])
+    return mul.outputs[0]
+
+
+def glass(tint=(0.006, 0.008, 0.009)):
+    """Tinted car glass: a dark cabin behind a smooth dielectric that mirrors the environment
+    (Fresnel: dark face-on, bright at grazing angles), as windows look from outside."""
+    return principled(_key("glass", tint), tint, roughness=0.015, ior=1.52)
 
 
 def rubber():
@@ -88,9 +138,36 @@ def hair(color):
 
 
 def lamp(color, strength):
-    """A light: emission in `color` (headlights, tail lights, signal lamps)."""
+    """A light: emission in `color` (signal lamps)."""
     return principled(_key(f"lamp{strength:g}", color), [c * 0.3 for c in color], roughness=0.1,
                       emission=color, emission_strength=strength, coat=1.0)
+
+
+# vehicle lamps: (lens colour, emission colour, strength off, strength on); the render driver
+# switches them per frame from the plan's lighting["lights_on"] (set_vehicle_lamps)
+VEHICLE_LAMPS = {"head": ((0.8, 0.8, 0.8), (1.0, 0.93, 0.8), 0.0, 40.0),
+                 "tail": ((0.45, 0.01, 0.01), (1.0, 0.03, 0.01), 0.2, 12.0),
+                 "sign": ((0.3, 0.2, 0.05), (1.0, 0.55, 0.05), 0.5, 6.0)}
+
+
+def vehicle_lamp(kind: str, on: bool | None = None):
+    lens, emit, off_s, on_s = VEHICLE_LAMPS[kind]
+    m, new = _new(f"vlamp_{kind}")
+    if new:
+        _setup(m, lens, roughness=0.05, emission=emit, emission_strength=off_s, coat=1.0)
+        m["blendgen_lamp"] = kind
+    if on is not None:
+        _bsdf(m).inputs["Emission Strength"].default_value = on_s if on else off_s
+    return m
+
+
+def set_vehicle_lamps(on: bool) -> int:
+    """Head/tail lamps on (night, dusk) or off (day) for every vehicle lamp material; returns
+    how many materials were set."""
+    mats = [m for m in bpy.data.materials if "blendgen_lamp" in m]
+    for m in mats:
+        vehicle_lamp(m["blendgen_lamp"], on)
+    return len(mats)
 
 
 def metal(color=(0.55, 0.56, 0.58), roughness=0.4):

@@ -24,11 +24,16 @@ LIT_STRENGTH = 6.0  # emission of a lit signal lamp: bright, still saturated in 
 def _materials(obj: PlacedObject, slots: list[str]) -> dict:
     v = obj.variant
     rider = v.get("rider", {})
-    paint = v.get("paint", (0.5, 0.5, 0.5))
+    paint = v.get("paint") or v.get("mount", {}).get("variant", {}).get("paint", (0.5, 0.5, 0.5))  # rider: helmet
+    seed = int(v.get("seed", obj.id))
+    # metallic flake paint on mid and dark colours (light metallic paint flared into big sun
+    # highlights on real photos); solid on light colours and buses; grime in 4 levels
+    metallic = 0.0 if (obj.cls == "bus" or max(paint[:3]) > 0.6) else 0.5
+    wear = (seed // 7 % 4) / 4 * (0.9 if obj.cls in ("truck", "bus") else 0.6)
     out = {}
     for s in slots:
         if s == "paint":
-            out[s] = M.paint(paint)
+            out[s] = M.paint(paint, metallic, wear)
         elif s == "cargo":
             out[s] = M.principled(M._key("cargo", v.get("cargo", (0.8, 0.8, 0.78))), v.get("cargo", (0.8, 0.8, 0.78)),
                                   roughness=0.5, coat=0.3)
@@ -44,12 +49,8 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.plastic((0.025, 0.025, 0.025))
         elif s == "plate":
             out[s] = M.principled("plate", (0.85, 0.85, 0.8), roughness=0.4)
-        elif s == "lamp_head":
-            out[s] = M.lamp((1.0, 0.95, 0.85), 2.0)
-        elif s == "lamp_tail":
-            out[s] = M.lamp((0.9, 0.02, 0.01), 1.5)
-        elif s == "lamp_sign":
-            out[s] = M.lamp((1.0, 0.55, 0.05), 3.0)
+        elif s in ("lamp_head", "lamp_tail", "lamp_sign"):  # switched per frame by the render driver
+            out[s] = M.vehicle_lamp(s[5:])
         elif s.startswith("lamp_"):  # traffic-light lamps: lit one emits strongly
             name = s.split("_")[1]
             col = LAMP_COLORS[name]

@@ -82,7 +82,7 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for s in (1, -1):
         vv, f = box((0.05, 0.30, 0.09), (L / 2 - 0.045, s * (hw - 0.28), zl))
         mb.add(vv, f, "lamp_head")
-        vv, f = box((0.05, 0.28, 0.10), (-L / 2 + 0.03, s * (hw - 0.25), deck - 0.16))
+        vv, f = box((0.06, 0.40, 0.13), (-L / 2 + 0.035, s * (hw - 0.24), deck - 0.15))
         mb.add(vv, f, "lamp_tail")
         vv, f = box((0.18, (W / 2 - hw) + 0.06, 0.11), (x_ws - 0.12, s * (W / 2 - (W / 2 - hw + 0.06) / 2), belt + 0.06))
         mb.add(vv, f, "paint")
@@ -324,11 +324,24 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
 
 
 def person(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
-    figure(mb, {**v, "height_m": H})
+    mount = v.get("mount")
+    if mount:  # the rider of a two-wheeler: posed on it, the two-wheeler itself left out
+        BUILDERS[mount["cls"]](mb, {**mount["variant"], "part": "rider"}, *mount["variant"]["shape_dims"])
+    else:
+        figure(mb, {**v, "height_m": H})
 
 
 # ====================================================================== two-wheelers
+def _parts(mb: MeshBuilder, part: str) -> tuple[MeshBuilder, MeshBuilder]:
+    """Where a two-wheeler builder puts (vehicle, rider) parts: `part` "all" builds both into
+    `mb`; "vehicle" or "rider" builds only that one (the other goes to a scratch builder), so
+    a ridden two-wheeler can be labelled as two instances, as COCO does."""
+    scratch = MeshBuilder()
+    return (mb if part in ("all", "vehicle") else scratch), (mb if part in ("all", "rider") else scratch)
+
+
 def bicycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    veh, rid = _parts(mb, v.get("part", "all"))
     kind = v.get("kind", "city")
     r = float(v.get("wheel_radius", 0.35))
     wb = L - 2 * r
@@ -336,14 +349,14 @@ def bicycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     tr = 0.028 if kind == "mountain" else 0.018
     for x in (xr, xf_):
         vv, f = torus(r - tr, tr, (x, 0, r), "y", 28, 6)
-        mb.add(vv, f, "rubber", smooth=True)
+        veh.add(vv, f, "rubber", smooth=True)
         vv, f = torus(r - 2 * tr - 0.012, 0.012, (x, 0, r), "y", 28, 4)
-        mb.add(vv, f, "alloy", smooth=True)
+        veh.add(vv, f, "alloy", smooth=True)
         for k in range(8):
             a = k * math.pi / 8
             d = np.array([math.cos(a), 0, math.sin(a)]) * (r - 2 * tr - 0.015)
             vv, f = tube(np.array([x, 0, r]) - d, np.array([x, 0, r]) + d, 0.004, 4)
-            mb.add(vv, f, "chrome")
+            veh.add(vv, f, "chrome")
     bb = np.array([xr + 0.42 * wb, 0, r * 0.85])
     seat_top = np.array([xr + 0.27 * wb, 0, r + 0.56])
     head_top = np.array([xf_ - 0.16 * wb, 0, r + 0.5])
@@ -353,48 +366,49 @@ def bicycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for a, b in ((seat_top, bb), (bb, head_bot), (top_from, head_top), (head_top, head_bot),
                  (bb, [xr, 0, r]), (seat_top + (bb - seat_top) * 0.1, [xr, 0, r])):
         vv, f = tube(a, b, rad, 8)
-        mb.add(vv, f, "paint", smooth=True)
+        veh.add(vv, f, "paint", smooth=True)
     for s in (1, -1):
         vv, f = tube(head_bot, [xf_, s * 0.05, r], 0.013, 6)
-        mb.add(vv, f, "paint")
+        veh.add(vv, f, "paint")
     post = seat_top + np.array([-0.05, 0, 0.12])
     vv, f = tube(seat_top, post, 0.013, 6)
-    mb.add(vv, f, "chrome")
+    veh.add(vv, f, "chrome")
     vv, f = ellipsoid((0.13, 0.075, 0.03), post + [0.0, 0, 0.02], 10, 5)
-    mb.add(vv, f, "saddle", smooth=True)
+    veh.add(vv, f, "saddle", smooth=True)
     stem = head_top + np.array([0.04 if kind == "road" else -0.02, 0, 0.13 if kind == "city" else 0.06])
     vv, f = tube(head_top, stem, 0.015, 6)
-    mb.add(vv, f, "chrome")
+    veh.add(vv, f, "chrome")
     bar_w = W / 2 - 0.01
     vv, f = tube(stem + [0, -bar_w, 0], stem + [0, bar_w, 0], 0.012, 6)
-    mb.add(vv, f, "chrome")
+    veh.add(vv, f, "chrome")
     for s in (1, -1):
         vv, f = tube(stem + [0, s * (bar_w - 0.12), 0], stem + [0, s * bar_w, 0], 0.017, 6)
-        mb.add(vv, f, "plastic")
+        veh.add(vv, f, "plastic")
     pedals = []
     for s, ang in ((1, 0.6), (-1, 0.6 + math.pi)):
         p = bb + np.array([0.17 * math.cos(ang), s * 0.12, 0.17 * math.sin(ang)])
         vv, f = tube(bb + [0, s * 0.06, 0], p, 0.01, 4)
-        mb.add(vv, f, "alloy")
+        veh.add(vv, f, "alloy")
         vv, f = box((0.1, 0.08, 0.02), p)
-        mb.add(vv, f, "plastic")
+        veh.add(vv, f, "plastic")
         pedals.append(p)
     vv, f = torus(0.09, 0.008, bb + [0, -0.05, 0], "y", 16, 4)
-    mb.add(vv, f, "alloy")
+    veh.add(vv, f, "alloy")
     if kind == "city":
         vv, f = box((0.3, 0.03, 0.02), [xf_, 0, 2 * r + 0.03])
-        mb.add(vv, f, "paint")
+        veh.add(vv, f, "paint")
     if "rider" in v:
         rv = v["rider"]
         h = float(rv.get("height_m", 1.72))
         lean = {"road": 0.75, "mountain": 0.55, "city": 0.3}.get(kind, 0.45)
         pelvis = post + np.array([-0.02, 0, 0.06])
         hands = [stem + [0, bar_w - 0.06, 0], stem + [0, -(bar_w - 0.06), 0]]
-        figure(mb, {**rv, "height_m": h}, {"pelvis": pelvis, "lean": lean, "hands": hands,
+        figure(rid, {**rv, "height_m": h}, {"pelvis": pelvis, "lean": lean, "hands": hands,
                                            "feet": [pedals[0] + [0, 0, 0.03], pedals[1] + [0, 0, 0.03]]})
 
 
 def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    veh, rid = _parts(mb, v.get("part", "all"))
     kind = v.get("kind", "sport")
     r = float(v.get("wheel_radius", 0.31))
     tr = 0.06 if kind != "scooter" else 0.05
@@ -402,65 +416,65 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     xr, xf_ = -wb / 2 - 0.05, wb / 2 - 0.05
     for x in (xr, xf_):
         vv, f = torus(r - tr, tr, (x, 0, r), "y", 24, 8)
-        mb.add(vv, f, "rubber", smooth=True)
+        veh.add(vv, f, "rubber", smooth=True)
         vv, f = cylinder(r - tr, 0.05, 16, "y", (x, 0, r))
-        mb.add(vv, f, "alloy")
+        veh.add(vv, f, "alloy")
     if kind == "scooter":
         vv, f = box((wb * 0.5, 0.34, 0.08), (0.0, 0, r * 0.9))
-        mb.add(vv, f, "plastic")
+        veh.add(vv, f, "plastic")
         body = [(xr - 0.15, rounded_section(0.17, r * 0.8, r + 0.45, 0.12)),
                 (xr + 0.45, rounded_section(0.2, r * 0.8, r + 0.5, 0.14)),
                 (xr + 0.6, rounded_section(0.15, r * 0.9, r + 0.3, 0.1))]
         vv, f = loft(body)
-        mb.add(vv, f, "paint", smooth=True)
+        veh.add(vv, f, "paint", smooth=True)
         apron = [(xf_ - 0.35, rounded_section(0.22, r * 0.9, r + 0.75, 0.1)),
                  (xf_ - 0.15, rounded_section(0.2, r + 0.1, r + 0.85, 0.1))]
         vv, f = loft(apron)
-        mb.add(vv, f, "paint", smooth=True)
+        veh.add(vv, f, "paint", smooth=True)
         seat_z, seat_x = r + 0.55, xr + 0.25
         bar = np.array([xf_ - 0.2, 0, r + 0.95])
         peg_x, peg_z = 0.0, r * 0.9 + 0.06
     else:
         low = kind == "cruiser"
         vv, f = box((wb * 0.35, 0.3, 0.32), (0.0, 0, r + 0.05))
-        mb.add(vv, f, "chrome" if low else "alloy")
+        veh.add(vv, f, "chrome" if low else "alloy")
         tank = ellipsoid((0.28, 0.17, 0.13), (xf_ - 0.55 * wb + 0.1, 0, r + 0.42 - (0.05 if low else 0)), 12, 8)
-        mb.add(*tank, "paint", smooth=True)
+        veh.add(*tank, "paint", smooth=True)
         seat_x, seat_z = xr + 0.35 * wb, r + (0.38 if low else 0.5)
         vv, f = loft([(xr - 0.05, rounded_section(0.1, seat_z - 0.12, seat_z + (0.02 if low else 0.06), 0.05)),
                       (seat_x + 0.25, rounded_section(0.16, seat_z - 0.12, seat_z, 0.06))])
-        mb.add(vv, f, "saddle", smooth=True)
+        veh.add(vv, f, "saddle", smooth=True)
         vv, f = loft([(xr - 0.15, rounded_section(0.1, r + 0.25, r + 0.4, 0.05)),
                       (xr + 0.3, rounded_section(0.14, r + 0.1, r + 0.45, 0.06))])
-        mb.add(vv, f, "paint", smooth=True)
+        veh.add(vv, f, "paint", smooth=True)
         if kind == "sport":
             fair = [(xf_ - 0.55, rounded_section(0.2, r - 0.05, r + 0.55, 0.12)),
                     (xf_ - 0.1, rounded_section(0.13, r + 0.15, r + 0.62, 0.08))]
             vv, f = loft(fair)
-            mb.add(vv, f, "paint", smooth=True)
+            veh.add(vv, f, "paint", smooth=True)
             vv, f = box((0.04, 0.22, 0.16), (xf_ - 0.16, 0, r + 0.72))
-            mb.add(xf(vv - [xf_ - 0.16, 0, r + 0.72], rot_y(-0.5), [xf_ - 0.16, 0, r + 0.72]), f, "glass")
+            veh.add(xf(vv - [xf_ - 0.16, 0, r + 0.72], rot_y(-0.5), [xf_ - 0.16, 0, r + 0.72]), f, "glass")
         bar = np.array([xf_ - 0.25, 0, r + (0.72 if low else 0.65)])
         peg_x, peg_z = seat_x + (0.35 if low else 0.05), r * (0.7 if low else 0.95)
         vv, f = tube([xr + 0.2, -0.16, r * 0.7], [xr - 0.2, -0.18, r * 0.9], 0.045, 10)
-        mb.add(vv, f, "chrome")
+        veh.add(vv, f, "chrome")
     for s in (1, -1):
         vv, f = tube([xf_, s * 0.09, r], bar + [0.05, s * 0.09, -0.1], 0.025, 8)
-        mb.add(vv, f, "chrome")
+        veh.add(vv, f, "chrome")
     bar_w = W / 2 - 0.02
     vv, f = tube(bar + [0, -bar_w, 0], bar + [0, bar_w, 0], 0.014, 6)
-    mb.add(vv, f, "chrome")
+    veh.add(vv, f, "chrome")
     vv, f = cylinder(0.08, 0.06, 12, "x", bar + [0.17, 0, -0.15])
-    mb.add(vv, f, "lamp_head")
+    veh.add(vv, f, "lamp_head")
     vv, f = box((0.04, 0.14, 0.06), (xr - r + 0.05, 0, r + 0.42))
-    mb.add(vv, f, "lamp_tail")
+    veh.add(vv, f, "lamp_tail")
     if "rider" in v:
         rv = v["rider"]
         lean = {"sport": 0.75, "cruiser": 0.05, "scooter": 0.1}.get(kind, 0.4)
         pelvis = np.array([seat_x, 0, seat_z + 0.06])
         hands = [bar + [0, bar_w - 0.06, 0], bar + [0, -(bar_w - 0.06), 0]]
         feet = [np.array([peg_x, s * 0.2, peg_z]) for s in (1, -1)]
-        figure(mb, rv, {"pelvis": pelvis, "lean": lean, "hands": hands, "feet": feet})
+        figure(rid, rv, {"pelvis": pelvis, "lean": lean, "hands": hands, "feet": feet})
 
 
 # ====================================================================== traffic light
@@ -520,6 +534,15 @@ def build_shape(cls: str, variant: dict, dims, state: str | None = None) -> Mesh
         BUILDERS[cls](mb, variant, L, W, H)
     fit_to_dims(mb, dims)
     return mb
+
+
+def part_box(cls: str, variant: dict, part: str = "all") -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) corners of the unfitted geometry of a two-wheeler's `part` ("all",
+    "vehicle", "rider") in the builder's frame."""
+    mb = MeshBuilder()
+    BUILDERS[cls](mb, {**variant, "part": part}, *variant["shape_dims"])
+    v = mb.vertices
+    return v.min(0), v.max(0)
 
 
 def natural_extent(mb: MeshBuilder) -> np.ndarray:

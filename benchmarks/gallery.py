@@ -1,11 +1,17 @@
 """Render the gallery of the seven object classes and both twins into docs/images/.
 
-    .venv/bin/python benchmarks/gallery.py [--quick] [--samples N]
+    .venv/bin/python benchmarks/gallery.py [--quick] [--samples N] [--old-tiles DIR]
 
-Each class tile shows several variants (body types, riders, lamp states) on a neutral
-ground; each twin tile is a dashcam view of the twin with a planned frame of objects
-(the planner's output for that pose). Writes docs/images/gallery.png and prints the build
-and render times per tile.
+Each class row shows several variants (body types, riders, lamp states) on a neutral
+ground in day light and in night light (dark sky, one street lamp, vehicle lamps on);
+each twin tile is a dashcam view of the twin with a planned frame of objects (the
+planner's output for that pose). Writes docs/images/gallery.png and prints the build and
+render times per tile. To compare with older objects, first render their day tiles from
+a copy of the old package (e.g. `git show main:assets_procedural/<f>.py` into
+OLD/assets_procedural/), then pass the folder as --old-tiles:
+
+    .venv/bin/python benchmarks/gallery.py --quick --old-assets OLD --tiles-only DIR
+    .venv/bin/python benchmarks/gallery.py --quick --old-tiles DIR
 """
 
 from __future__ import annotations
@@ -20,11 +26,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+if "--old-assets" in sys.argv:  # import that folder's assets_procedural instead of ours
+    sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--old-assets") + 1]).resolve()))
 
 import bpy  # noqa: E402
 import cv2  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
+from assets_procedural import materials  # noqa: E402
 from assets_procedural.objects import build_object  # noqa: E402
 from assets_procedural.twin_builder import build_twin  # noqa: E402
 from blendgen import atomic  # noqa: E402
@@ -48,7 +57,7 @@ TILES = {  # class -> list of variant overrides (kind, rider, state)
 }
 
 
-def reset_scene(res, samples):
+def reset_scene(res, samples, night=False):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     sc = bpy.context.scene
     sc.render.engine = "CYCLES"
@@ -63,15 +72,21 @@ def reset_scene(res, samples):
     if world.node_tree is None:
         world.use_nodes = True
     bg = world.node_tree.nodes["Background"]
-    bg.inputs["Color"].default_value = (0.55, 0.65, 0.85, 1.0)
+    bg.inputs["Color"].default_value = (0.03, 0.04, 0.08, 1.0) if night else (0.55, 0.65, 0.85, 1.0)
     bg.inputs["Strength"].default_value = 0.9
     sc.world = world
-    sun = bpy.data.lights.new("sun", "SUN")
-    sun.energy = 4.0
-    sun.angle = math.radians(2.0)
-    so = bpy.data.objects.new("sun", sun)
-    so.rotation_euler = (math.radians(50), math.radians(10), math.radians(-35))
-    sc.collection.objects.link(so)
+    if night:  # one sodium-ish street lamp high above the row
+        light = bpy.data.lights.new("street", "POINT")
+        light.energy, light.color, light.shadow_soft_size = 6000.0, (1.0, 0.8, 0.55), 0.3
+        lo = bpy.data.objects.new("street", light)
+        lo.location = (6.0, -4.0, 8.0)
+    else:
+        light = bpy.data.lights.new("sun", "SUN")
+        light.energy = 4.0
+        light.angle = math.radians(2.0)
+        lo = bpy.data.objects.new("sun", light)
+        lo.rotation_euler = (math.radians(50), math.radians(10), math.radians(-35))
+    sc.collection.objects.link(lo)
     cam = bpy.data.cameras.new("cam")
     co = bpy.data.objects.new("cam", cam)
     sc.collection.objects.link(co)
@@ -97,8 +112,8 @@ def render(path):
     return time.perf_counter() - t0
 
 
-def class_tile(cls, overrides, res, samples, out, rng):
-    sc, cam = reset_scene(res, samples)
+def class_tile(cls, overrides, res, samples, out, rng, night=False):
+    sc, cam = reset_scene(res, samples, night)
     ground = bpy.data.meshes.new("ground")
     ground.from_pydata([(-60, -60, 0), (60, -60, 0), (60, 60, 0), (-60, 60, 0)], [], [(0, 1, 2, 3)])
     gmat = bpy.data.materials.new("ground")
@@ -120,6 +135,8 @@ def class_tile(cls, overrides, res, samples, out, rng):
         objs.append((build_object(o), d, y))
         y += d[1] / 2
     build_s = time.perf_counter() - t0
+    if night and hasattr(materials, "set_vehicle_lamps"):
+        materials.set_vehicle_lamps(True)
     # frame the row from the front-left, three-quarter view
     lo = np.array([min(-d[0] / 2 for _, d, _ in objs), 0.0, 0.0])
     hi = np.array([max(d[0] / 2 for _, d, _ in objs), y, max(d[2] for _, d, _ in objs) + (0.5 if cls == "traffic light" else 0)])
@@ -184,42 +201,53 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="small tiles, few samples")
     ap.add_argument("--samples", type=int, default=None)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "images" / "gallery.png")
+    ap.add_argument("--old-assets", type=Path, help="folder holding an older assets_procedural package")
+    ap.add_argument("--tiles-only", type=Path, help="only render the day class tiles into this folder")
+    ap.add_argument("--old-tiles", type=Path, help="day tiles of older objects: shown left of each row")
+    ap.add_argument("--no-twins", action="store_true")
     a = ap.parse_args(argv)
     samples = a.samples or (8 if a.quick else 24)
     tile = (320, 240) if a.quick else (480, 360)
     twin_res = (480, 270) if a.quick else (720, 405)
-    tmp = ROOT / "benchmarks" / "results" / "gallery_tiles"
+    tmp = a.tiles_only or ROOT / "benchmarks" / "results" / "gallery_tiles"
     tmp.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(11)
-    rows = []
-    tiles = []
+    rows, grid_rows = [], []
     for cls, ov in TILES.items():
-        p = tmp / f"{cls.replace(' ', '_')}.png"
-        b, r = class_tile(cls, ov, tile, samples, p, rng)
-        rows.append((cls, len(ov), b, r))
-        print(f"{cls:14s} {len(ov)} variants  build {b * 1000:6.0f} ms  render {r:5.1f} s", flush=True)
-        tiles.append(label(cv2.imread(str(p)), f"{cls} ({', '.join(o.get('kind', o.get('state', '')) for o in ov)})"))
-    town = load_twin(TWINS / "demo_town.yaml")
-    town_route = town.lane_polyline("main", 1, 1, 90.0, 150.0)   # outer lane toward the intersection
-    hw = load_twin(TWINS / "highway.yaml")
-    hw_route = hw.lane_polyline("a7", 1, 1, 150.0, 290.0)
-    twin_imgs = []
-    for name, route, frame, seed in (("demo_town", town_route, 14, 2), ("highway", hw_route, 10, 2)):
-        p = tmp / f"twin_{name}.png"
-        tb, ob, r, classes = twin_tile(name, route, twin_res, samples, p, frame, seed)
-        print(f"twin {name:10s} build {tb:4.2f} s  objects {ob * 1000:5.0f} ms  render {r:5.1f} s  {classes}", flush=True)
-        rows.append((f"twin {name}", len(classes), tb + ob, r))
-        twin_imgs.append(label(cv2.imread(str(p)), f"twin: {name} + planned objects ({len(classes)})"))
-    # grid: class tiles 4 per row, then the two twins side by side
-    th, tw_ = tiles[0].shape[:2]
-    blank = np.full_like(tiles[0], 255)
-    while len(tiles) % 4:
-        tiles.append(blank)
-    grid = np.vstack([np.hstack(tiles[i:i + 4]) for i in range(0, len(tiles), 4)])
-    W = grid.shape[1]
-    twins = np.hstack(twin_imgs)
-    twins = cv2.resize(twins, (W, int(twins.shape[0] * W / twins.shape[1])), interpolation=cv2.INTER_AREA)
-    atomic.write_image(a.out, np.vstack([grid, twins]))
+        row = []
+        if a.old_tiles:
+            old = cv2.imread(str(a.old_tiles / f"{cls.replace(' ', '_')}_day.png"))
+            row.append(label(cv2.resize(old, tile), f"{cls}: OLD objects, day"))
+        for night in ((False,) if a.tiles_only else (False, True)):
+            p = tmp / f"{cls.replace(' ', '_')}_{'night' if night else 'day'}.png"
+            rng = np.random.default_rng(11 + list(TILES).index(cls))  # the same variants in every column
+            b, r = class_tile(cls, ov, tile, samples, p, rng, night)
+            rows.append((cls, len(ov), b, r))
+            print(f"{cls:14s} {'night' if night else 'day':5s} {len(ov)} variants  build {b * 1000:6.0f} ms  "
+                  f"render {r:5.1f} s", flush=True)
+            kinds = ", ".join(o.get("kind", o.get("state", "")) for o in ov)
+            row.append(label(cv2.imread(str(p)), f"{cls} ({kinds}), {'night' if night else 'day'}"))
+        grid_rows.append(np.hstack(row))
+    if a.tiles_only:
+        return rows
+    grid = np.vstack(grid_rows)
+    if not a.no_twins:
+        town = load_twin(TWINS / "demo_town.yaml")
+        town_route = town.lane_polyline("main", 1, 1, 90.0, 150.0)   # outer lane toward the intersection
+        hw = load_twin(TWINS / "highway.yaml")
+        hw_route = hw.lane_polyline("a7", 1, 1, 150.0, 290.0)
+        twin_imgs = []
+        for name, route, frame, seed in (("demo_town", town_route, 14, 2), ("highway", hw_route, 10, 2)):
+            p = tmp / f"twin_{name}.png"
+            tb, ob, r, classes = twin_tile(name, route, twin_res, samples, p, frame, seed)
+            print(f"twin {name:10s} build {tb:4.2f} s  objects {ob * 1000:5.0f} ms  render {r:5.1f} s  {classes}",
+                  flush=True)
+            rows.append((f"twin {name}", len(classes), tb + ob, r))
+            twin_imgs.append(label(cv2.imread(str(p)), f"twin: {name} + planned objects ({len(classes)})"))
+        W = grid.shape[1]
+        twins = np.hstack(twin_imgs)
+        twins = cv2.resize(twins, (W, int(twins.shape[0] * W / twins.shape[1])), interpolation=cv2.INTER_AREA)
+        grid = np.vstack([grid, twins])
+    atomic.write_image(a.out, grid)
     print(f"wrote {a.out}")
     return rows
 

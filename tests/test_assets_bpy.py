@@ -155,3 +155,43 @@ def test_twin_builds_with_roles_and_materials(name):
         assert np.mean(on_road) < 0.02
     for ob in list(coll.objects):
         bpy.data.objects.remove(ob, do_unlink=True)
+
+
+def test_ridden_two_wheelers_build_as_vehicle_and_person():
+    from blendgen.scene.riders import split_rider
+
+    rng = np.random.default_rng(8)
+    for cls in ("bicycle", "motorcycle"):
+        v, d = next((v, d) for v, d in iter(lambda: sample_variant(cls, rng), None) if "rider" in v)
+        vehicle, rider = split_rider(PlacedObject(20, cls, (5.0, 1.0, 0.0), 0.4, d, v), 21)
+        for o, must, mustnt in ((vehicle, "rubber", "skin"), (rider, "skin", "rubber")):
+            root = build_object(o)
+            lo, hi = _local_box(root)
+            np.testing.assert_allclose(hi - lo, o.dims, atol=2e-3, err_msg=f"{cls} {o.cls}")
+            assert root.pass_index == o.id
+            names = {m.name.split("_")[0] for m in root.data.materials}
+            assert must in names and mustnt not in names, (cls, o.cls, names)
+            remove_object(root)
+
+
+def test_vehicle_lamps_switch_on_at_night():
+    from assets_procedural.materials import set_vehicle_lamps
+
+    v, d = sample_variant("car", np.random.default_rng(2))
+    root = build_object(PlacedObject(30, "car", (0, 0, 0), 0.0, d, v))
+    lamps = {m.name: m for m in root.data.materials if "blendgen_lamp" in m}
+    assert {m["blendgen_lamp"] for m in lamps.values()} == {"head", "tail"}
+
+    def strength():
+        return {m["blendgen_lamp"]: _bsdf(m).inputs["Emission Strength"].default_value for m in lamps.values()}
+
+    assert set_vehicle_lamps(True) >= 2
+    on = strength()
+    assert on["head"] > 20 and on["tail"] > 5
+    set_vehicle_lamps(False)
+    off = strength()
+    assert off["head"] < 0.5 and off["tail"] < 0.5
+    tail = next(m for m in lamps.values() if m["blendgen_lamp"] == "tail")
+    r, g, b, _ = _bsdf(tail).inputs["Emission Color"].default_value
+    assert r > 0.9 and g < 0.1  # red tail lights
+    remove_object(root)

@@ -242,7 +242,7 @@ def test_kitti_types_pass_the_devkit_format(tmp_path):
     """Issue 16: the default KITTI export uses only KITTI's types; 'extended' keeps ours."""
     out = _write_out(tmp_path, 4)
     s = export_labels(out, find_frame_labels(out), ["kitti"])
-    assert s["kitti"]["types"] == "kitti" and s["kitti"]["type_of_class"]["bicycle"] == "Cyclist"
+    assert s["kitti"]["types"] == "kitti" and s["kitti"]["type_of_class"]["bicycle"] == "Misc"
     types = [check_devkit_line(line) for p in sorted((out / "labels/kitti/label_2").glob("*.txt"))
              for line in p.read_text().splitlines()]
     assert len(types) > 4 and {"Car", "Pedestrian"} <= set(types)
@@ -274,3 +274,40 @@ def test_export_rejects_unknown_format_and_missing_image(tmp_path):
     (out / "frames/f000000/composite.png").unlink()
     with pytest.raises(UserError, match="labels.json.*composite.png"):
         export_labels(out, find_frame_labels(out), ["coco"])
+
+
+def test_ridden_bicycle_gives_a_person_and_a_bicycle_instance():
+    from blendgen.labels.kitti import label_line
+    from blendgen.scene.catalog import sample_variant
+    from blendgen.scene.plan import FramePlan, PlacedObject
+    from blendgen.scene.riders import split_rider
+    from labels_fixtures import T_WORLD_CAM
+
+    rng = np.random.default_rng(4)
+    v, d = next((v, d) for v, d in iter(lambda: sample_variant("bicycle", rng), None) if "rider" in v)
+    bike, rider = split_rider(PlacedObject(7, "bicycle", (8.0, 0.5, 0.0), 1.5, d, v, velocity=(0.0, 5.0, 0.0)), 8)
+    assert (bike.id, bike.cls, rider.id, rider.cls) == (7, "bicycle", 8, "person")
+    assert rider.variant["rides"] == 7 and rider.velocity == bike.velocity and "rider" in bike.variant
+    assert bike.dims[2] < d[2] - 0.4 and rider.dims[2] > 1.2  # the rider is no longer in the bike's box
+    parked, = split_rider(PlacedObject(9, "bicycle", (8.0, 0.5, 0.0), 1.5, *sample_parked(rng)), 10)
+    assert parked.cls == "bicycle" and parked.id == 9
+    index = np.zeros((H, W), np.int32)
+    for o in (bike, rider):  # the rider in front of the frame where they overlap
+        index[hull_mask(o)] = o.id
+    plan = FramePlan("f000002", 0.0, T_WORLD_CAM.tolist(), [bike, rider])
+    inst = {i["id"]: i for i in extract_instances(index, plan, CAMERA, min_visible_px=1, small_objects="drop")}
+    assert set(inst) == {7, 8}
+    assert (inst[7]["cls"], inst[8]["cls"]) == ("bicycle", "person")
+    assert inst[8]["rides"] == {"id": 7, "cls": "bicycle"} and inst[7]["rides"] is None
+    assert inst[8]["bbox"][1] < inst[7]["bbox"][1]  # the person's box reaches higher than the bike's
+    assert label_line(inst[8]).split()[0] == "Cyclist" and label_line(inst[7]).split()[0] == "Misc"
+    assert label_line(inst[7], "extended").split()[0] == "Bicycle"
+
+
+def sample_parked(rng):
+    from blendgen.scene.catalog import sample_variant
+
+    while True:
+        v, d = sample_variant("bicycle", rng)
+        if "rider" not in v:
+            return d, v

@@ -68,6 +68,19 @@ def test_enough_frames_and_objects(planned):
     assert scen == set(SCENARIOS)
 
 
+def test_riders_are_people_on_their_two_wheelers(planned):
+    riders = [(f, o) for *_, plans in planned for f in plans for o in f.objects if o.variant.get("rides")]
+    assert riders
+    for f, o in riders:
+        vehicle = next(v for v in f.objects if v.id == o.variant["rides"])
+        assert o.cls == "person" and vehicle.cls in ("bicycle", "motorcycle") and vehicle.variant["part"] == "vehicle"
+        assert np.hypot(*np.subtract(o.position[:2], vehicle.position[:2])) < 0.6
+        assert o.velocity == vehicle.velocity and o.position[2] > vehicle.position[2]
+    parked = [o for *_, plans in planned for f in plans for o in f.objects
+              if o.cls in ("bicycle", "motorcycle") and "rider" not in o.variant]
+    assert all(o.velocity == (0.0, 0.0, 0.0) for o in parked)
+
+
 def test_no_overlaps_no_structures_no_ego(planned):
     for tw, poses, inj, seed, plans in planned:
         for (fid, t, T), f in zip(poses, plans):
@@ -76,6 +89,9 @@ def test_no_overlaps_no_structures_no_ego(planned):
                 if f.objects[i].cls != "traffic light":  # heads hang on their signal pole
                     assert tw.is_free(polys[i]), (tw.name, seed, fid, f.objects[i].cls)
                 for j in range(i + 1, len(polys)):
+                    a, b = f.objects[i], f.objects[j]
+                    if a.id == b.variant.get("rides") or b.id == a.variant.get("rides"):
+                        continue  # a rider sits on their two-wheeler
                     assert not convex_overlap(polys[i], polys[j]), (tw.name, seed, fid)
             yaw = math.atan2(T[1, 2], T[0, 2])
             c = T[:2, 3] + np.array([math.cos(yaw), math.sin(yaw)]) * (EGO_FRONT_OF_CAM - EGO_LENGTH / 2)

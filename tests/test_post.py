@@ -149,8 +149,9 @@ def test_illumination_estimates_colour_cast_and_overcast():
     assert not ov.sun_visible and ov.to_lighting()["sun_strength"] == 0.0
     light = ov.to_lighting()
     assert set(light) == {"sun_direction", "sun_strength", "sun_color", "sun_angle_deg", "sky_color",
-                          "sky_strength", "sun_visible"}
-    assert all(np.isfinite(v).all() for v in map(np.asarray, light.values()))
+                          "sky_strength", "sun_visible", "condition", "lights_on", "street_light"}
+    assert light["condition"] == "day" and not light["lights_on"] and light["street_light"] is None
+    assert all(np.isfinite(np.asarray(v, float)).all() for k, v in light.items() if k not in ("condition", "street_light"))
 
 
 def test_illumination_detects_sun_from_road_shadows():
@@ -168,7 +169,8 @@ def test_illumination_stable_on_black_and_white_frames():
     for v in (0, 255):
         est = estimate_illumination(np.full((40, 60, 3), v, np.uint8))
         light = est.to_lighting()
-        assert all(np.isfinite(np.asarray(x, float)).all() for x in light.values())
+        numbers = [light[k] for k in ("sun_direction", "sun_strength", "sun_color", "sky_color", "sky_strength")]
+        assert all(np.isfinite(np.asarray(x, float)).all() for x in numbers)
     with pytest.raises(UserError, match="real_bgr"):
         estimate_illumination(np.zeros((10, 10), np.uint8))
 
@@ -178,6 +180,71 @@ def test_illumination_sun_direction_from_time_and_position():
                                 latlon=(37.4, -122.1))  # ~13:00 PDT in California: high sun
     assert est.sun_direction_source == "ephemeris" and est.sun_elevation_deg > 60
     assert est.sun_direction[2] > 0.85
+
+
+def _night_street(h=240, w=320, seed=1):
+    """A dark street: black sky, dim road, a bright headlight pool on the road (bimodal road,
+    the trap that used to read as sun shadows)."""
+    rng = np.random.default_rng(seed)
+    img = np.full((h, w, 3), 6, np.uint8)
+    img[h // 2:] = (14, 15, 17)
+    img[h // 2:] += rng.integers(0, 4, size=(h - h // 2, w, 1), dtype=np.uint8)
+    img[170:230, 120:230] = (70, 90, 110)  # warm pool of light from a lamp
+    cv2.circle(img, (260, 40), 6, (180, 230, 255), -1)  # the lamp itself
+    return img
+
+
+def test_dark_frame_is_night_without_sun_shadow():
+    from blendgen.render.effects import decide_shadow_catcher
+
+    est = estimate_illumination(_night_street())
+    light = est.to_lighting()
+    assert est.condition == "night" and not est.sun_visible and est.visibility_cue == "night"
+    assert light["lights_on"] and light["sun_strength"] == 0.0 and not light["sun_visible"]
+    assert decide_shadow_catcher(light, {"rgba", "shadow_catcher"}).value is False  # no sun shadow caught
+    street = light["street_light"]
+    assert street["strength"] > 0 and street["direction"][2] > 0.9  # overhead key replaces the sun
+    r, g, b = street["color"]
+    assert r > b  # the lamps' warm colour, not daylight
+    # Exposure follows the frame: the night key + ambient are far below a daylight frame's.
+    day = estimate_illumination(_scene(240, 320)).to_lighting()
+    assert street["strength"] + light["sky_strength"] < 0.2 * (day["sun_strength"] + day["sky_strength"])
+
+
+def test_dusk_from_sun_elevation():
+    est = estimate_illumination(_scene(), sun_az_el=(250.0, 2.0))  # bright frame, sun 2 deg up
+    assert est.condition == "dusk" and est.to_lighting()["lights_on"] and not est.sun_visible
+
+
+def test_light_concrete_road_does_not_wash_objects_out():
+    def frame(road_bgr):
+        img = _scene(240, 320)
+        img[120:160] = (60, 75, 70)  # verges, kerbs and walls between the sky and the road
+        img[160:] = road_bgr
+        return img
+
+    asphalt = estimate_illumination(frame((80, 82, 85)))
+    concrete = estimate_illumination(frame((185, 188, 192)))
+    road_ratio = concrete.ground_luminance / asphalt.ground_luminance
+    assert road_ratio > 4
+    la, lc = asphalt.to_lighting(), concrete.to_lighting()
+    light_ratio = (lc["sun_strength"] * 0.7 + lc["sky_strength"]) / (la["sun_strength"] * 0.7 + la["sky_strength"])
+    # The scene's light rises by its log-average only, not by the road's albedo ratio.
+    assert light_ratio < 0.5 * road_ratio
+    assert concrete.road_albedo > 1.5 * asphalt.road_albedo
+
+
+BDD_NIGHT = DATA / "real" / "bdd_street_photos" / "9aa94005-ff1d4c9a.jpg"
+
+
+@pytest.mark.data
+def test_illumination_on_real_night_street():
+    if not BDD_NIGHT.is_file():
+        pytest.skip(f"needs {BDD_NIGHT}")
+    est = estimate_illumination(cv2.imread(str(BDD_NIGHT)))
+    light = est.to_lighting()
+    assert est.condition == "night" and not est.sun_visible
+    assert light["lights_on"] and light["sun_strength"] == 0.0 and light["street_light"] is not None
 
 
 @pytest.mark.data

@@ -175,6 +175,8 @@ def extract_instances(index: np.ndarray, plan: FramePlan, camera: Camera, *,
             "box3d_cam": b3,
             "scenario": obj.scenario,
             "state": obj.state,
+            "rides": ({"id": int(obj.variant["rides"]), "cls": obj.variant["mount"]["cls"]}
+                      if obj.variant.get("rides") else None),  # a rider: the two-wheeler it rides
             "ignore": bool(ignore),
         })
     return out

@@ -10,6 +10,9 @@ tools keep (they drop any other): person Pedestrian, car Car, truck Truck, bicyc
 (blendgen's bicycles carry a rider, like KITTI's Cyclist box), bus and motorcycle Misc, traffic
 light DontCare (not an object class in KITTI: an ignore region). "extended" keeps a type per
 blendgen class (Bicycle, Motorcycle, Bus, TrafficLight), which KITTI's own tools drop.
+Riders are separate person instances (COCO's convention): KITTI's Cyclist in both modes
+(Motorcyclist for a motorcycle's rider in "extended"); the two-wheeler itself stays its own
+line (Misc in "kitti": KITTI has no bicycle or motorcycle type).
 """
 
 from __future__ import annotations
@@ -22,12 +25,21 @@ from blendgen import atomic
 from blendgen.labels.yolo import link_image
 
 KITTI_TYPES = {  # export.kitti_types -> blendgen class -> KITTI type
-    "kitti": {"person": "Pedestrian", "bicycle": "Cyclist", "car": "Car", "motorcycle": "Misc",
+    "kitti": {"person": "Pedestrian", "bicycle": "Misc", "car": "Car", "motorcycle": "Misc",
               "bus": "Misc", "truck": "Truck", "traffic light": "DontCare"},
     "extended": {"person": "Pedestrian", "bicycle": "Bicycle", "car": "Car", "motorcycle": "Motorcycle",
                  "bus": "Bus", "truck": "Truck", "traffic light": "TrafficLight"},
 }
 DEVKIT_TYPES = ("Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc", "DontCare")
+
+
+def kitti_type(inst: dict, types: str = "kitti") -> str:
+    """KITTI type; a rider is KITTI's Cyclist (their own box: the two-wheeler stays a separate
+    instance)."""
+    rides = inst.get("rides")
+    if inst["cls"] == "person" and rides:
+        return "Cyclist" if types == "kitti" or rides["cls"] == "bicycle" else "Motorcyclist"
+    return KITTI_TYPES[types][inst["cls"]]
 
 
 def occluded_state(occlusion: float | None) -> int:
@@ -40,7 +52,7 @@ def occluded_state(occlusion: float | None) -> int:
 def label_line(inst: dict, types: str = "kitti") -> str:
     x, y, w, h = (float(v) for v in inst["bbox"])
     box = f"{x:.2f} {y:.2f} {x + w:.2f} {y + h:.2f}"
-    kind = KITTI_TYPES[types][inst["cls"]]
+    kind = kitti_type(inst, types)
     if inst["ignore"] or kind == "DontCare":
         return f"DontCare -1 -1 -10 {box} -1 -1 -1 -1000 -1000 -1000 -10"
     b = inst["box3d_cam"]

@@ -9,13 +9,19 @@ What is measured, and how:
   into the world ENU frame (x east, y north, z up);
 - sun visibility: lit vs shadowed road (two-class Otsu split of the road's log luminance,
   lane markings removed by a top-hat), with a clear-blue-sky cue when the road shows no
-  shadow.
+  shadow; never at night or dusk (street lights and headlights make bimodal roads too);
+- condition day / dusk / night: the sun's elevation when the ephemeris gives it (civil
+  twilight, -6..6 deg, is dusk), else the frame's log-average luminance and sky brightness.
+  At night and dusk vehicle lights are on and an overhead street-light key replaces the sun.
 
 `Illumination.to_lighting()` turns the estimate into the lighting dict of
 docs/architecture.md, in units that make a Cycles render (Standard view transform, film
-exposure 0) land at the real camera's exposure: a grey ground of albedo GROUND_ALBEDO lit
-by the returned sun + sky renders at the measured ground value. (Cycles: a uniform world of
-strength L gives a white diffuse surface radiance L; a sun of strength S gives S*cos/pi.)
+exposure 0) land at the real camera's exposure. The light is read off the whole non-sky
+scene (log-average luminance = SCENE_ALBEDO x irradiance/pi, as a camera's auto-exposure
+meters it), not off the road alone: a light concrete road would otherwise brighten objects
+by its albedo ratio (1.4-1.7x measured). The road's albedo that this implies is reported.
+(Cycles: a uniform world of strength L gives a white diffuse surface radiance L; a sun of
+strength S gives S*cos/pi.)
 """
 
 from __future__ import annotations
@@ -30,9 +36,19 @@ import numpy as np
 from blendgen.errors import UserError
 from blendgen.post.colorspace import LUMA_BGR, srgb_u8_to_linear
 
-# Prior for the road's albedo: aged asphalt is 0.10-0.15 (new asphalt ~0.05, concrete ~0.3).
-# Exposure is read off the road, so an error here scales the estimated light by the same factor.
-GROUND_ALBEDO = 0.12
+# Mean albedo of the non-sky scene. Calibrated on the Udacity asphalt highway photos, where the
+# road's albedo is the asphalt prior 0.12 (aged asphalt 0.10-0.15): there the scene's
+# log-average is 1.17x the road's median, so 0.12 x 1.17 = 0.14.
+SCENE_ALBEDO = 0.14
+ROAD_ALBEDO_RANGE = (0.05, 0.40)  # new asphalt .. light concrete: bounds the implied road albedo
+# Condition from the image when the sun's elevation is unknown: non-sky log-average luminance
+# (linear) of the BDD night street 0.017, of day photos 0.05-0.18 (a tree-shaded street 0.053).
+NIGHT_LOG_AVG = 0.03
+DUSK_LOG_AVG = 0.045
+DARK_SKY = 0.1  # a sky region brighter than this is daylight whatever the scene's exposure
+TWILIGHT_DEG = (-6.0, 6.0)  # civil twilight and the sun's last 6 deg: dusk
+STREET_LIGHT_SHARE = {"night": 0.7, "dusk": 0.4}  # overhead key's share of the irradiance
+STREET_LIGHT_ELEVATION_DEG = 70.0  # lamps stand high beside the road: light mostly from above
 SHADES_OF_GREY_P = 6.0
 CLEAR_SKY_SUN_FRACTION = 0.8  # asymptotic sun share of the ground irradiance under a clear sky
 MIN_SHADOW_RATIO = 1.8  # lit/shadow road luminance ratio above which the sun is called visible
@@ -59,8 +75,10 @@ class Illumination:
     sun_visible: bool
     sun_fraction: float  # share of the ground irradiance that comes from the sun
     shadow_ratio: float  # lit / shadowed road luminance (1: no shadow measured)
-    visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "below_horizon"
+    visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "below_horizon" | "night" | "dusk"
     horizon_row: float  # sky line (bottom of the sky region, or from the pitch), in input pixels
+    condition: str = "day"  # "day" | "dusk" | "night"
+    road_albedo: float = 0.12  # implied by the road's median against the scene's log-average
     notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -68,7 +86,7 @@ class Illumination:
 
     def to_lighting(self) -> dict:
         """The lighting dict (architecture.md) for the render driver."""
-        total = max(self.ground_luminance, 1e-4) / GROUND_ALBEDO  # upward irradiance / pi, in pixel units
+        total = max(self.log_average_luminance, 1e-4) / SCENE_ALBEDO  # irradiance / pi, in pixel units
         f = self.sun_fraction if self.sun_visible else 0.0
         ill = np.asarray(self.illuminant_rgb, dtype=float)
         sky_c = _unit_luma(np.asarray(self.sky_rgb, float)) if self.sky_rgb is not None else ill
@@ -87,7 +105,21 @@ class Illumination:
             "sky_color": [float(v) for v in sky_c],
             "sky_strength": float((1.0 - f) * total),
             "sun_visible": bool(self.sun_visible and f > 0),
+            "condition": self.condition,
+            "lights_on": self.condition != "day",
+            "street_light": self._street_light(total),
         }
+
+    def _street_light(self, total: float) -> dict | None:
+        """Night/dusk: an overhead key from the lamps' colour (shades of grey weighs the bright
+        lamps most), soft, from high up beside the road; no sun shadow is caught from it."""
+        share = STREET_LIGHT_SHARE.get(self.condition)
+        if share is None:
+            return None
+        direction = enu_from_az_el(self.sun_azimuth_deg, STREET_LIGHT_ELEVATION_DEG)
+        sin_el = math.sin(math.radians(STREET_LIGHT_ELEVATION_DEG))
+        return {"direction": [float(v) for v in direction], "strength": float(math.pi * share * total / sin_el),
+                "color": [float(v) for v in self.illuminant_rgb], "angle_deg": 30.0, "share": share}
 
 
 def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: datetime | None = None,
@@ -163,6 +195,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     ground_lum = float(np.median(Y[ground])) if ground.any() else exposure
 
     ratio, shadow_share = _shadow_ratio(small, Y, ground)
+    road_albedo = float(np.clip(SCENE_ALBEDO * ground_lum / max(log_avg, 1e-4), *ROAD_ALBEDO_RANGE))
 
     # Sun direction.
     if sun_az_el is not None:
@@ -177,9 +210,15 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         notes.append("no time/position: sun direction is a default (behind the camera, 40 deg to its right)")
     sun_dir = enu_from_az_el(az, el)
 
+    condition = _condition(el if source != "default" else None, log_avg, sky_lum if sky_bgr is not None else None)
+    if condition != "day":
+        notes.append(f"{condition}: vehicle lights on, street-light key instead of the sun")
+
     # Sun visibility.
     if el <= 0:
         visible, f, cue = False, 0.0, "below_horizon"
+    elif condition != "day":
+        visible, f, cue = False, 0.0, condition
     elif ratio >= MIN_SHADOW_RATIO:
         visible, f, cue = True, float(np.clip(1.0 - 1.0 / ratio, 0.0, 0.95)), "shadows"
     elif sky_bgr is not None and _clear_blue(sky_bgr, sky_lum, ground_lum):
@@ -193,7 +232,22 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         sky_rgb=sky_rgb, sky_luminance=sky_lum, sky_fraction=sky_frac, sky_saturated=sky_sat,
         sun_direction=tuple(float(v) for v in sun_dir), sun_elevation_deg=float(el), sun_azimuth_deg=float(az),
         sun_direction_source=source, sun_visible=visible, sun_fraction=f, shadow_ratio=float(ratio),
-        visibility_cue=cue, horizon_row=float(horizon / scale if scale < 1 else horizon), notes=notes)
+        visibility_cue=cue, horizon_row=float(horizon / scale if scale < 1 else horizon), notes=notes,
+        condition=condition, road_albedo=road_albedo)
+
+
+def _condition(sun_el: float | None, log_avg: float, sky_lum: float | None) -> str:
+    """day / dusk / night: from the sun's elevation when known, else from the frame's light.
+    A frame darker than the ephemeris says (a tunnel, heavy overcast at dusk) takes the darker."""
+    if sky_lum is not None and sky_lum > DARK_SKY:
+        by_image = "day"
+    else:
+        by_image = "night" if log_avg < NIGHT_LOG_AVG else "dusk" if log_avg < DUSK_LOG_AVG else "day"
+    if sun_el is None:
+        return by_image
+    by_sun = "night" if sun_el < TWILIGHT_DEG[0] else "dusk" if sun_el < TWILIGHT_DEG[1] else "day"
+    order = ("day", "dusk", "night")
+    return max(by_sun, by_image, key=order.index)
 
 
 # ---- sun position

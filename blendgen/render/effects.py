@@ -316,10 +316,18 @@ def check_plan(plan: FramePlan) -> None:
             raise ValueError(f"object {o.id}: position, yaw and velocity must be finite")
         if not all(np.isfinite(d) and d > 0 for d in o.dims):
             raise ValueError(f"object {o.id}: dims must be positive, got {tuple(o.dims)}")
-    for k, v in (plan.lighting or {}).items():
-        vals = np.atleast_1d(np.asarray(v, dtype=float)) if not isinstance(v, (bool, str)) else np.zeros(1)
+    _check_numbers(plan.lighting or {}, "lighting")
+
+
+def _check_numbers(d: dict, where: str) -> None:
+    """Every number in a (nested) lighting dict is finite; flags, names and absent parts pass."""
+    for k, v in d.items():
+        if isinstance(v, dict):
+            _check_numbers(v, f"{where}.{k}")
+            continue
+        vals = np.atleast_1d(np.asarray(v, dtype=float)) if not isinstance(v, (bool, str, type(None))) else np.zeros(1)
         if not np.all(np.isfinite(vals)):
-            raise ValueError(f"lighting.{k}: expected finite numbers, got {v!r}")
+            raise ValueError(f"{where}.{k}: expected finite numbers, got {v!r}")
 
 
 def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str]) -> FrameEffects:

@@ -183,6 +183,10 @@ class RenderSession:
         sun = bpy.data.lights.new("blendgen_sun", "SUN")
         self.sun = bpy.data.objects.new("blendgen_sun", sun)
         sc.collection.objects.link(self.sun)
+        # Night/dusk key (lighting["street_light"]): a soft overhead lamp instead of the sun.
+        self.street = bpy.data.objects.new("blendgen_street_light", bpy.data.lights.new("blendgen_street_light", "SUN"))
+        sc.collection.objects.link(self.street)
+        self.street.hide_render = True
         world = bpy.data.worlds.new("blendgen_world")
         sc.world = world
         with warnings.catch_warnings():  # deprecated in 5.0 but still needed for a new world
@@ -230,6 +234,13 @@ class RenderSession:
             sun.data.energy = float(lighting.get("sun_strength", 3.0))
             sun.data.color = tuple(float(c) for c in lighting.get("sun_color", (1, 1, 1)))[:3]
             sun.data.angle = math.radians(float(lighting.get("sun_angle_deg", 0.53)))
+        street = lighting.get("street_light")
+        self.street.hide_render = not street
+        if street:
+            self.street.rotation_euler = Vector(street["direction"]).to_track_quat("Z", "Y").to_euler()
+            self.street.data.energy = float(street["strength"])
+            self.street.data.color = tuple(float(c) for c in street["color"])[:3]
+            self.street.data.angle = math.radians(float(street.get("angle_deg", 30.0)))
         sky = np.asarray(lighting.get("sky_color", (0.6, 0.7, 0.9)), dtype=float)[:3]
         strength = float(lighting.get("sky_strength", 1.0))
         n = self._world_nodes
@@ -524,6 +535,10 @@ class RenderSession:
         info["objects"] = self._sync_objects(plan, kept)
         self._set_camera(plan.T_world_cam)
         self._apply_lighting(lighting, background=False)
+        info["lamps_on"] = bool(lighting.get("lights_on", False))  # head/tail lamps: night and dusk
+        from assets_procedural.materials import set_vehicle_lamps
+
+        set_vehicle_lamps(info["lamps_on"])
         self._set_twin_mode("composite", catcher=bool(eff.shadow_catcher.value))
         by_id = {int(o.id): o for o in plan.objects}
         patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.sun_direction(lighting))

@@ -25,6 +25,7 @@ from blendgen.geometry import Camera, yaw_of_camera
 from blendgen.scene.catalog import SPEED, sample_variant
 from blendgen.scene.geom2d import convex_overlap, point_in_convex, wrap_angle
 from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.scene.riders import split_rider
 from blendgen.scene.twin import Twin
 
 # The ego vehicle's footprint relative to the camera (dashcam behind the windscreen).
@@ -53,6 +54,7 @@ class Track:
     yaw: np.ndarray     # (n,)
     scenario: str | None = None
     states: list | None = None
+    rider_id: int = 0   # a ridden two-wheeler's rider is its own instance (blendgen.scene.riders)
     corners: np.ndarray = field(init=False)  # (n, 4, 2) footprints
     radius: float = field(init=False)
 
@@ -279,6 +281,9 @@ class Planner:
     def accept(self, tr: Track) -> Track:
         tr.id = self.next_id
         self.next_id = self.next_id % 65535 + 1
+        if "rider" in tr.variant:
+            tr.rider_id = self.next_id
+            self.next_id = self.next_id % 65535 + 1
         self.tracks.append(tr)
         return tr
 
@@ -593,11 +598,11 @@ class Planner:
             objs = []
             for tr in sorted(vis, key=lambda x: x.id):
                 i = k - tr.k0
-                objs.append(PlacedObject(
+                objs += split_rider(PlacedObject(
                     id=tr.id, cls=tr.cls, position=(float(tr.xy[i, 0]), float(tr.xy[i, 1]), float(tr.z[i])),
                     yaw=float(tr.yaw[i]), dims=tuple(float(x) for x in tr.dims), variant=dict(tr.variant),
                     velocity=tr.velocity(i, self.times), state=tr.states[i] if tr.states else None,
-                    scenario=tr.scenario))
+                    scenario=tr.scenario), tr.rider_id)
             plans.append(FramePlan(str(frame_id), float(t), np.asarray(T, float).tolist(), objs))
             self.tracks = [tr for tr in self.tracks if tr.k1 > k + 1]
         return plans

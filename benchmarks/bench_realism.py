@@ -1,0 +1,430 @@
+"""Realism on real backgrounds: does a COCO detector (YOLOX-Nano) find the objects we inject
+into real dashcam photos and video frames, as their class?
+
+Backgrounds (../shared/data/real/): the six Udacity highway photos and frames of
+udacity_solidWhiteRight.mp4 (one 960x540 camera), and the three BDD street photos (day,
+snow, night; 1280x720, ego hood visible). Each still is used several times (a different
+random object set per copy) so that every object set has >= 300 labelled objects.
+
+An *object set* is one `blendgen run` over those backgrounds (renders at the photos'
+native resolution, 16 samples + denoise, render region on, multilayer EXRs kept):
+- `procedural`: the procedural objects of this checkout (`--objects-rev REV` renders the
+  objects of another commit: its assets_procedural/ is put first on PYTHONPATH);
+- `procedural_illum_off`: the same objects rendered under the pipeline's default daylight
+  and composited without light matching (`post.illumination: off`);
+- `assets`: library assets (glTF exported from Blender with sidecars) through `inject.assets`.
+Post-processing variants re-composite the same EXRs (composite_frame): colour transfer
+none / reinhard / mkl / histogram after light matching. Variants of one set share objects,
+so their differences are paired: bootstrap over frames (objects in a frame are not
+independent), 2000 resamples, 95 % percentile intervals.
+
+Scores: an injected object is found when a detection of its class with score >= 0.3 has
+IoU >= 0.5 with its box (COCO matching, blendgen/eval/metrics.py); real objects that the
+detector finds in the untouched background (score >= 0.05) are ignore regions. Mean
+confidence = mean over objects of the matched detection's score (0 when none).
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_realism.py [--quick] [--set procedural]
+        [--name before --objects-rev main] [--copies-udacity 5 --copies-bdd 14 --video-frames 15]
+
+Renders and results are cached under benchmarks/results/tmp/realism/ (re-running resumes);
+the table combines every cached set: docs/benchmarks/realism.md, plot
+benchmarks/results/realism.png, composites for looking at in benchmarks/results/tmp/realism/<set>/look/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from blendgen import CLASSES, atomic  # noqa: E402
+from blendgen.eval.metrics import evaluate  # noqa: E402
+
+REAL = ROOT.parent / "shared" / "data" / "real"
+MODEL = ROOT.parent / "shared" / "data" / "models" / "yolox_nano.onnx"
+TMP = ROOT / "benchmarks" / "results" / "tmp" / "realism"
+DOC = ROOT / "docs" / "benchmarks" / "realism.md"
+PLOT = ROOT / "benchmarks" / "results" / "realism.png"
+NAMES = {cid: n for n, cid in CLASSES.items()}
+SCORE_THR, IOU_THR, BG_SCORE = 0.3, 0.5, 0.05
+HEIGHT_BINS = [(0, 20, "< 20 px"), (20, 40, "20-40 px"), (40, 80, "40-80 px"), (80, 160, "80-160 px"),
+               (160, 1e9, ">= 160 px")]
+TRANSFERS = ("none", "reinhard", "mkl", "histogram")
+BDD_NIGHT = "9aa94005-ff1d4c9a"
+# Ground planes: Udacity as jobs/udacity_photos.yaml (lane lines' horizon); BDD's horizon is
+# near row 300 of 720 at ~60 deg FOV: pitch -3 deg, a car's roof camera 1.3 m up.
+RECORDINGS = {
+    "udacity": {"hfov": 55, "ground_plane": {"camera_height_m": 1.4, "pitch_deg": -1.0, "lane_width_m": 3.7}},
+    "bdd": {"hfov": 60, "ground_plane": {"camera_height_m": 1.3, "pitch_deg": -3.0, "lane_width_m": 3.3}},
+}
+
+
+def sh(cmd: list[str], env=None) -> None:
+    r = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
+
+
+def blendgen_cmd(*args) -> list[str]:
+    return [sys.executable, "-m", "blendgen.cli", *map(str, args)]
+
+
+def make_recordings(args) -> dict[str, dict]:
+    """Recordings of the backgrounds (stills repeated), with frame index -> source name."""
+    out = {}
+    for rec, spec in RECORDINGS.items():
+        src = TMP / f"src_{rec}"
+        dst = TMP / f"rec_{rec}"
+        if rec == "udacity":
+            stills = sorted((REAL / "udacity_highway_images").glob("*.jpg"))
+            copies = args.copies_udacity
+        else:
+            stills = sorted((REAL / "bdd_street_photos").glob("*.jpg"))
+            copies = args.copies_bdd
+        missing = [p for p in stills if not p.is_file()]
+        if not stills or missing:
+            raise SystemExit(f"needs {REAL}/ (udacity_highway_images, bdd_street_photos)")
+        key = json.dumps([copies, args.video_frames, [p.name for p in stills]])
+        if not (dst / "frames.csv").is_file() or (TMP / f"rec_{rec}.key").read_text() != key:
+            shutil.rmtree(src, ignore_errors=True)
+            src.mkdir(parents=True)
+            names = []
+            for c in range(copies):
+                for p in stills:
+                    names.append(p.stem)
+                    os.symlink(p, src / f"{len(names) - 1:04d}_{p.stem}.jpg")
+            if rec == "udacity" and args.video_frames:
+                cap = cv2.VideoCapture(str(REAL / "udacity_solidWhiteRight.mp4"))
+                n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+                for k in np.linspace(0, n - 1, args.video_frames).astype(int):
+                    cap.set(cv2.CAP_PROP_POS_FRAMES, int(k))
+                    ok, fr = cap.read()
+                    if ok:
+                        names.append(f"solidWhiteRight_video_{k:04d}")
+                        cv2.imwrite(str(src / f"{len(names) - 1:04d}_{names[-1]}.png"), fr)
+            sh(blendgen_cmd("import", "images", src, dst, "--hfov", spec["hfov"], "--force", "--no-progress"))
+            atomic.write_json(TMP / f"rec_{rec}.names.json", names)
+            (TMP / f"rec_{rec}.key").write_text(key)
+        out[rec] = {"dir": dst, "names": json.loads((TMP / f"rec_{rec}.names.json").read_text())}
+    return out
+
+
+def job_yaml(name: str, rec: str, rec_dir: Path, out_dir: Path, *, illumination: str, assets: Path | None,
+             per_frame: tuple[int, int]) -> dict:
+    inject = {"objects_per_frame": list(per_frame),
+              "classes": {c: 1.0 for c in CLASSES}, "distance_m": [9, 35], "sequences": False}
+    if assets is not None:
+        inject["assets"] = [str(assets)]
+        inject["classes"] = {c: 1.0 for c in CLASSES}
+    return {"name": f"realism_{name}_{rec}", "seed": 13, "recording": str(rec_dir),
+            "ground_plane": RECORDINGS[rec]["ground_plane"], "inject": inject,
+            "render": {"samples": 16, "denoise": True, "region": True},
+            "post": {"illumination": illumination, "color_transfer": "reinhard", "shadows": True},
+            "export": {"formats": ["coco"], "min_visible_px": 64, "save_exr": True},
+            "output": str(out_dir)}
+
+
+def render_set(name: str, recs: dict, args) -> dict[str, Path]:
+    import yaml
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    if args.objects_rev:
+        old = TMP / f"objects_{args.objects_rev.replace('/', '_')}"
+        if not old.is_dir():
+            old.mkdir(parents=True)
+            arch = subprocess.run(["git", "archive", args.objects_rev, "assets_procedural"], cwd=ROOT,
+                                  capture_output=True, check=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(old)], input=arch, check=True)
+        env["PYTHONPATH"] = f"{old}{os.pathsep}{ROOT}"
+    assets = None
+    if args.set == "assets":
+        assets = make_assets(TMP / "assets")
+    outs = {}
+    for rec, r in recs.items():
+        out_dir = TMP / name / rec
+        job = job_yaml(name, rec, r["dir"], out_dir, illumination="off" if args.set == "procedural_illum_off" else "auto",
+                       assets=assets, per_frame=tuple(args.per_frame))
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        jp = TMP / name / f"{rec}.yaml"
+        jp.write_text(yaml.safe_dump(job, sort_keys=False))
+        print(f"[{name}] rendering {rec} ({len(r['names'])} frames) ...", flush=True)
+        sh(blendgen_cmd("run", jp), env=env)
+        outs[rec] = out_dir
+    return outs
+
+
+def make_assets(folder: Path) -> Path:
+    """Library assets: h13assets' exporter writes glTF files with sidecars from Blender."""
+    if not (folder / ".done").is_file():
+        try:
+            from blendgen.scene.assets import write_demo_assets  # noqa: F401  (h13assets, issue 13)
+        except ImportError as e:
+            raise SystemExit(f"--set assets needs the asset-library exporter (issue 13, h13assets): {e}")
+        write_demo_assets(folder)
+        (folder / ".done").write_text("ok")
+    return folder
+
+
+def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
+    """Detector results per object, for every post variant of the set's renders."""
+    from blendgen.eval.detector import YoloxDetector
+    from blendgen.farm.seeds import frame_seed
+    from blendgen.job.schema import Post
+    from blendgen.labels.export import find_frame_labels
+    from blendgen.labels.frame_labels import read_frame_labels
+    from blendgen.post.composite import composite_frame
+    from blendgen.post.illumination import estimate_illumination
+    from blendgen.recording.folder import read_frame, read_recording
+    from blendgen.render.exr import read_passes
+
+    cache = TMP / name / "scores.json"
+    if cache.is_file():
+        return json.loads(cache.read_text())
+    det = YoloxDetector(MODEL, category_ids=set(CLASSES.values()))
+    illum_on = args.set != "procedural_illum_off"
+    variants = {f"ct={m}": Post(color_transfer=m, illumination="auto" if illum_on else "off") for m in TRANSFERS}
+    if illum_on:  # light matching in post off (no relight; colour transfer at its no-match strength)
+        variants["ct=reinhard, post light match off"] = Post(color_transfer="reinhard", illumination="off")
+    objects = []  # one row per injected object: class, height, frame, source, {variant: score}
+    bg_cache: dict[str, list] = {}
+    for rec, out_dir in outs.items():
+        recording = read_recording(recs[rec]["dir"])
+        look = TMP / name / "look"
+        look.mkdir(parents=True, exist_ok=True)
+        for lp in find_frame_labels(out_dir):
+            fr = read_frame_labels(lp)
+            fid = fr["frame_id"]
+            i = int(fid.lstrip("f"))
+            src = recs[rec]["names"][i]
+            real = read_frame(recording, i)
+            gts = [{"image_id": fid, "category_id": g["category_id"], "bbox": g["bbox"], "area": g["area"],
+                    "ignore": bool(g["ignore"]), "h": g["bbox"][3], "cls": NAMES[g["category_id"]]}
+                   for g in fr["instances"]]
+            if src not in bg_cache:  # real objects of the background: ignore regions
+                bg_cache[src] = [d for d in det(real) if d["score"] >= BG_SCORE]
+            bg = [{"image_id": fid, "category_id": d["category_id"], "bbox": d["bbox"], "ignore": True,
+                   "background": True} for d in bg_cache[src]]
+            passes = read_passes(lp.parent / "render.exr")
+            illum = estimate_illumination(real) if illum_on else None
+            rows = [{"frame": f"{rec}/{fid}", "source": src, "cls": g["cls"], "h": g["h"], "scores": {}}
+                    for g in gts if not g["ignore"]]
+            for vname, post in variants.items():
+                comp, _ = composite_frame(real, passes, settings=post,
+                                          illumination=illum if post.illumination == "auto" else None,
+                                          seed=frame_seed(13, fid))
+                if vname == "ct=reinhard" and (i < 2 * len(set(recs[rec]["names"])) or BDD_NIGHT in src):
+                    cv2.imwrite(str(look / f"{rec}_{fid}_{src}.png"), _draw(comp, gts))
+                dts = [{**d, "image_id": fid} for d in det(comp)]
+                res = evaluate(gts + bg, dts, list(CLASSES.values()), iou_thr=IOU_THR, score_thr=SCORE_THR,
+                               return_hits=True)
+                hit = {id(g): s for g, s in res["hits"]}
+                k = 0
+                for g in gts:
+                    if g["ignore"]:
+                        continue
+                    s = hit.get(id(g), float("nan"))
+                    rows[k]["scores"][vname] = 0.0 if not np.isfinite(s) else float(s)
+                    k += 1
+            objects += rows
+        print(f"[{name}] scored {rec}: {len(objects)} objects so far", flush=True)
+    atomic.write_json(cache, objects, indent=0)
+    return objects
+
+
+def _draw(img, gts):
+    out = img.copy()
+    for g in gts:
+        x, y, w, h = (int(round(v)) for v in g["bbox"])
+        cv2.rectangle(out, (x, y), (x + w, y + h), (0, 255, 255) if not g["ignore"] else (128, 128, 128), 1)
+        cv2.putText(out, g["cls"], (x, max(10, y - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 255), 1)
+    return out
+
+
+# ---------------------------------------------------------------- statistics
+
+def found(rows, variant) -> np.ndarray:
+    return np.array([r["scores"][variant] >= SCORE_THR for r in rows], float)
+
+
+def boot_ci(rows, stat, n=2000, seed=0) -> tuple[float, float, float]:
+    """stat(rows) and its 95 % bootstrap interval, resampling frames (clusters of objects)."""
+    if not rows:
+        return float("nan"), float("nan"), float("nan")
+    frames = sorted({r["frame"] for r in rows})
+    by = {f: [r for r in rows if r["frame"] == f] for f in frames}
+    rng = np.random.default_rng(seed)
+    vals = []
+    for _ in range(n):
+        pick = rng.integers(0, len(frames), len(frames))
+        sample = [r for k in pick for r in by[frames[k]]]
+        vals.append(stat(sample))
+    lo, hi = np.nanpercentile(vals, [2.5, 97.5])
+    return float(stat(rows)), float(lo), float(hi)
+
+
+def recall_stat(variant):
+    return lambda rows: float(found(rows, variant).mean()) if rows else float("nan")
+
+
+def conf_stat(variant):
+    return lambda rows: float(np.mean([r["scores"][variant] for r in rows])) if rows else float("nan")
+
+
+def diff_stat(a, b):
+    return lambda rows: float((found(rows, a) - found(rows, b)).mean()) if rows else float("nan")
+
+
+def fmt(v) -> str:
+    m, lo, hi = v
+    return "–" if not np.isfinite(m) else f"{m:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def build_table(sets: dict[str, list], cmdline: str) -> tuple[str, dict]:
+    lines = ["# Realism on real backgrounds (YOLOX-Nano, COCO-pretrained)", "",
+             f"Made by `{cmdline}` (benchmarks/bench_realism.py; its docstring says what is measured).",
+             f"Recall@0.5 = share of injected objects matched (IoU >= {IOU_THR}, same class, score >= "
+             f"{SCORE_THR}); conf = mean matched score (0 if none). [95 % bootstrap interval over frames.]",
+             "", "Sets: " + ", ".join(f"`{k}` {len(v)} objects on {len({r['frame'] for r in v})} frames"
+                                      for k, v in sets.items()) +
+             ". The issue asks for >= 300 objects per set; on the shared 2-core machine a 1280x720 frame took "
+             "~1 min to render (16 samples + denoise, region on), so these runs are smaller: set-to-set "
+             "differences have wide intervals, paired post-variant differences are resolved to a few points. "
+             "`--copies-udacity 5 --copies-bdd 14 --video-frames 15` (the defaults) give ~400 objects per set.",
+             ""]
+    summary = {}
+    main_v = "ct=reinhard"  # the pipeline's default post
+    lines += ["## Targets (objects >= 40 px tall, default post: light matching + Reinhard)", "",
+              "| object set | objects >= 40 px | recall@0.5 overall (target >= 0.6) | night frame objects | recall@0.5 night (target >= 0.4) |",
+              "|---|---:|---:|---:|---:|"]
+    for s, rows in sets.items():
+        big = [r for r in rows if r["h"] >= 40]
+        night = [r for r in big if BDD_NIGHT in r["source"]]
+        ov, nt = boot_ci(big, recall_stat(main_v)), boot_ci(night, recall_stat(main_v))
+        summary[s] = {"n_big": len(big), "recall_big": ov, "n_night": len(night), "recall_night": nt}
+        lines.append(f"| {s} | {len(big)} | {fmt(ov)} | {len(night)} | {fmt(nt)} |")
+    lines += ["", "## Post-processing variants (paired: same renders, same objects)", "",
+              "| object set | variant | objects | recall@0.5 | mean conf | recall − none (paired) |",
+              "|---|---|---:|---:|---:|---:|"]
+    for s, rows in sets.items():
+        for v in rows[0]["scores"] if rows else []:
+            d = boot_ci(rows, diff_stat(v, "ct=none")) if v != "ct=none" else (0.0, 0.0, 0.0)
+            lines.append(f"| {s} | {v} | {len(rows)} | {fmt(boot_ci(rows, recall_stat(v)))} | "
+                         f"{fmt(boot_ci(rows, conf_stat(v)))} | {'–' if v == 'ct=none' else fmt(d)} |")
+    lines += ["", "Reading: a variant helps when its paired interval excludes 0. The seed paper claims "
+              "+5.9 mAP for colour transfer; on these real frames:", ""]
+    for s, rows in sets.items():
+        for v in [v for v in (rows[0]["scores"] if rows else []) if v != "ct=none"]:
+            m, lo, hi = boot_ci(rows, diff_stat(v, "ct=none"))
+            verdict = ("helps" if lo > 0 else "hurts" if hi < 0 else "no measurable difference") + \
+                      ("; +5.9 points is outside the interval (refuted)" if hi < 0.059 and v.startswith("ct=") and
+                       "off" not in v else "")
+            lines.append(f"- {s}, {v} vs ct=none: {100 * m:+.1f} points [{100 * lo:+.1f}, {100 * hi:+.1f}]: {verdict}")
+    if len(sets) > 1:
+        a, b = list(sets)[:2]
+        lines += ["", f"Object sets `{b}` vs `{a}` (same backgrounds and seeds, different objects; "
+                  "unpaired bootstrap), default post, objects >= 40 px: "
+                  f"{fmt(boot_ci([r for r in sets[b] if r['h'] >= 40], recall_stat(main_v)))} vs "
+                  f"{fmt(boot_ci([r for r in sets[a] if r['h'] >= 40], recall_stat(main_v)))}."]
+    for s, rows in sets.items():
+        lines += ["", f"## {s}: per class and pixel height (default post)", "",
+                  "| class | " + " | ".join(b[2] for b in HEIGHT_BINS) + " | all | mean conf |",
+                  "|---|" + "---:|" * (len(HEIGHT_BINS) + 2)]
+        for c in CLASSES:
+            rc = [r for r in rows if r["cls"] == c]
+            cells = []
+            for lo, hi, _ in HEIGHT_BINS:
+                rb = [r for r in rc if lo <= r["h"] < hi]
+                cells.append(f"{found(rb, main_v).mean():.2f} (n={len(rb)})" if rb else "–")
+            lines.append(f"| {c} | " + " | ".join(cells) + f" | {fmt(boot_ci(rc, recall_stat(main_v)))} (n={len(rc)}) | "
+                         f"{fmt(boot_ci(rc, conf_stat(main_v)))} |")
+        srcs = sorted({r["source"].split("_video_")[0] for r in rows})
+        lines += ["", "| background | objects >= 40 px | recall@0.5 |", "|---|---:|---:|"]
+        for src in srcs:
+            rb = [r for r in rows if r["source"].split("_video_")[0] == src and r["h"] >= 40]
+            lines.append(f"| {src}{' (night)' if src == BDD_NIGHT else ''} | {len(rb)} | {fmt(boot_ci(rb, recall_stat(main_v)))} |")
+    return "\n".join(lines) + "\n", summary
+
+
+def plot(sets: dict[str, list]) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.5))
+    labels = [b[2] for b in HEIGHT_BINS]
+    for s, rows in sets.items():
+        ys = [found([r for r in rows if lo <= r["h"] < hi], "ct=reinhard").mean()
+              if any(lo <= r["h"] < hi for r in rows) else np.nan for lo, hi, _ in HEIGHT_BINS]
+        axes[0].plot(labels, ys, marker="o", label=s)
+    axes[0].set_ylabel("recall@0.5 (default post)")
+    axes[0].set_title("by object height")
+    axes[0].axhline(0.6, ls=":", c="grey")
+    axes[0].legend()
+    x = np.arange(len(CLASSES))
+    w = 0.8 / max(1, len(sets))
+    for k, (s, rows) in enumerate(sets.items()):
+        ys = [found([r for r in rows if r["cls"] == c], "ct=reinhard").mean() if any(r["cls"] == c for r in rows)
+              else 0 for c in CLASSES]
+        axes[1].bar(x + k * w, ys, w, label=s)
+    axes[1].set_xticks(x + 0.4 - w / 2, list(CLASSES), rotation=20)
+    axes[1].set_title("by class")
+    fig.tight_layout()
+    PLOT.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(PLOT, dpi=110)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--set", choices=("procedural", "procedural_illum_off", "assets"), default="procedural")
+    ap.add_argument("--name", help="name of the object set in the table (default: --set)")
+    ap.add_argument("--objects-rev", help="render the procedural objects of this git revision")
+    ap.add_argument("--copies-udacity", type=int, default=5)
+    ap.add_argument("--copies-bdd", type=int, default=14)
+    ap.add_argument("--video-frames", type=int, default=15)
+    ap.add_argument("--per-frame", type=int, nargs=2, default=(4, 6), metavar=("MIN", "MAX"),
+                    help="objects per frame")
+    ap.add_argument("--quick", action="store_true", help="1 copy of each still, 2 video frames (smoke run)")
+    ap.add_argument("--table-only", action="store_true", help="rebuild the table from cached sets")
+    ap.add_argument("--rescore", action="store_true", help="score the set's existing renders again (no rendering)")
+    args = ap.parse_args()
+    global TMP
+    if args.quick:
+        args.copies_udacity, args.copies_bdd, args.video_frames = 1, 1, 2
+        TMP = TMP.parent / "realism_quick"
+    name = args.name or args.set
+    if not MODEL.is_file():
+        raise SystemExit(f"needs {MODEL}")
+    if not args.table_only:
+        recs = make_recordings(args)
+        if args.rescore:
+            outs = {rec: TMP / name / rec for rec in recs}
+            (TMP / name / "scores.json").unlink(missing_ok=True)
+        else:
+            outs = render_set(name, recs, args)
+            meta = {"set": args.set, "objects_rev": args.objects_rev,
+                    "rev": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                          text=True).stdout.strip()}
+            atomic.write_json(TMP / name / "meta.json", meta)
+        score_set(name, recs, outs, args)
+    sets = {p.parent.name: json.loads(p.read_text()) for p in sorted(TMP.glob("*/scores.json"))}
+    cmd = "PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_realism.py " + " ".join(sys.argv[1:])
+    table, summary = build_table(sets, cmd)
+    print(table)
+    if not args.quick:
+        atomic.write_text(DOC, table)
+        plot(sets)
+    atomic.write_json(TMP / "summary.json", summary)
+
+
+if __name__ == "__main__":
+    main()

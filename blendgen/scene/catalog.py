@@ -36,8 +36,9 @@ CAR_PAINTS = {  # linear RGB, roughly the world's car-colour mix
     "grey": (0.16, 0.17, 0.18), "blue": (0.02, 0.06, 0.25), "red": (0.45, 0.02, 0.02),
     "green": (0.02, 0.12, 0.05), "beige": (0.55, 0.45, 0.30), "yellow": (0.75, 0.50, 0.02),
 }
-PAINT_WEIGHTS = {"white": 0.24, "black": 0.20, "silver": 0.13, "grey": 0.16, "blue": 0.09, "red": 0.09,
-                 "green": 0.03, "beige": 0.03, "yellow": 0.03}
+# shares of new cars worldwide (Axalta colour report 2022): ~80 % white, black, grey or silver
+PAINT_WEIGHTS = {"white": 0.31, "black": 0.20, "silver": 0.12, "grey": 0.18, "blue": 0.07, "red": 0.07,
+                 "green": 0.02, "beige": 0.02, "yellow": 0.01}
 BUS_LIVERIES = [(0.75, 0.55, 0.02), (0.60, 0.02, 0.02), (0.03, 0.20, 0.45), (0.02, 0.30, 0.10),
                 (0.80, 0.80, 0.78)]
 CLOTHES = [(0.02, 0.02, 0.025), (0.80, 0.80, 0.78), (0.05, 0.08, 0.25), (0.35, 0.02, 0.03),

@@ -1,0 +1,137 @@
+"""The analysis stage: once per background frame of a ground-plane job, before planning.
+
+For each frame: camera estimate and horizon, hood, real road users (detector ->
+footprints), road region and bands, road direction, and the camera pose over the road.
+Leaves `OUT/analysis/<frame_id>.json` (model.FrameAnalysis) and `<frame_id>_road.png`
+(255 road, 128 band); a frame whose JSON exists is not analysed again, so an interrupted
+stage resumes where it stopped. Nothing here raises on a hard frame: every quantity that
+cannot be estimated falls back with its reason in `decisions`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blendgen import atomic
+from blendgen.analysis import ground, objects, road
+from blendgen.analysis.model import CameraEstimate, FrameAnalysis
+from blendgen.geometry import Camera
+
+EGO_BOX_MIN_WIDTH = 0.5   # a "vehicle" box this wide (fraction of the image) touching the bottom is our own hood
+
+
+def fixed_estimate(gp) -> CameraEstimate:
+    """The job's ground_plane values as the camera estimate (user-given, no analysis)."""
+    return CameraEstimate(height_m=gp.camera_height_m, pitch_deg=gp.pitch_deg, roll_deg=0.0, confidence=1.0,
+                          source={"height_m": "user", "pitch_deg": "user", "roll_deg": "default"})
+
+
+def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
+    if not hood:
+        return None
+    m = np.zeros((height, width), np.uint8)
+    cv2.fillPoly(m, [np.round(np.asarray(hood)).astype(np.int32)], 1)
+    return m > 0
+
+
+def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraEstimate, detector, *,
+                  horizon=None, hood=None, user_road: np.ndarray | None = None,
+                  T_world_cam: np.ndarray | None = None) -> tuple[FrameAnalysis, np.ndarray | None]:
+    """One frame's analysis and its road/band mask (uint8, or None without a road)."""
+    H, W = image.shape[:2]
+    decisions: list[dict] = []
+
+    def decide(what, value, reason):
+        decisions.append({"what": what, "value": value, "reason": reason})
+
+    T0 = ground.camera_pose(est)
+    if horizon is None:
+        horizon = ground.horizon(camera, T0)
+    hmask = hood_mask(hood, W, H)
+    hood_top = float(np.asarray(hood)[:, 1].min()) if hood else None
+    decide("camera", {"height_m": est.height_m, "pitch_deg": est.pitch_deg, "roll_deg": est.roll_deg},
+           "; ".join(est.reasons) or ", ".join(f"{k}: {v}" for k, v in est.source.items()))
+    decide("hood", hood is not None, "hood polygon found" if hood else "no hood found: the whole frame is scene")
+
+    kept = []
+    for o in objects.road_users(image, detector):
+        x, y, w, h = o.box
+        on_hood = hmask is not None and hmask[int(min(y + h / 2, H - 1)), int(min(x + w / 2, W - 1))]
+        if (w > EGO_BOX_MIN_WIDTH * W and y + h >= H - 0.02 * H) or on_hood:
+            decide("real_object_dropped", {"cls": o.cls, "box": o.box}, "the ego vehicle's own hood, not a road user")
+            continue
+        kept.append(o)
+    decide("real_objects", len(kept), f"{detector.model_path.name}, score >= {detector.score_min}")
+
+    mask = None
+    if user_road is not None:
+        road_px, how = user_road, "user mask masks/road"
+    else:
+        road_px, how = road.estimate_road(image, horizon, hmask, [o.box for o in kept])
+    decide("road", None if road_px is None else round(float(road_px.mean()), 4), how)
+
+    yaw, how = road.road_direction(image, road_px, camera, T0, horizon)
+    decide("road_direction_deg", None if yaw is None else round(yaw, 2),
+           how if yaw is not None else f"straight ahead (0 deg) assumed: {how}")
+    T = ground.camera_pose(est, yaw) if T_world_cam is None else np.asarray(T_world_cam, float)
+    objects.with_footprints(kept, camera, T, H, horizon=horizon, hood_top_v=hood_top)
+    if road_px is not None:
+        blocked = np.zeros((H, W), bool) if hmask is None else hmask.copy()
+        for x, y, w, h in (o.box for o in kept):
+            blocked[int(y):int(y + h) + 1, int(x):int(x + w) + 1] = True
+        mask = np.where(road_px, road.ROAD, np.where(road.bands(road_px, camera, T, blocked), road.BAND, 0))
+        mask = mask.astype(np.uint8)
+    fa = FrameAnalysis(frame_id=frame_id, width=W, height=H, camera=est, T_world_cam=T.tolist(),
+                       horizon=horizon, hood=[list(map(float, p)) for p in hood] if hood else None,
+                       road_mask=f"{frame_id}_road.png" if mask is not None else None,
+                       road_direction_deg=None if yaw is None else round(yaw, 2), real_objects=kept,
+                       decisions=decisions)
+    return fa, mask
+
+
+def write_analysis(folder: Path, fa: FrameAnalysis, mask: np.ndarray | None) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    if mask is not None:
+        atomic.write_image(folder / f"{fa.frame_id}_road.png", mask)
+    atomic.write_json(folder / f"{fa.frame_id}.json", fa.to_dict())  # last: marks the frame done
+
+
+def read_analysis(folder: Path, frame_id: str) -> FrameAnalysis | None:
+    p = Path(folder) / f"{frame_id}.json"
+    return FrameAnalysis.from_dict(json.loads(p.read_text())) if p.is_file() else None
+
+
+def read_road_mask(folder: Path, fa: FrameAnalysis) -> np.ndarray | None:
+    if not fa.road_mask:
+        return None
+    return cv2.imread(str(Path(folder) / fa.road_mask), cv2.IMREAD_GRAYSCALE)
+
+
+def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model: Path | None = None,
+                 progress: bool = False) -> dict[str, FrameAnalysis]:
+    """Analyse the frames not yet analysed in `folder`; return every frame's analysis."""
+    from blendgen.recording.folder import read_frame
+
+    folder = Path(folder)
+    todo = [f for f in frame_ids if not (folder / f"{f}.json").is_file()]
+    if todo:
+        detector = objects.load_detector(detector_model)
+        est = fixed_estimate(gp)
+        for n, fid in enumerate(todo):
+            t0 = time.process_time()
+            image = read_frame(rec, int(fid.lstrip("f")))
+            camera = rec.camera.scaled(image.shape[1], image.shape[0])
+            user = road.user_road_mask(rec.root, fid, (image.shape[1], image.shape[0]))
+            fa, mask = analyse_frame(image, fid, camera, est, detector, user_road=user)
+            fa.decisions.append({"what": "cpu_s", "value": round(time.process_time() - t0, 3), "reason": "analysis"})
+            write_analysis(folder, fa, mask)
+            if progress:
+                print(f"  analysis {n + 1}/{len(todo)} {fid}: {len(fa.real_objects)} road users, "
+                      f"road {'yes' if fa.road_mask else 'no'}, direction "
+                      f"{fa.road_direction_deg if fa.road_direction_deg is not None else '-'} deg", flush=True)
+    return {f: read_analysis(folder, f) for f in frame_ids}

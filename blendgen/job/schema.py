@@ -149,6 +149,10 @@ class GroundPlane(Section):
     camera_height_m: Annotated[float, Field(gt=0.2, le=5)] = 1.5
     pitch_deg: Annotated[float, Field(ge=-45, le=45)] = 0.0
     lane_width_m: Annotated[float, Field(gt=1, le=6)] = 3.5
+    # Analyse every background frame (real road users, road, hood) and keep objects clear of
+    # them; false: the fixed pose with no analysis (the behaviour before issue 12).
+    analysis: bool = True
+    detector: Path | None = None  # a YOLOX-format COCO ONNX model; default: the bundled YOLOX-Nano
 
 
 class Job(Section):
@@ -212,6 +216,8 @@ class Job(Section):
             d["twin"] = str(self.twin_path)
         if self.sync.lut is not None:
             d["sync"]["lut"] = str(self.path(self.sync.lut))
+        if self.ground_plane is not None and self.ground_plane.detector is not None:
+            d["ground_plane"]["detector"] = str(self.path(self.ground_plane.detector))
         return d
 
     def content_hash(self) -> str:
@@ -244,6 +250,11 @@ def _check_files(job: Job, source: str) -> None:
         names = sorted(p.stem for p in BUILTIN_TWINS_DIR.glob("*.yaml"))
         raise UserError(f"twin: {job.twin!r} is neither a built-in twin {names} nor an existing YAML file "
                         f"({tp})", where=source)
+    gp = job.ground_plane
+    if gp is not None and gp.detector is not None:
+        det = job.path(gp.detector)
+        if not det.is_file() or det.suffix.lower() != ".onnx":
+            raise UserError(f"ground_plane.detector: expected an existing .onnx file, got {det}", where=source)
     if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
         raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)
 

@@ -21,7 +21,7 @@ from blendgen.job.schema import Job
 from blendgen.pipeline.outputs import JobFolder
 from blendgen.recording.folder import read_recording
 
-STAGES = ("record", "sync", "plan", "frames", "export", "report")
+STAGES = ("record", "sync", "analysis", "plan", "frames", "export", "report")
 
 
 class Runner:
@@ -36,10 +36,11 @@ class Runner:
         self.progress = progress
         self.times: dict[str, float] = {}
         self.skipped: list[str] = []
+        self.warnings: list[str] = []
 
     def _say(self, k: int, stage: str, what: str) -> None:
         if self.progress:
-            print(f"[{k}/{len(STAGES)}] {stage}: {what}", flush=True)
+            print(f"[{STAGES.index(stage) + 1}/{len(STAGES)}] {stage}: {what}", flush=True)
 
     @functools.cached_property
     def twin(self):
@@ -128,26 +129,62 @@ class Runner:
             self.twin.export_lut(lut, 5.0)
         return lut
 
-    def plan(self, rec, poses) -> list[str]:
-        from blendgen.scene.planner import plan_sequence
-
+    def _selected(self, poses):
         job = self.job
         sel = poses[job.frames.start:job.frames.stop:job.frames.step]
         if not sel:
             raise UserError(f"frames: start {job.frames.start}, stop {job.frames.stop} select no frame of the "
                             f"recording's {len(poses)}", where="job")
+        return sel
+
+    def analysis(self, rec, poses) -> bool:
+        """Ground-plane jobs: camera, hood, road and real road users of every selected frame."""
+        from blendgen.analysis.stage import run_analysis
+
+        gp = self.job.ground_plane
+        if gp is None or not gp.analysis:
+            self.skipped.append("analysis")
+            self._say(3, "analysis", "not needed (twin job)" if gp is None else "off (ground_plane.analysis: false)")
+            return False
+        ids = [fid for fid, _, _ in self._selected(poses)]
+        if self.folder.stage_done("analysis") and self.folder.stage_info("analysis").get("frames") == ids:
+            self.skipped.append("analysis")
+            self._say(3, "analysis", f"analyses exist ({self.folder.analysis})")
+            return True
+        self._say(3, "analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
+        run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
+                     detector_model=self.job.path(gp.detector) if gp.detector else None)
+        self.folder.mark_stage("analysis", {"frames": ids})
+        return True
+
+    def plan(self, rec, poses, analysed: bool = False) -> list[str]:
+        from blendgen.scene.planner import plan_sequence, unplaced_warnings
+
+        job = self.job
+        sel = self._selected(poses)
         ids = [fid for fid, _, _ in sel]
         if self.folder.stage_done("plan"):
             self.skipped.append("plan")
             self._say(3, "plan", f"plan exists ({self.folder.plan})")
+            self.warnings = self.folder.stage_info("plan").get("warnings", [])
             return ids
         w, h = job.render.resolution or (rec.camera.width, rec.camera.height)
         camera = rec.camera.scaled(w, h)
-        plans = plan_sequence(self.twin, camera, sel, job.inject, job.seed)
+        real = None
+        if analysed:  # the camera over the real road, and the real frame's constraints
+            from blendgen.analysis.stage import read_analysis
+            from blendgen.scene.real_scene import load_real_scene
+
+            sel = [(fid, t, np.asarray(read_analysis(self.folder.analysis, fid).T_world_cam)) for fid, t, _ in sel]
+            real = load_real_scene(self.folder.analysis, ids, camera)
+        plans = plan_sequence(self.twin, camera, sel, job.inject, job.seed, real)
         n_obj = sum(len(p.objects) for p in plans)
+        self.warnings = unplaced_warnings(plans, job.inject)
         self._say(3, "plan", f"{len(plans)} frames, {n_obj} objects")
+        for w in self.warnings:
+            print(f"  WARNING: {w}", flush=True)
         atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))
-        self.folder.mark_stage("plan", {"frames": len(plans), "objects": n_obj})
+        self.folder.mark_stage("plan", {"frames": len(plans), "objects": n_obj, "warnings": self.warnings})
         return ids
 
     def frames(self, ids: list[str]):
@@ -206,7 +243,8 @@ class Runner:
         timed("record", self.record)
         rec = read_recording(self.job.recording_dir, require_frames=True)
         poses = timed("sync", self.sync, rec)
-        ids = timed("plan", self.plan, rec, poses)
+        analysed = timed("analysis", self.analysis, rec, poses)
+        ids = timed("plan", self.plan, rec, poses, analysed)
         farm_summary = timed("frames", self.frames, ids)
         export = timed("export", self.export, ids)
         self.times["total"] = round(time.perf_counter() - t_all, 3)
@@ -228,7 +266,7 @@ class Runner:
             "job": self.job.name, "output": str(self.folder.root),
             "frames": {"total": len(ids), "done": len(done), "failed": len(failed)},
             "labels_per_class": dict(sorted(per_class.items())),
-            "seconds_per_stage": self.times, "skipped_stages": self.skipped,
+            "seconds_per_stage": self.times, "skipped_stages": self.skipped, "warnings": self.warnings,
             "outputs": {"labels": str(self.folder.labels), "report": str(self.folder.root / "report" / "index.md"),
                         "manifest": str(self.folder.manifest), "frames": str(self.folder.root / "frames")},
             "export": export,
@@ -249,5 +287,7 @@ def print_summary(s: dict) -> None:
     times = s["seconds_per_stage"]
     print("  time:    " + ", ".join(f"{k} {v:.1f}s" for k, v in times.items())
           + (f"  (skipped, already done: {', '.join(s['skipped_stages'])})" if s["skipped_stages"] else ""))
+    for w in s.get("warnings", []):
+        print(f"  WARNING: {w}")
     o = s["outputs"]
     print(f"  outputs: {o['frames']}/<frame>/composite.png, {o['labels']}/, {o['report']}")

@@ -48,8 +48,11 @@ class GroundPlaneTwin(Twin):
 
     @classmethod
     def from_job(cls, gp) -> "GroundPlaneTwin":
-        """From a `blendgen.job.schema.GroundPlane` section."""
-        return cls(gp.camera_height_m, gp.pitch_deg, gp.lane_width_m)
+        """From a `blendgen.job.schema.GroundPlane` section. With the frame analysis on, the
+        real road mask bounds where vehicles go, so the twin offers lanes across any street
+        width (six lanes, the twin's most) and the mask keeps the real ones."""
+        left, right = (2, 3) if getattr(gp, "analysis", False) else (1, 1)
+        return cls(gp.camera_height_m, gp.pitch_deg, gp.lane_width_m, lanes_left=left, lanes_right=right)
 
     def camera_pose(self, x: float = 0.0) -> np.ndarray:
         """T_world_cam of the dashcam at distance x along the road."""

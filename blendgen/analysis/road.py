@@ -33,6 +33,7 @@ BAND_M = 4.0            # band width beside the road
 MAX_MAHAL = 3.5         # colour distance (in seed standard deviations) still counted as road
 MIN_STD_LAB = (5.0, 2.5, 2.5)   # floor on the seed's spread: flat seeds would reject everything
 MIN_SEED_PX = 60
+MIN_SEED_L = 8.0        # OpenCV Lab lightness 0..255; the BDD night street's asphalt is ~30
 MAX_ROAD_YAW_DEG = 35.0
 
 
@@ -84,6 +85,8 @@ def estimate_road(image: np.ndarray, horizon, hood_mask: np.ndarray | None, boxe
         return None, f"only {int(seed.sum())} free seed pixels in front of the hood (need {MIN_SEED_PX})"
     px = lab[seed]
     mu = np.median(px, axis=0)
+    if mu[0] < MIN_SEED_L:
+        return None, f"the patch in front of the hood is black (L {mu[0]:.0f} < {MIN_SEED_L}): nothing to tell road from"
     cov = np.cov((px - mu).T) + np.diag(np.square(MIN_STD_LAB))
     d = lab.reshape(-1, 3) - mu
     mahal = np.sqrt(np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d)).reshape(h, w)

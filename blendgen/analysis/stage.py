@@ -62,7 +62,7 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
     for o in objects.road_users(image, detector):
         x, y, w, h = o.box
         on_hood = hmask is not None and hmask[int(min(y + h / 2, H - 1)), int(min(x + w / 2, W - 1))]
-        if (w > EGO_BOX_MIN_WIDTH * W and y + h >= H - 0.02 * H) or on_hood:
+        if (w > EGO_BOX_MIN_WIDTH * W and y + h >= H - 0.05 * H) or on_hood:
             decide("real_object_dropped", {"cls": o.cls, "box": o.box}, "the ego vehicle's own hood, not a road user")
             continue
         kept.append(o)

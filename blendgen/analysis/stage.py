@@ -134,4 +134,27 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
                 print(f"  analysis {n + 1}/{len(todo)} {fid}: {len(fa.real_objects)} road users, "
                       f"road {'yes' if fa.road_mask else 'no'}, direction "
                       f"{fa.road_direction_deg if fa.road_direction_deg is not None else '-'} deg", flush=True)
-    return {f: read_analysis(folder, f) for f in frame_ids}
+    analyses = {f: read_analysis(folder, f) for f in frame_ids}
+    if rec.video is not None and len(frame_ids) > 1:
+        one_world(analyses, rec, folder)
+    return analyses
+
+
+def one_world(analyses: dict[str, FrameAnalysis], rec, folder: Path) -> None:
+    """Video: tracks live in one world across frames, so every frame's pose shares one road
+    direction (the median of the frames' estimates) instead of each frame's own; footprints
+    follow the pose. Rewrites the frames whose pose changes."""
+    yaws = [fa.road_direction_deg for fa in analyses.values() if fa.road_direction_deg is not None]
+    yaw = float(np.median(yaws)) if yaws else None
+    for fid, fa in analyses.items():
+        T = ground.camera_pose(fa.camera, yaw)
+        if np.allclose(T, fa.T_world_cam):
+            continue
+        camera = rec.camera.scaled(fa.width, fa.height)
+        hood_top = float(np.asarray(fa.hood)[:, 1].min()) if fa.hood else None
+        objects.with_footprints(fa.real_objects, camera, T, fa.height, horizon=fa.horizon, hood_top_v=hood_top)
+        fa.T_world_cam = T.tolist()
+        fa.decisions.append({"what": "pose", "value": None if yaw is None else round(yaw, 2),
+                             "reason": f"video: the road direction shared by all {len(analyses)} frames "
+                                       f"(median of {len(yaws)} estimates), so that tracks stay on the road"})
+        atomic.write_json(Path(folder) / f"{fid}.json", fa.to_dict())

@@ -182,10 +182,15 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None = None,
                    roll_prior_deg: float = 0.0, fit_focal: bool = False,
-                   lane_width_m: float = DEFAULT_LANE_WIDTH_M, car_boxes=None) -> FrameCamera:
-    """Pitch, roll (and yaw of the road, the focal length if asked) from one frame's lines."""
+                   lane_width_m: float = DEFAULT_LANE_WIDTH_M, car_boxes=None, hood=None) -> FrameCamera:
+    """Pitch, roll (and yaw of the road, the focal length if asked) from one frame's lines.
+    `hood`: the ego hood polygon (hood.py); its edges are not the world's lines."""
     cfg = cfg or CameraConfig()
     seg = detect_segments(bgr, camera, cfg)
+    if hood is not None and len(seg):
+        edge = np.array(hood[:-2], dtype=float)
+        mid = 0.5 * (seg[:, :2] + seg[:, 2:])
+        seg = seg[mid[:, 1] < np.interp(mid[:, 0], edge[:, 0], edge[:, 1]) - 3]
     if len(seg) < cfg.min_segments:
         why = _why_no_structure(bgr, len(seg), cfg)
         return FrameCamera(None, None, reasons=[why], segments=seg)
@@ -479,8 +484,11 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
 
 
 def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: bool = False,
-                     cfg: CameraConfig | None = None) -> dict[str, tuple[CameraEstimate, list | None]]:
-    """Camera (height, pitch, roll, focal length) and horizon per frame; see the module doc."""
+                     hoods=None, cfg: CameraConfig | None = None) -> dict[str, tuple[CameraEstimate, list | None]]:
+    """Camera (height, pitch, roll, focal length) and horizon per frame; see the module doc.
+    `hoods`: find_hood's result when the caller has it (otherwise it is found here)."""
+    from blendgen.analysis.hood import find_hood, hood_in_still
+
     cfg = cfg or CameraConfig()
     camera: Camera = rec.camera
     car_boxes = car_boxes or {}
@@ -489,16 +497,20 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
     fit_focal = focal_was_guessed(rec)
     frame_ids = list(frame_ids)
     need_lines = any(v is None for v in fixed.values())
+    seq = is_sequence(rec)
     per: dict[str, FrameCamera] = {}
     if need_lines:
+        if hoods is None and seq:
+            hoods = find_hood(rec, frame_ids)
         for fid, im in read_frames(rec, frame_ids, progress=progress, desc="calibrate"):
             if im is None:
                 per[fid] = FrameCamera(None, None, reasons=["frame does not decode"])
                 continue
+            hood = hoods.get(fid) if hoods is not None else hood_in_still(im)[0]
             per[fid] = estimate_frame(im, camera, cfg=cfg, roll_prior_deg=fixed["roll_deg"] or 0.0,
-                                      fit_focal=fit_focal, lane_width_m=lane_w, car_boxes=car_boxes.get(fid))
+                                      fit_focal=fit_focal, lane_width_m=lane_w, car_boxes=car_boxes.get(fid),
+                                      hood=hood)
     t_of = {rec.frame_id(i): float(rec.frames_t[i]) for i in frame_indices(rec, frame_ids)}
-    seq = is_sequence(rec)
     out = {}
     # recording-wide values: focal length, height, and the fallbacks for pitch and roll
     fxs = [f.fx for f in per.values() if f.fx is not None and f.confidence > 0.3]

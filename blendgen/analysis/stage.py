@@ -31,8 +31,19 @@ def fixed_estimate(gp) -> CameraEstimate:
                           source={"height_m": "user", "pitch_deg": "user", "roll_deg": "default"})
 
 
+def not_ego(users: list, hmask: np.ndarray | None, W: int, H: int) -> tuple[list, list]:
+    """(road users, boxes of our own hood): a very wide box touching the frame's bottom, or
+    one centred on the hood, is the ego vehicle."""
+    kept, dropped = [], []
+    for o in users:
+        x, y, w, h = o.box
+        on_hood = hmask is not None and hmask[int(min(y + h / 2, H - 1)), int(min(x + w / 2, W - 1))]
+        (dropped if (w > EGO_BOX_MIN_WIDTH * W and y + h >= H - 0.05 * H) or on_hood else kept).append(o)
+    return kept, dropped
+
+
 def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
-    if not hood:
+    if hood is None or len(hood) == 0:
         return None
     m = np.zeros((height, width), np.uint8)
     cv2.fillPoly(m, [np.round(np.asarray(hood)).astype(np.int32)], 1)
@@ -41,8 +52,10 @@ def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
 
 def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraEstimate, detector, *,
                   horizon=None, hood=None, user_road: np.ndarray | None = None,
-                  T_world_cam: np.ndarray | None = None) -> tuple[FrameAnalysis, np.ndarray | None]:
-    """One frame's analysis and its road/band mask (uint8, or None without a road)."""
+                  T_world_cam: np.ndarray | None = None, users: list | None = None,
+                  ) -> tuple[FrameAnalysis, np.ndarray | None]:
+    """One frame's analysis and its road/band mask (uint8, or None without a road).
+    `users`: the frame's detections when already run (`objects.road_users`)."""
     H, W = image.shape[:2]
     decisions: list[dict] = []
 
@@ -58,14 +71,9 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
            "; ".join(est.reasons) or ", ".join(f"{k}: {v}" for k, v in est.source.items()))
     decide("hood", hood is not None, "hood polygon found" if hood else "no hood found: the whole frame is scene")
 
-    kept = []
-    for o in objects.road_users(image, detector):
-        x, y, w, h = o.box
-        on_hood = hmask is not None and hmask[int(min(y + h / 2, H - 1)), int(min(x + w / 2, W - 1))]
-        if (w > EGO_BOX_MIN_WIDTH * W and y + h >= H - 0.05 * H) or on_hood:
-            decide("real_object_dropped", {"cls": o.cls, "box": o.box}, "the ego vehicle's own hood, not a road user")
-            continue
-        kept.append(o)
+    kept, dropped = not_ego(objects.road_users(image, detector) if users is None else users, hmask, W, H)
+    for o in dropped:
+        decide("real_object_dropped", {"cls": o.cls, "box": o.box}, "the ego vehicle's own hood, not a road user")
     decide("real_objects", len(kept), f"{detector.model_path.name}, score >= {detector.score_min}")
 
     mask = None
@@ -75,7 +83,10 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
         road_px, how = road.estimate_road(image, horizon, hmask, [o.box for o in kept])
     decide("road", None if road_px is None else round(float(road_px.mean()), 4), how)
 
-    yaw, how = road.road_direction(image, road_px, camera, T0, horizon)
+    if est.yaw_deg is not None:  # the camera estimate's road vanishing point
+        yaw, how = -est.yaw_deg, "the camera estimate's vanishing point of the road"
+    else:
+        yaw, how = road.road_direction(image, road_px, camera, T0, horizon)
     decide("road_direction_deg", None if yaw is None else round(yaw, 2),
            how if yaw is not None else f"straight ahead (0 deg) assumed: {how}")
     T = ground.camera_pose(est, yaw) if T_world_cam is None else np.asarray(T_world_cam, float)
@@ -114,25 +125,43 @@ def read_road_mask(folder: Path, fa: FrameAnalysis) -> np.ndarray | None:
 
 def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model: Path | None = None,
                  progress: bool = False) -> dict[str, FrameAnalysis]:
-    """Analyse the frames not yet analysed in `folder`; return every frame's analysis."""
-    from blendgen.recording.folder import read_frame
+    """Analyse the frames not yet analysed in `folder`; return every frame's analysis.
+
+    Hood (`hood.find_hood`), real road users, then the camera (`camera.estimate_cameras`,
+    which scales the height with the real cars found), then road, direction and footprints.
+    `gp`: the job's ground_plane section (numbers fix values, "auto" estimates them)."""
+    from blendgen.analysis.camera import estimate_cameras, read_frames
+    from blendgen.analysis.hood import find_hood
 
     folder = Path(folder)
     todo = [f for f in frame_ids if not (folder / f"{f}.json").is_file()]
     if todo:
+        t0 = time.process_time()
         detector = objects.load_detector(detector_model)
-        est = fixed_estimate(gp)
-        for n, fid in enumerate(todo):
-            t0 = time.process_time()
-            image = read_frame(rec, int(fid.lstrip("f")))
+        hoods = find_hood(rec, frame_ids)  # a video's hood comes from many frames
+        users = {}
+        for fid, image in read_frames(rec, todo, progress=progress, desc="road users"):
+            users[fid] = not_ego(objects.road_users(image, detector), hood_mask(hoods.get(fid), image.shape[1],
+                                                                                 image.shape[0]), *image.shape[1::-1])[0]
+        cams = estimate_cameras(rec, todo, user=gp, hoods=hoods, progress=progress,
+                                car_boxes={f: [o.box for o in u if o.cls == "car"] for f, u in users.items()})
+        shared = (time.process_time() - t0) / len(todo)
+        for n, (fid, image) in enumerate(read_frames(rec, todo)):
+            t1 = time.process_time()
+            est, horizon = cams[fid]
+            # the recording's focal length, also when est.fx re-estimated it: the planner and
+            # the renderer project with the recording's camera, and placement must match them
             camera = rec.camera.scaled(image.shape[1], image.shape[0])
             user = road.user_road_mask(rec.root, fid, (image.shape[1], image.shape[0]))
-            fa, mask = analyse_frame(image, fid, camera, est, detector, user_road=user)
-            fa.decisions.append({"what": "cpu_s", "value": round(time.process_time() - t0, 3), "reason": "analysis"})
+            fa, mask = analyse_frame(image, fid, camera, est, detector, horizon=horizon, hood=hoods.get(fid),
+                                     user_road=user, users=users[fid])
+            fa.decisions.append({"what": "cpu_s", "value": round(time.process_time() - t1 + shared, 3),
+                                 "reason": "analysis CPU seconds (hood, detector and camera shared per frame)"})
             write_analysis(folder, fa, mask)
             if progress:
                 print(f"  analysis {n + 1}/{len(todo)} {fid}: {len(fa.real_objects)} road users, "
-                      f"road {'yes' if fa.road_mask else 'no'}, direction "
+                      f"road {'yes' if fa.road_mask else 'no'}, hood {'yes' if fa.hood else 'no'}, "
+                      f"h {est.height_m:.2f} m pitch {est.pitch_deg:+.1f} roll {est.roll_deg:+.1f}, direction "
                       f"{fa.road_direction_deg if fa.road_direction_deg is not None else '-'} deg", flush=True)
     analyses = {f: read_analysis(folder, f) for f in frame_ids}
     if rec.video is not None and len(frame_ids) > 1:

@@ -1,0 +1,108 @@
+"""Camera from the frames (blendgen.analysis.camera): pitch, roll, height, fallbacks."""
+
+import json
+import logging
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from blendgen.analysis.camera import estimate_cameras, estimate_frame, road_axes
+from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
+from blendgen.recording import folder
+
+CAM = Camera.from_hfov(640, 360, 70)
+
+
+def line_scene(pitch, roll, yaw=0.0, height=1.5, lane=3.3, seed=0):
+    """A street drawn from its 3-D lines: lane markings (dashed), kerbs and poles."""
+    rng = np.random.default_rng(seed)
+    img = np.clip(rng.normal(90, 6, (CAM.height, CAM.width)), 0, 255).astype(np.uint8)
+    T = make_pose(R_world_cam_from_ypr(math.radians(yaw), math.radians(pitch), math.radians(roll)), [0, 0, height])
+    lines = []
+    for y in (-1.5 * lane, -0.5 * lane, 0.5 * lane, 1.5 * lane):
+        lines += [((x, y, 0), (x + 3, y, 0)) for x in np.arange(3, 80, 6)]
+    for y in (-2 * lane - 1, 2 * lane + 1):
+        lines.append(((3, y, 0.0), (120, y, 0.0)))
+    for x in np.arange(8, 70, 7):
+        for y in (-2 * lane - 2, 2 * lane + 2):
+            lines.append(((x, y, 0), (x, y, 5)))
+    for a, b in lines:
+        uv, ok = CAM.project_world(T, [a, b])
+        if ok.all():
+            cv2.line(img, tuple(np.round(uv[0] * 16).astype(int)), tuple(np.round(uv[1] * 16).astype(int)),
+                     230, 3, cv2.LINE_AA, shift=4)
+    return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+
+
+@pytest.mark.parametrize("pitch,roll,yaw", [(3, -2, 0), (0, 0, 2), (-2, 1.5, -3), (5, 3, 1)])
+def test_pitch_roll_height_from_lines(pitch, roll, yaw):
+    r = estimate_frame(line_scene(pitch, roll, yaw), CAM, lane_width_m=3.3)
+    assert abs(r.pitch - pitch) < 0.3 and abs(r.roll - roll) < 0.3, (r.pitch, r.roll, r.support)
+    assert abs(r.yaw - yaw) < 1.0
+    assert r.confidence > 0.5 and not r.reasons
+    assert r.height_lanes == pytest.approx(1.5, rel=0.1)
+
+
+def write_images_recording(root, frames, fmt="images"):
+    root.mkdir(parents=True, exist_ok=True)
+    names = []
+    for i, im in enumerate(frames):
+        names.append(f"{i:03d}.png")
+        cv2.imwrite(str(root / names[-1]), im)
+    folder.write_frames_csv(root, np.arange(len(frames), dtype=float), names)
+    folder.write_calib(root, CAM, None, None, extra={"import": {"format": fmt, "camera_calibration": "from test"}})
+    return folder.read_recording(root)
+
+
+def test_no_structure_falls_back_with_a_reason(tmp_path, caplog):
+    rng = np.random.default_rng(1)
+    frames = [np.zeros((360, 640, 3), np.uint8), np.full((360, 640, 3), 128, np.uint8),
+              rng.integers(0, 256, (360, 640, 3), dtype=np.uint8)]
+    for im, why in zip(frames, ["dark", "uniform", "no straight edges"]):
+        r = estimate_frame(im, CAM)
+        assert r.pitch is None and why in r.reasons[0], r.reasons
+    rec = write_images_recording(tmp_path / "rec", frames)
+    with caplog.at_level(logging.INFO, logger="blendgen.analysis.camera"):
+        out = estimate_cameras(rec, [rec.frame_id(i) for i in range(3)])
+    for fid, (est, horizon) in out.items():
+        assert est.source["pitch"] == "default" and est.source["height"] == "default"
+        assert est.confidence == 0.0 and est.height_m == 1.5
+        assert horizon[0][1] == pytest.approx(CAM.cy)       # level camera: horizon through the centre
+        assert any(fid in m and "line segments" in m for m in caplog.messages)
+
+
+def test_user_values_are_kept_and_stills_estimated(tmp_path):
+    from blendgen.job.schema import GroundPlane
+
+    rec = write_images_recording(tmp_path / "rec", [line_scene(3, -2), line_scene(-1, 1)])
+    ids = [rec.frame_id(0), rec.frame_id(1)]
+    out = estimate_cameras(rec, ids)
+    e0, e1 = out[ids[0]][0], out[ids[1]][0]
+    assert abs(e0.pitch_deg - 3) < 0.3 and abs(e0.roll_deg + 2) < 0.3
+    assert abs(e1.pitch_deg + 1) < 0.3 and abs(e1.roll_deg - 1) < 0.3      # stills: not smoothed together
+    assert e0.source == {"pitch": "vanishing_point", "roll": "vanishing_point", "height": "lane_width"}
+    # horizon: through the road's vanishing point, tilted by the roll
+    (u0, v0), (u1, v1) = out[ids[0]][1]
+    assert math.degrees(math.atan2(v1 - v0, u1 - u0)) == pytest.approx(2.0, abs=0.3)
+    gp = GroundPlane(camera_height_m=1.2, pitch_deg="auto", roll_deg=0.5)
+    e = estimate_cameras(rec, ids[:1], user=gp)[ids[0]][0]
+    assert e.height_m == 1.2 and e.roll_deg == 0.5 and e.source["height"] == "user" and e.source["roll"] == "user"
+    assert abs(e.pitch_deg - 3) < 0.4
+
+
+@pytest.mark.bpy
+def test_demo_town_frames_recovered(request):
+    """Frames rendered from the demo town at known poses (cached between runs)."""
+    pytest.importorskip("bpy")
+    from blendgen.render.posed_frames import render_posed_frames
+
+    specs = [dict(name="p3_r-2", seed=0, s=0, height_m=1.5, pitch_deg=3.0, roll_deg=-2.0, yaw_deg=0.0),
+             dict(name="p-2_r1.5", seed=2, s=5, height_m=1.7, pitch_deg=-2.0, roll_deg=1.5, yaw_deg=-3.0)]
+    out_dir = request.config.cache.mkdir("blendgen_camera_frames")
+    poses = render_posed_frames(out_dir, specs, CAM, samples=4)
+    for name, p in poses.items():
+        r = estimate_frame(cv2.imread(str(out_dir / f"{name}.png")), CAM, lane_width_m=3.3)
+        assert abs(r.pitch - p["pitch_deg"]) < 0.5 and abs(r.roll - p["roll_deg"]) < 0.5, (name, r.pitch, r.roll)
+        assert r.height_lanes == pytest.approx(p["height_m"], rel=0.1)

@@ -7,8 +7,9 @@ Runs `blendgen run` on the real photos and video (imported into benchmarks/resul
 once per path with the same seed, camera values and classes, then scores each run against
 the same reference: the NEW path's analysis of the untouched frame (YOLOX-Nano boxes, road
 mask, hood). Per injected, labelled object:
-- inside/behind: its visible box overlaps a real detected box (> 5 % of its own box) and it
-  stands at or beyond the real object's distance (goal 0); in front: overlaps, nearer;
+- inside/behind: its visible box overlaps a real detected box (> 5 % of its own box) and its
+  ground contact is not below the real box's bottom edge in the image, i.e. not nearer on
+  flat ground (goal 0); in front: overlaps and nearer;
 - off road: a vehicle's (car, bus, truck, motorcycle, bicycle) wheel contact point off the
   estimated road (goal 0);
 - on hood: a contact point on the hood (goal 0);
@@ -77,7 +78,9 @@ def run_job(name: str, path: str, samples: int, quick: bool) -> Path:
     out = TMP / f"{name}_{path}"
     job = parse_job({
         "name": f"{name}_{path}", "seed": 11, "recording": str(recording(name)),
-        "ground_plane": {**gp, "analysis": path == "new"}, "frames": frames,
+        # OLD: the values a careful user sets by eye; NEW: camera estimated from the frames
+        "ground_plane": {**gp, "analysis": False} if path == "old" else
+        {"camera_height_m": "auto", "pitch_deg": "auto", "roll_deg": "auto"}, "frames": frames,
         "inject": {"objects_per_frame": [3, 5], "classes": CLASSES, "distance_m": [6, 35], "sequences": seq},
         "render": {"samples": samples}, "export": {"formats": ["coco"], "min_visible_px": 64},
         "output": str(out)})
@@ -107,7 +110,10 @@ def score(out: Path, ref: Path, det, rec) -> dict:
             n["objects"] += 1
             corners = o.box_corners_world()[::2, :2]   # the 4 bottom corners (x, y)
             corners = corners[[0, 1, 3, 2]]
-            near = float(np.min(np.linalg.norm(corners - T[:2, 3], axis=1)))
+            # depth order in the image, whatever either path assumed about the camera: on flat
+            # ground the nearer object touches the ground lower in the frame
+            base, _ = cam.project_world(T, np.column_stack([corners, np.full(4, o.position[2])]))
+            v_near = float(base[:, 1].max())
             x, y, w, h = inst["bbox"]
             behind = front = False
             for r in fa.real_objects:
@@ -115,7 +121,7 @@ def score(out: Path, ref: Path, det, rec) -> dict:
                 ix = max(0.0, min(x + w, rx + rw) - max(x, rx))
                 iy = max(0.0, min(y + h, ry + rh) - max(y, ry))
                 if ix * iy > OVERLAP * w * h:
-                    if r.distance_m is None or near >= r.distance_m:
+                    if v_near <= ry + rh:
                         behind = True
                     else:
                         front = True

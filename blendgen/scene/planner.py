@@ -25,7 +25,7 @@ from blendgen.geometry import Camera, yaw_of_camera
 from blendgen.scene.catalog import SPEED, sample_variant
 from blendgen.scene.geom2d import convex_overlap, point_in_convex, wrap_angle
 from blendgen.scene.plan import FramePlan, PlacedObject
-from blendgen.scene.real_scene import BAND, ROAD
+from blendgen.scene.real_scene import BAND, ROAD, ROAD_EDGE
 from blendgen.scene.twin import Twin
 
 # The ego vehicle's footprint relative to the camera (dashcam behind the windscreen).
@@ -290,7 +290,8 @@ class Planner:
         variant, dims = sample_variant(cls, self.rng)
         p = self._view_point(k)
         if cls in VEHICLES + ("bicycle",) and self.real is not None and self.real.has(k, ROAD):
-            p = self.real.sample_ground(k, ROAD, self.ego.T[k], self.rng, self.d0, self.d1)  # on the real road
+            edge = cls == "bicycle" or (cls == "motorcycle" and "rider" not in variant)
+            p = self.real.sample_ground(k, ROAD_EDGE if edge else ROAD, self.ego.T[k], self.rng, self.d0, self.d1)
             if p is None:
                 self.reason = f"no estimated road between {self.d0:g} and {self.d1:g} m"
                 return None
@@ -309,7 +310,9 @@ class Planner:
         rg = self.twin.roads[lane.road]
         rider = "rider" in variant
         lat = 0.0
-        if cls == "bicycle" or (cls == "motorcycle" and not rider):
+        if self.real is not None and (cls == "bicycle" or (cls == "motorcycle" and not rider)):
+            lat = lane.lateral  # where it was sampled: the real road's edge
+        elif cls == "bicycle" or (cls == "motorcycle" and not rider):
             # bicycles (and parked motorcycles) keep to the curb side of the outermost lane
             n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
             lane = self.twin.lane_at(*rg.line.offset_point(

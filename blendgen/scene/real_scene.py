@@ -10,6 +10,7 @@ vehicle's wheel off the estimated road; a pedestrian outside the bands beside th
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from blendgen.analysis.model import FrameAnalysis
@@ -18,6 +19,8 @@ from blendgen.geometry import Camera
 from blendgen.scene.geom2d import convex_overlap
 
 WHEELED = ("car", "bus", "truck", "motorcycle", "bicycle")
+ROAD_EDGE = -1             # sample_ground: road pixels within EDGE_PX of its left or right edge
+EDGE_PX = 24
 FOOTPRINT_MARGIN_M = 0.3
 MIN_IMAGE_OVERLAP = 0.05   # of the virtual object's box: less is a touch, not "behind"
 
@@ -93,7 +96,12 @@ class RealScene:
         from blendgen.analysis.ground import to_ground
 
         rf = self.frames[k]
-        v, u = np.nonzero(rf.road[::4, ::4] == value)
+        if value == ROAD_EDGE:
+            road = rf.road == ROAD
+            off = cv2.dilate((~road).astype(np.uint8), np.ones((1, 2 * EDGE_PX + 1), np.uint8)) > 0
+            v, u = np.nonzero((road & off)[::4, ::4])
+        else:
+            v, u = np.nonzero(rf.road[::4, ::4] == value)
         if len(u) == 0:
             return None
         pick = rng.choice(len(u), size=min(len(u), 64), replace=False)

@@ -1,8 +1,9 @@
 """Camera from the frames (blendgen.analysis.camera): pitch, roll, height, fallbacks."""
 
-import json
 import logging
 import math
+import os
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -13,6 +14,8 @@ from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 from blendgen.recording import folder
 
 CAM = Camera.from_hfov(640, 360, 70)
+# ../shared/data from the project root; BLENDGEN_SHARED_DATA points elsewhere (e.g. from a worktree)
+REAL = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "real"
 
 
 def line_scene(pitch, roll, yaw=0.0, height=1.5, lane=3.3, seed=0):
@@ -106,3 +109,57 @@ def test_demo_town_frames_recovered(request):
         r = estimate_frame(cv2.imread(str(out_dir / f"{name}.png")), CAM, lane_width_m=3.3)
         assert abs(r.pitch - p["pitch_deg"]) < 0.5 and abs(r.roll - p["roll_deg"]) < 0.5, (name, r.pitch, r.roll)
         assert r.height_lanes == pytest.approx(p["height_m"], rel=0.1)
+
+
+def lane_lines_vanishing_point(img, K, D, corridors):
+    """Ground truth: the two ego-lane lines' intersection in the undistorted image, each line
+    fitted (Huber) to the paint pixels (yellow or white) in a hand-drawn corridor around it."""
+    und = cv2.undistort(img, K, D)
+    hsv = cv2.cvtColor(und, cv2.COLOR_BGR2HSV).astype(int)
+    yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]]
+    paint = (((hsv[..., 0] > 15) & (hsv[..., 0] < 35) & (hsv[..., 1] > 90) & (hsv[..., 2] > 140)) |
+             ((hsv[..., 1] < 50) & (hsv[..., 2] > 190))) & (yy > 470) & (yy < 670)
+    lines = []
+    for (x0, y0), (x1, y1) in corridors:
+        near = np.abs((x1 - x0) * (yy - y0) - (y1 - y0) * (xx - x0)) / math.hypot(x1 - x0, y1 - y0) < 30
+        pts = np.c_[xx[paint & near], yy[paint & near]].astype(np.float32)
+        vx, vy, cx, cy = cv2.fitLine(pts, cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
+        lines.append(np.cross([cx, cy, 1.0], [cx + vx, cy + vy, 1.0]))
+    vp = np.cross(*lines)
+    return vp[:2] / vp[2]
+
+
+@pytest.mark.data
+def test_udacity_dashcam_horizon_is_the_lane_vanishing_point():
+    """Calibrate the real dashcam from its chessboards, then the horizon estimated on a straight,
+    flat highway must pass through the lane lines' vanishing point."""
+    from blendgen.analysis.hood import hood_in_still
+
+    root = REAL / "udacity_lane_camera"
+    if not (root / "camera_cal").is_dir():
+        pytest.skip("needs ../shared/data/real/udacity_lane_camera/camera_cal")
+    board = np.zeros((54, 3), np.float32)
+    board[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2)
+    obj, img_pts = [], []
+    for p in sorted((root / "camera_cal").glob("*.jpg")):
+        g = cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2GRAY)
+        ok, c = cv2.findChessboardCorners(g, (9, 6), flags=cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_FAST_CHECK)
+        if ok:
+            obj.append(board)
+            img_pts.append(cv2.cornerSubPix(g, c, (11, 11), (-1, -1),
+                                            (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)))
+    assert len(obj) >= 15
+    rms, K, D, _, _ = cv2.calibrateCamera(obj, img_pts, (1280, 720), None, None)
+    assert rms < 1.5
+    cam = Camera(1280, 720, K[0, 0], K[1, 1], K[0, 2], K[1, 2], D.ravel().tolist())
+    corridors = {"straight_lines1.jpg": (((220, 700), (620, 432)), ((1045, 690), (665, 432))),
+                 "straight_lines2.jpg": (((250, 695), (620, 432)), ((1070, 690), (660, 432)))}
+    for name, cor in corridors.items():
+        img = cv2.imread(str(root / name))
+        vp = lane_lines_vanishing_point(img, K, D, cor)
+        r = estimate_frame(img, cam, hood=hood_in_still(img)[0])
+        # horizon row at the vanishing point's column (undistorted pinhole image)
+        U = road_axes(math.radians(r.pitch), math.radians(r.roll), 0.0)[2]
+        lh = np.linalg.inv(cam.K).T @ U
+        v = -(lh[0] * vp[0] + lh[2]) / lh[1]
+        assert abs(math.degrees(math.atan((v - vp[1]) / cam.fy))) < 0.5, (name, v, vp)

@@ -144,8 +144,9 @@ def score(out: Path, ref: Path, det, rec) -> dict:
 
 
 def analysis_seconds(ref: Path) -> list[float]:
-    return [d["value"] for p in sorted(ref.glob("f*.json")) for d in json.loads(p.read_text())["decisions"]
-            if d["what"] == "cpu_s"]
+    """CPU seconds per analysed frame (its own work plus its share of hood, camera, ego motion)."""
+    return [sum(d["value"] for d in json.loads(p.read_text())["decisions"] if d["what"] == "cpu_s")
+            for p in sorted(ref.glob("f*.json"))]
 
 
 def gallery(rows: list[tuple[str, Path, Path]]) -> np.ndarray:

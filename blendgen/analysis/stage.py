@@ -130,7 +130,7 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
     Hood (`hood.find_hood`), real road users, then the camera (`camera.estimate_cameras`,
     which scales the height with the real cars found), then road, direction and footprints.
     `gp`: the job's ground_plane section (numbers fix values, "auto" estimates them)."""
-    from blendgen.analysis.camera import estimate_cameras, read_frames
+    from blendgen.analysis.camera import estimate_cameras, is_sequence, read_frames
     from blendgen.analysis.hood import find_hood
 
     folder = Path(folder)
@@ -164,26 +164,38 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
                       f"h {est.height_m:.2f} m pitch {est.pitch_deg:+.1f} roll {est.roll_deg:+.1f}, direction "
                       f"{fa.road_direction_deg if fa.road_direction_deg is not None else '-'} deg", flush=True)
     analyses = {f: read_analysis(folder, f) for f in frame_ids}
-    if rec.video is not None and len(frame_ids) > 1:
-        one_world(analyses, rec, folder)
+    if is_sequence(rec) and len(frame_ids) > 1 and any(
+            not any(d["what"] == "pose" for d in fa.decisions) for fa in analyses.values()):
+        moving_poses(analyses, rec, folder, progress=progress)
     return analyses
 
 
-def one_world(analyses: dict[str, FrameAnalysis], rec, folder: Path) -> None:
-    """Video: tracks live in one world across frames, so every frame's pose shares one road
-    direction (the median of the frames' estimates) instead of each frame's own; footprints
-    follow the pose. Rewrites the frames whose pose changes."""
-    yaws = [fa.road_direction_deg for fa in analyses.values() if fa.road_direction_deg is not None]
-    yaw = float(np.median(yaws)) if yaws else None
+def moving_poses(analyses: dict[str, FrameAnalysis], rec, folder: Path, *, progress: bool = False) -> None:
+    """Video: the camera moves over the ground plane with the ego motion
+    (`egomotion.ground_plane_poses`: road-point odometry, VO heading, GNSS step length;
+    the mount's yaw from the vanishing point), so tracks keep one world and a parked car
+    recedes as the ego car passes it. Footprints follow each frame's pose; every frame is
+    rewritten with the pose decision."""
+    from blendgen.analysis.egomotion import ground_track
+
+    # odometry needs consecutive frames: track every recording frame between the first and
+    # the last selected one, each with the camera of the nearest analysed frame
+    t0 = time.process_time()
+    idx = sorted(int(f.lstrip("f")) for f in analyses)
+    dense = [rec.frame_id(i) for i in range(idx[0], idx[-1] + 1)]
+    near = {f: rec.frame_id(idx[int(np.argmin(np.abs(np.asarray(idx) - int(f.lstrip("f")))))]) for f in dense}
+    track = ground_track(rec, dense, {f: analyses[near[f]].camera for f in dense},
+                         hoods={f: analyses[near[f]].hood for f in dense}, progress=progress)
+    cpu = round((time.process_time() - t0) / len(analyses), 3)
     for fid, fa in analyses.items():
-        T = ground.camera_pose(fa.camera, yaw)
-        if np.allclose(T, fa.T_world_cam):
-            continue
+        T = np.asarray(track.poses[fid], float)
         camera = rec.camera.scaled(fa.width, fa.height)
         hood_top = float(np.asarray(fa.hood)[:, 1].min()) if fa.hood else None
         objects.with_footprints(fa.real_objects, camera, T, fa.height, horizon=fa.horizon, hood_top_v=hood_top)
         fa.T_world_cam = T.tolist()
-        fa.decisions.append({"what": "pose", "value": None if yaw is None else round(yaw, 2),
-                             "reason": f"video: the road direction shared by all {len(analyses)} frames "
-                                       f"(median of {len(yaws)} estimates), so that tracks stay on the road"})
+        step = track.steps.get(fid)
+        fa.decisions.append({"what": "pose", "value": [round(float(v), 3) for v in T[:3, 3]],
+                             "reason": f"video ego motion over the ground plane ({step.status if step else 'first'})"})
+        fa.decisions.append({"what": "cpu_s", "value": cpu, "reason": f"ego motion over {len(dense)} frames, "
+                                                                       "shared per analysed frame"})
         atomic.write_json(Path(folder) / f"{fid}.json", fa.to_dict())

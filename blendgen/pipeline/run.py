@@ -113,7 +113,8 @@ class Runner:
         quality = [{"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0, "flags": ["ground_plane"]}
                    for _ in poses]
         write_poses(self.folder.root, SyncResult(poses, np.zeros((len(poses), 6)), quality))
-        self._say(2, "sync", f"ground-plane twin: fixed camera pose for {len(poses)} frames")
+        self._say(2, "sync", f"ground-plane twin: fixed camera pose for {len(poses)} frames"
+                             + (" (the analysis stage estimates each frame's)" if self.job.ground_plane.analysis else ""))
         self.folder.mark_stage("sync", {"frames": len(poses), "ground_plane": True})
         return poses
 

@@ -149,6 +149,30 @@ def analysis_seconds(ref: Path) -> list[float]:
             for p in sorted(ref.glob("f*.json"))]
 
 
+def camera_accuracy(n: int) -> dict:
+    """h12cam's camera estimate (`analysis.camera.estimate_frame`) on demo-town frames rendered
+    at known height, pitch, roll and yaw (bpy, cached): the errors per frame."""
+    from blendgen.analysis.camera import estimate_frame
+    from blendgen.geometry import Camera
+    from blendgen.render.posed_frames import render_posed_frames
+
+    rng = np.random.default_rng(4)
+    specs = [dict(name=f"pose{i}", seed=int(i % 4), s=int(rng.integers(0, 30)), height_m=float(rng.uniform(1.2, 1.9)),
+                  pitch_deg=float(rng.uniform(-4, 4)), roll_deg=float(rng.uniform(-3, 3)),
+                  yaw_deg=float(rng.uniform(-3, 3))) for i in range(n)]
+    cam = Camera.from_hfov(960, 540, 70.0)
+    out = TMP / "posed_frames"
+    poses = render_posed_frames(out, specs, cam, samples=4)
+    err = {"pitch_deg": [], "roll_deg": [], "height_pct": []}
+    for name, p in poses.items():
+        r = estimate_frame(cv2.imread(str(out / f"{name}.png")), cam, lane_width_m=3.3)  # the demo town's lanes
+        err["pitch_deg"].append(abs(r.pitch - p["pitch_deg"]) if r.pitch is not None else float("nan"))
+        err["roll_deg"].append(abs(r.roll - p["roll_deg"]) if r.roll is not None else float("nan"))
+        h = r.height_lanes or r.height_cars
+        err["height_pct"].append(100 * abs(h - p["height_m"]) / p["height_m"] if h else float("nan"))
+    return err
+
+
 def gallery(rows: list[tuple[str, Path, Path]]) -> np.ndarray:
     tiles = []
     for name, old, new in rows:
@@ -189,11 +213,22 @@ def main() -> None:
         rows.append((name, old, new))
         print(f"{name}: {time.perf_counter() - t0:.0f} s", flush=True)
     table = make_table(results)
+    cam_err = camera_accuracy(4 if args.quick else 10)
+    cam_table = ("| frames | horizon: pitch error deg (median, max) | roll error deg (median, max) "
+                 "| camera height error % (median, max) | no estimate |\n|---|---|---|---|---|\n"
+                 f"| {len(cam_err['pitch_deg'])} | " + " | ".join(
+                     f"{np.nanmedian(v):.2f}, {np.nanmax(v):.2f}" for v in cam_err.values())
+                 + f" | {sum(np.isnan(v).sum() for v in map(np.asarray, cam_err.values()))} values |")
+    results["camera_accuracy"] = cam_err
     print(table)
+    print(cam_table)
     cmd = "PYTHONPATH=. .venv/bin/python benchmarks/bench_placement.py" + (" --quick" if args.quick else "")
     md = ["# Placement on real footage without a map", "", f"`{cmd}` (render samples {args.samples}; "
           "machine shared with other jobs: CPU seconds, not wall time).", "", __doc__.split("\n\n")[1], "", table, "",
           "![placement](../../benchmarks/results/placement.png)", "",
+          "Camera estimate (h12cam's `analysis.camera.estimate_frame`, merged) on demo-town frames rendered "
+          "at known poses (960x540, hfov 70, height 1.2-1.9 m, pitch -4..4 deg, roll -3..3 deg, yaw -3..3 deg; "
+          "goals: horizon <= 0.5 deg median, height <= 10 %):", "", cam_table, "",
           "Before/after gallery: [docs/images/placement_before_after.jpg](../images/placement_before_after.jpg)", ""]
     atomic.write_text(ROOT / "docs" / "benchmarks" / "placement.md", "\n".join(md))
     atomic.write_json(ROOT / "benchmarks" / "results" / "placement.json", results, indent=1)
@@ -207,6 +242,8 @@ def make_table(results: dict) -> str:
              "| on hood | YOLOX recall@0.5 | analysis CPU s/frame (median, max) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
+        if name == "camera_accuracy":
+            continue
         cpu = r["analysis_cpu_s"]
         for path in ("old", "new"):
             m = r[path]
@@ -224,7 +261,7 @@ def plot(results: dict, out_png: Path) -> None:
 
     keys = [("inside_or_behind", "objects"), ("off_road", "vehicles"), ("on_hood", "objects")]
     fig, axes = plt.subplots(1, len(keys) + 1, figsize=(14, 3.6))
-    names = list(results)
+    names = [n for n in results if n != "camera_accuracy"]
     x = np.arange(len(names))
     for ax, (k, base) in zip(axes, keys):
         for j, path in enumerate(("old", "new")):

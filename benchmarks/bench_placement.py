@@ -146,7 +146,27 @@ def score(out: Path, ref: Path, det, rec) -> dict:
     s = score_output(out, det, iou=0.5, score_threshold=0.3, background="auto")
     m = s["classes"]["mean"]
     n["recall"] = m["tp"] / m["n_gt"] if m["n_gt"] else float("nan")
+    n["recall_ci"] = recall_ci(m["tp"], m["n_gt"])
+    n["recall_n"] = m["n_gt"]
     return n
+
+
+def egomotion_seconds(ref: Path) -> tuple[float, int] | None:
+    """(CPU seconds of the video ego motion per recording frame it tracked, frames tracked)."""
+    for p in sorted(ref.glob("f*.json")):
+        for d in json.loads(p.read_text())["decisions"]:
+            if d["what"] == "cpu_s" and d["reason"].startswith("ego motion over"):
+                n_dense = int(d["reason"].split()[3])
+                n_sel = len(list(ref.glob("f*.json")))
+                return d["value"] * n_sel / n_dense, n_dense
+    return None
+
+
+def recall_ci(tp: int, n: int, reps: int = 2000) -> tuple[float, float]:
+    """Bootstrap 95 % interval of a recall tp / n (objects resampled with replacement)."""
+    rng = np.random.default_rng(0)
+    r = rng.binomial(n, tp / n, reps) / n if n else np.full(reps, np.nan)
+    return float(np.percentile(r, 2.5)), float(np.percentile(r, 97.5))
 
 
 def analysis_seconds(ref: Path) -> list[float]:
@@ -215,7 +235,7 @@ def main() -> None:
         ref = new / "analysis"
         rec = read_recording(recording(name))
         results[name] = {"old": score(old, ref, det, rec), "new": score(new, ref, det, rec),
-                         "analysis_cpu_s": analysis_seconds(ref)}
+                         "analysis_cpu_s": analysis_seconds(ref), "egomotion": egomotion_seconds(ref)}
         rows.append((name, old, new))
         print(f"{name}: {time.perf_counter() - t0:.0f} s", flush=True)
     table = make_table(results)
@@ -230,7 +250,12 @@ def main() -> None:
     print(cam_table)
     cmd = "PYTHONPATH=. .venv/bin/python benchmarks/bench_placement.py" + (" --quick" if args.quick else "")
     md = ["# Placement on real footage without a map", "", f"`{cmd}` (render samples {args.samples}; "
-          "machine shared with other jobs: CPU seconds, not wall time).", "", __doc__.split("\n\n")[1], "", table, "",
+          "machine shared with other jobs: CPU seconds, not wall time).", "", __doc__.split("\n\n")[2], "", table, "",
+          "Analysis CPU seconds per analysed frame include its share of the recording-wide work (hood, camera, "
+          "and for video the ego motion, which tracks every recording frame between the first and last "
+          "selected one): " + "; ".join(f"{k}: ego motion {v['egomotion'][0]:.3f} s per tracked frame over "
+                                          f"{v['egomotion'][1]} frames" for k, v in results.items()
+                                          if k != "camera_accuracy" and v.get("egomotion")) + ".", "",
           "![placement](../../benchmarks/results/placement.png)", "",
           "Camera estimate (h12cam's `analysis.camera.estimate_frame`, merged) on demo-town frames rendered "
           "at known poses (960x540, hfov 70, height 1.2-1.9 m, pitch -4..4 deg, roll -3..3 deg, yaw -3..3 deg; "
@@ -245,7 +270,7 @@ def main() -> None:
 
 def make_table(results: dict) -> str:
     lines = ["| data set | path | objects | inside/behind real | in front of real | vehicles | wheel off road "
-             "| on hood | YOLOX recall@0.5 | analysis CPU s/frame (median, max) |",
+             "| on hood | YOLOX recall@0.5 [95 % CI] | analysis CPU s/frame (median, max) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
         if name == "camera_accuracy":
@@ -255,7 +280,8 @@ def make_table(results: dict) -> str:
             m = r[path]
             t = f"{np.median(cpu):.3f}, {np.max(cpu):.3f}" if path == "new" and cpu else "-"
             lines.append(f"| {name} | {path.upper()} | {m['objects']} | {m['inside_or_behind']} | {m['in_front']} | "
-                         f"{m['vehicles']} | {m['off_road']} | {m['on_hood']} | {m['recall']:.2f} | {t} |")
+                         f"{m['vehicles']} | {m['off_road']} | {m['on_hood']} | {m['recall']:.2f} "
+                         f"[{m['recall_ci'][0]:.2f}, {m['recall_ci'][1]:.2f}] (n {m['recall_n']}) | {t} |")
     return "\n".join(lines)
 
 

@@ -11,6 +11,7 @@ cannot be estimated falls back with its reason in `decisions`.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from blendgen.analysis import ground, objects, road
 from blendgen.analysis.model import CameraEstimate, FrameAnalysis
 from blendgen.geometry import Camera
 
+log = logging.getLogger(__name__)
 EGO_BOX_MIN_WIDTH = 0.5   # a "vehicle" box this wide (fraction of the image) touching the bottom is our own hood
 
 
@@ -61,6 +63,8 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
 
     def decide(what, value, reason):
         decisions.append({"what": what, "value": value, "reason": reason})
+        if value is None:  # a fallback: say it where the user looks (the run's log)
+            log.warning("%s: %s: %s", frame_id, what, reason)
 
     T0 = ground.camera_pose(est)
     if horizon is None:

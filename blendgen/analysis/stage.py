@@ -27,12 +27,6 @@ log = logging.getLogger(__name__)
 EGO_BOX_MIN_WIDTH = 0.5   # a "vehicle" box this wide (fraction of the image) touching the bottom is our own hood
 
 
-def fixed_estimate(gp) -> CameraEstimate:
-    """The job's ground_plane values as the camera estimate (user-given, no analysis)."""
-    return CameraEstimate(height_m=gp.camera_height_m, pitch_deg=gp.pitch_deg, roll_deg=0.0, confidence=1.0,
-                          source={"height_m": "user", "pitch_deg": "user", "roll_deg": "default"})
-
-
 def not_ego(users: list, hmask: np.ndarray | None, W: int, H: int) -> tuple[list, list]:
     """(road users, boxes of our own hood): a very wide box touching the frame's bottom, or
     one centred on the hood, is the ego vehicle."""
@@ -145,6 +139,8 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
         hoods = find_hood(rec, frame_ids)  # a video's hood comes from many frames
         users = {}
         for fid, image in read_frames(rec, todo, progress=progress, desc="road users"):
+            if image is None:
+                continue
             users[fid] = not_ego(objects.road_users(image, detector), hood_mask(hoods.get(fid), image.shape[1],
                                                                                  image.shape[0]), *image.shape[1::-1])[0]
         cams = estimate_cameras(rec, todo, user=gp, hoods=hoods, progress=progress,
@@ -152,6 +148,8 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
         shared = (time.process_time() - t0) / len(todo)
         for n, (fid, image) in enumerate(read_frames(rec, todo)):
             t1 = time.process_time()
+            if image is None:
+                continue
             est, horizon = cams[fid]
             # the recording's focal length, also when est.fx re-estimated it: the planner and
             # the renderer project with the recording's camera, and placement must match them
@@ -167,6 +165,14 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
                       f"road {'yes' if fa.road_mask else 'no'}, hood {'yes' if fa.hood else 'no'}, "
                       f"h {est.height_m:.2f} m pitch {est.pitch_deg:+.1f} roll {est.roll_deg:+.1f}, direction "
                       f"{fa.road_direction_deg if fa.road_direction_deg is not None else '-'} deg", flush=True)
+        for fid in todo:  # a frame that does not decode keeps the camera estimate, and says why
+            if not (folder / f"{fid}.json").is_file():
+                est, horizon = cams[fid]
+                log.warning("%s: frame does not decode: the camera estimate only", fid)
+                write_analysis(folder, FrameAnalysis(
+                    fid, rec.camera.width, rec.camera.height, est, ground.camera_pose(est).tolist(), horizon,
+                    decisions=[{"what": "frame", "value": None, "reason": "does not decode: no road users, road "
+                                                                         "or hood, the camera estimate only"}]), None)
     analyses = {f: read_analysis(folder, f) for f in frame_ids}
     if is_sequence(rec) and len(frame_ids) > 1 and any(
             not any(d["what"] == "pose" for d in fa.decisions) for fa in analyses.values()):

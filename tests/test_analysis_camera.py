@@ -163,3 +163,21 @@ def test_udacity_dashcam_horizon_is_the_lane_vanishing_point():
         lh = np.linalg.inv(cam.K).T @ U
         v = -(lh[0] * vp[0] + lh[2]) / lh[1]
         assert abs(math.degrees(math.atan((v - vp[1]) / cam.fy))) < 0.5, (name, v, vp)
+
+
+def test_imu_gravity_gives_pitch_and_roll_without_lines(tmp_path):
+    """A dark video (no lines) with an IMU: pitch and roll come from gravity."""
+    from scipy.spatial.transform import Rotation
+
+    rec = write_images_recording(tmp_path / "rec", [np.zeros((360, 640, 3), np.uint8)] * 3, fmt="video")
+    R_cam_imu = Rotation.from_euler("xyz", [80, 5, -90], degrees=True).as_matrix()
+    rec.T_cam_imu = make_pose(R_cam_imu, [0.1, 0.0, 0.0])
+    R_world_imu = R_world_cam_from_ypr(0.3, math.radians(3.0), math.radians(-2.0)) @ R_cam_imu
+    t = np.arange(0, 3, 0.01)
+    rng = np.random.default_rng(0)
+    acc = (R_world_imu.T @ [0, 0, 9.81])[None, :] + rng.normal(0, 0.05, (len(t), 3))
+    rec.imu = np.c_[t, np.zeros((len(t), 3)), acc]
+    out = estimate_cameras(rec, [rec.frame_id(i) for i in range(3)])
+    for est, _ in out.values():
+        assert est.source["pitch"] == "imu" and est.source["roll"] == "imu"
+        assert abs(est.pitch_deg - 3.0) < 0.2 and abs(est.roll_deg + 2.0) < 0.2 and est.confidence > 0.2

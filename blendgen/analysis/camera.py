@@ -551,6 +551,7 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
                 gv = math.degrees(p_i if name == "pitch" else r_i)
                 if value is None:
                     value, src = gv, "imu"
+                    est.confidence = max(est.confidence, 1.0 / (1.0 + (up[1] / 1.0) ** 2))
                 else:   # inverse-variance average of lines and gravity
                     w1, w2 = 1 / std ** 2, 1 / up[1] ** 2
                     value, src = (w1 * value + w2 * gv) / (w1 + w2), src + "+imu"

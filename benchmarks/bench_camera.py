@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -36,7 +37,8 @@ from blendgen.geometry import Camera  # noqa: E402
 FRAMES_DIR = ROOT / "benchmarks" / "results" / "tmp" / "camera_frames"
 CAM = Camera.from_hfov(960, 540, 70)
 LANE_W = 3.3                       # the demo town's main-street lanes (3.25 on the cross street)
-BDD = ROOT.parent / "shared" / "data" / "real" / "bdd_street_photos"
+# ../shared/data beside the project; BLENDGEN_SHARED_DATA points elsewhere (e.g. from a worktree)
+BDD = Path(os.environ.get("BLENDGEN_SHARED_DATA", ROOT.parent / "shared" / "data")) / "real" / "bdd_street_photos"
 KNOBS = [("default (lsd, 250 seg, 250 it)", {}),
          ("fld", {"detector": "fld"}),
          ("100 segments", {"max_segments": 100}),
@@ -121,6 +123,50 @@ def real_photo_cpu() -> float | None:
     return float(np.median(ts))
 
 
+def real_gallery(out: Path) -> int:
+    """The real photos with the estimate drawn on them: horizon (yellow), hood (magenta), line
+    segments by vanishing direction (red: along the road, blue: vertical, green: crosswise)."""
+    from blendgen.analysis.camera import horizon_line, road_axes
+    from blendgen.analysis.hood import hood_in_still
+
+    real = BDD.parent
+    files = (sorted((real / "bdd_street_photos").glob("*.jpg")) + sorted((real / "udacity_highway_images").glob("*.jpg"))
+             + sorted((real / "udacity_lane_camera").glob("straight_lines*.jpg")))
+    tiles = []
+    for f in files:
+        img = cv2.imread(str(f))
+        h, w = img.shape[:2]
+        cam = Camera.from_hfov(w, h, 60 if w == 1280 else 70)
+        hood = hood_in_still(img)[0]
+        r = estimate_frame(img, cam, hood=hood, fit_focal=True)
+        vis = img.copy()
+        colours = {0: (0, 0, 255), 1: (0, 200, 0), 2: (255, 0, 0)}
+        for sgm, lab in zip(r.segments if r.segments is not None else [],
+                            r.labels if r.labels is not None else []):
+            if lab >= 0:
+                cv2.line(vis, tuple(map(int, sgm[:2])), tuple(map(int, sgm[2:])), colours[int(lab)], 2)
+        text = "no estimate"
+        if r.pitch is not None:
+            c2 = cam if r.fx is None else Camera(w, h, r.fx, r.fx, cam.cx, cam.cy)
+            hz = horizon_line(c2, road_axes(math.radians(r.pitch), math.radians(r.roll), 0.0)[2])
+            cv2.line(vis, tuple(map(int, hz[0])), tuple(map(int, hz[1])), (0, 255, 255), 3)
+            text = f"pitch {r.pitch:+.1f} roll {r.roll:+.1f} h {r.height_lanes or float('nan'):.2f} m"
+        if hood:
+            cv2.polylines(vis, [np.array(hood, np.int32)], True, (255, 0, 255), 3)
+        vis = cv2.resize(vis, (480, 270), interpolation=cv2.INTER_AREA)
+        vis[:26] //= 3
+        cv2.putText(vis, f"{f.stem[:16]}: {text}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+        tiles.append(vis)
+    if not tiles:
+        return 0
+    while len(tiles) % 3:
+        tiles.append(np.zeros_like(tiles[0]))
+    grid = np.vstack([np.hstack(tiles[i:i + 3]) for i in range(0, len(tiles), 3)])
+    atomic.write_image(out, grid, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    return len(files)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="8 frames, default knobs and the baseline only")
@@ -147,6 +193,7 @@ def main(argv=None):
         per[label] = col["horizon_err"]
         print(f"{label:34s} horizon {table[-1][3]:.2f} deg  height {table[-1][5]:.1f} %  {table[-1][7] * 1000:.0f} ms")
     real = real_photo_cpu()
+    n_gallery = real_gallery(ROOT / "docs" / "images" / "camera_real.jpg")
 
     import matplotlib
     matplotlib.use("Agg")
@@ -183,7 +230,9 @@ def main(argv=None):
     md += ["", f"Goals: horizon <= 0.5 deg median, height <= 10 %, <= 0.3 s per 1280x720 frame for the whole analysis.",
            (f"Hood search + camera estimate on the three real 1280x720 BDD photos: {real * 1000:.0f} ms CPU per "
             "frame (median of 9)." if real else "BDD photos not found: no 1280x720 timing."),
-           "", "Plot: `benchmarks/results/camera.png`."]
+           "", "Plot: `benchmarks/results/camera.png`."
+           + (f" The {n_gallery} real photos with the estimate drawn on them: `docs/images/camera_real.jpg`."
+              if n_gallery else "")]
     atomic.write_text(ROOT / "docs" / "benchmarks" / "camera.md", "\n".join(md) + "\n")
     print(f"wrote {out_png} and docs/benchmarks/camera.md")
 

@@ -181,3 +181,15 @@ def test_imu_gravity_gives_pitch_and_roll_without_lines(tmp_path):
     for est, _ in out.values():
         assert est.source["pitch"] == "imu" and est.source["roll"] == "imu"
         assert abs(est.pitch_deg - 3.0) < 0.2 and abs(est.roll_deg + 2.0) < 0.2 and est.confidence > 0.2
+
+
+def test_video_is_smoothed_and_a_dark_frame_takes_its_neighbours(tmp_path):
+    frames = [line_scene(2.0, -1.0, seed=i) for i in range(5)]
+    frames[2] = np.zeros_like(frames[0])
+    rec = write_images_recording(tmp_path / "rec", frames, fmt="video")
+    rec.frames_t = np.arange(5) * 0.1
+    out = estimate_cameras(rec, [rec.frame_id(i) for i in range(5)])
+    for fid, (est, _) in out.items():
+        assert est.source["pitch"] == "smoothed" and abs(est.pitch_deg - 2.0) < 0.3 and abs(est.roll_deg + 1) < 0.3
+        assert est.source["height"] == "lane_width"     # one height for the whole video
+    assert "line segments" in out["f000002"][0].reasons[0]

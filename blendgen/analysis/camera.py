@@ -47,6 +47,7 @@ DEFAULT_HEIGHT_M = 1.5      # a car's dashcam
 DEFAULT_LANE_WIDTH_M = 3.5
 CAR_WIDTH_M = 1.8           # typical passenger car (mirrors folded out of the box)
 CAR_LENGTH_M = 4.5
+SMOOTH_S = 0.5              # video: pitch and roll are a weighted median over +- this
 # Body frame (x forward, y left, z up) -> camera (x right, y down, z forward), as geometry.py.
 _R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
@@ -520,6 +521,8 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
     rec_height = (float(np.median(hl)), "lane_width") if hl else (float(np.median(hc)), "cars") if hc else None
     cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
                                            camera.cx, camera.cy, list(camera.dist))
+    by_time = sorted(per, key=t_of.__getitem__)
+    t_sorted = np.array([t_of[g] for g in by_time])
     for fid in frame_ids:
         fc = per.get(fid, FrameCamera(None, None))
         est = CameraEstimate(height_m=DEFAULT_HEIGHT_M, pitch_deg=0.0, roll_deg=0.0, fx=fx,
@@ -527,7 +530,8 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
         if fx is not None:
             est.source["fx"] = "vanishing_point"
         t = t_of[fid]
-        near = [g for g in per if seq and abs(t_of[g] - t) <= 0.5]
+        near = by_time[np.searchsorted(t_sorted, t - SMOOTH_S):np.searchsorted(t_sorted, t + SMOOTH_S, "right")] \
+            if seq else []
         up = gravity_up(rec, t)
         for name, std_name, key in (("pitch", "pitch_std", "pitch_deg"), ("roll", "roll_std", "roll_deg")):
             if fixed[key] is not None:

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from blendgen.analysis.model import CameraEstimate
-from blendgen.geometry import Camera
+from blendgen.geometry import Camera, R_world_cam_from_ypr
 
 log = logging.getLogger(__name__)
 
@@ -48,8 +48,6 @@ DEFAULT_LANE_WIDTH_M = 3.5
 CAR_WIDTH_M = 1.8           # typical passenger car (mirrors folded out of the box)
 CAR_LENGTH_M = 4.5
 SMOOTH_S = 0.5              # video: pitch and roll are a weighted median over +- this
-# Body frame (x forward, y left, z up) -> camera (x right, y down, z forward), as geometry.py.
-_R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 @dataclass
@@ -90,13 +88,9 @@ class FrameCamera:
 # ----------------------------------------------------------------------------- geometry
 
 def road_axes(pitch: float, roll: float, yaw: float) -> np.ndarray:
-    """Rows: the road's forward F, left L and up U axes in the camera frame (radians in).
-    This is R_world_cam of `geometry.R_world_cam_from_ypr` with the road along world x."""
-    cy, sy, cp, sp, cr, sr = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
-    Ry = np.array([[cp, 0, -sp], [0, 1.0, 0], [sp, 0, cp]])       # rotation by -pitch about y
-    Rx = np.array([[1.0, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    return Rz @ Ry @ Rx @ _R_BODY_CAM
+    """Rows: the road's forward F, left L and up U axes in the camera frame (radians in):
+    R_world_cam of `geometry.R_world_cam_from_ypr` with the road along world x."""
+    return R_world_cam_from_ypr(yaw, pitch, roll)
 
 
 def angles_from_axes(F: np.ndarray, U: np.ndarray) -> tuple[float, float, float]:

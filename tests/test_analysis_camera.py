@@ -193,3 +193,15 @@ def test_video_is_smoothed_and_a_dark_frame_takes_its_neighbours(tmp_path):
         assert est.source["pitch"] == "smoothed" and abs(est.pitch_deg - 2.0) < 0.3 and abs(est.roll_deg + 1) < 0.3
         assert est.source["height"] == "lane_width"     # one height for the whole video
     assert "line segments" in out["f000002"][0].reasons[0]
+
+
+def test_focal_length_from_two_vanishing_points_when_the_fov_was_guessed():
+    guess = Camera.from_hfov(640, 360, 60)            # the real camera has 70 deg
+    r = estimate_frame(line_scene(5, 3), guess, fit_focal=True)
+    assert r.fx == pytest.approx(CAM.fx, rel=0.03) and abs(r.pitch - 5) < 0.2 and abs(r.roll - 3) < 0.2
+    # nearly level: the vertical vanishing point is too far to fix f, the guess is kept and the
+    # angles agree with it, so the horizon still lands on the right image row
+    r = estimate_frame(line_scene(3, -2), guess, fit_focal=True)
+    assert r.fx is None
+    v_true = CAM.cy + CAM.fy * math.tan(math.radians(3))
+    assert guess.cy + guess.fy * math.tan(math.radians(r.pitch)) == pytest.approx(v_true, abs=2)

@@ -262,46 +262,52 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
         return out
     # the focal length needs two finite orthogonal vanishing points: the road's and the vertical
     fit_focal = fit_focal and support["F"] >= cfg.min_support and support["U"] >= cfg.min_support
-    p, r, y = best[1]
-    f = 1.0
+    def Kf(f):      # the focal lengths scaled, the principal point kept
+        return K * np.array([[f, 1.0, 1.0], [1.0, f, 1.0], [1.0, 1.0, 1.0]]) if f != 1.0 else K
 
-    def unpack(x):
-        return x[0], (x[2] if roll_free else roll0), x[1], (math.exp(x[-1]) if fit_focal else 1.0)
+    def fit(p, r, y, labels, with_focal):
+        """Fit on the inliers, relabel with the fit, fit again; (p, r, y, f, labels, sd)."""
+        f = 1.0
 
-    def Kf(f):
-        return np.diag([f, f, 1.0]) @ K if f != 1.0 else K
+        def unpack(x):
+            return x[0], (x[2] if roll_free else roll0), x[1], (math.exp(x[-1]) if with_focal else 1.0)
 
-    for _ in range(2):   # fit on the inliers, relabel with the fit, fit again
-        idx = np.flatnonzero(labels >= 0)
-        sw, lab, rows = np.sqrt(length[idx]), labels[idx], np.arange(len(idx))
+        for _ in range(2):
+            idx = np.flatnonzero(labels >= 0)
+            sw, lab, rows = np.sqrt(length[idx]), labels[idx], np.arange(len(idx))
 
-        def fun(x):
-            p_, r_, y_, f_ = unpack(x)
-            return S.residuals(road_axes(p_, r_, y_) @ Kf(f_).T, idx)[rows, lab] * sw
+            def fun(x):
+                p_, r_, y_, f_ = unpack(x)
+                return S.residuals(road_axes(p_, r_, y_) @ Kf(f_).T, idx)[rows, lab] * sw
 
-        x0 = [p, y] + ([r] if roll_free else []) + ([math.log(f)] if fit_focal else [])
-        sol = least_squares(fun, x0, loss="soft_l1", f_scale=thr * float(np.median(sw)))
-        p, r, y, f = unpack(sol.x)
-        res = S.residuals(road_axes(p, r, y) @ Kf(f).T)
-        lab_all = res.argmin(axis=1)
-        labels = np.where(res[np.arange(len(seg)), lab_all] < thr, lab_all, -1)
+            x0 = [p, y] + ([r] if roll_free else []) + ([math.log(f)] if with_focal else [])
+            sol = least_squares(fun, x0, loss="soft_l1", f_scale=thr * float(np.median(sw)))
+            p, r, y, f = unpack(sol.x)
+            res = S.residuals(road_axes(p, r, y) @ Kf(f).T)
+            lab_all = res.argmin(axis=1)
+            labels = np.where(res[np.arange(len(seg)), lab_all] < thr, lab_all, -1)
+        # standard deviations from the Jacobian (residual scale from the fit)
+        sigma2 = float(np.sum(sol.fun ** 2)) / max(len(idx) - len(x0), 1)
+        try:
+            sd = np.sqrt(np.clip(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * sigma2), 0, None))
+        except np.linalg.LinAlgError:
+            sd = np.full(len(x0), 1.0)
+        return p, r, y, f, labels, sd
+
+    p, r, y, f, labels, sd = fit(*best[1], labels, fit_focal)
+    if fit_focal and not (0.5 < f < 2.0 and sd[-1] < 0.03):
+        # the focal length is not known to 3 %: keep the calibration's, and angles that agree with it
+        fit_focal = False
+        p, r, y, f, labels, sd = fit(p, r, y, labels, False)
     out.labels = labels
     support = {ax: int(np.count_nonzero(labels == i)) for i, ax in enumerate("FLU")}
     out.support = support
-    # angles' standard deviation from the Jacobian (residual scale from the fit)
-    dof = max(len(idx) - len(x0), 1)
-    sigma2 = float(np.sum(sol.fun ** 2)) / dof
-    try:
-        cov = np.linalg.inv(sol.jac.T @ sol.jac) * sigma2
-        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    except np.linalg.LinAlgError:
-        sd = np.full(len(x0), 1.0)
     std = np.degrees(sd)
     out.pitch, out.yaw = math.degrees(p), math.degrees(y)
     out.pitch_std = float(std[0])
     out.roll = math.degrees(r)
     out.roll_std = float(std[2]) if roll_free else float("inf")
-    if fit_focal and 0.5 < f < 2.0 and sd[-1] < 0.03:    # f known to 3 %
+    if fit_focal:
         out.fx = float(camera.fx * f)
     n_used = support["F"] + (support["U"] + support["L"] if roll_free else 0)
     worst_std = max(out.pitch_std, out.roll_std if roll_free else 0.0)

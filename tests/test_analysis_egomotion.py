@@ -110,3 +110,15 @@ def test_stills_keep_a_fixed_pose(tmp_path):
         want = R_world_cam_from_ypr(0.0, math.radians(e.pitch_deg), math.radians(e.roll_deg))
         assert np.allclose(T[:3, :3], want)
     assert np.allclose(invert_pose(poses["f000000"]) @ poses["f000000"], np.eye(4))
+
+
+def test_ground_plane_twin_has_roll_and_takes_auto_fields():
+    from blendgen.job.schema import GroundPlane
+    from blendgen.scene.ground_plane import GroundPlaneTwin
+
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.3, pitch_deg=2.0, roll_deg=-1.5))
+    T = twin.camera_pose(4.0)
+    assert np.allclose(T[:3, :3], R_world_cam_from_ypr(0.0, math.radians(2.0), math.radians(-1.5)))
+    assert T[:3, 3] == pytest.approx([4.0, 0.0, 1.3])
+    auto = GroundPlaneTwin.from_job(GroundPlane(camera_height_m="auto", pitch_deg="auto", roll_deg="auto"))
+    assert (auto.camera_height_m, auto.pitch_deg, auto.roll_deg) == (1.5, 0.0, 0.0)

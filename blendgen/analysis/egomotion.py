@@ -23,8 +23,11 @@ For a video, between consecutive requested frames (`ground_track`):
   - a step without a reliable road match (weak phase-correlation peak, no step while VO
     sees parallax, or a step unlike the median of the last good ones) keeps that median
     (constant velocity), said in `status`.
-The camera's yaw relative to the vehicle is the recording's median vanishing-point yaw
-(the mount does not turn), so a parked car beside the road recedes as the ego car passes.
+The heading over the (straight) twin road is the camera's vanishing-point yaw relative to
+the road (despiked by a 3-frame median), so the twin's lanes stay on the real road; VO carries it
+through frames without one. The camera's yaw relative to the vehicle is the median of
+those (the mount does not turn). A parked car beside the road recedes as the ego car
+passes it.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ PATCH_M = 12.0                  # ...and is this long
 LATERAL_M = 3.0                 # +- across: the ego lane's two lines
 BEV_RES = 0.04                  # metres per bird's-eye pixel
 MIN_RESPONSE = 0.1              # phase-correlation peak below this: no reliable step
+VO_FEATURES = 500               # VO only gives the heading here: fewer features than sync's 1500
 
 
 @dataclass
@@ -118,6 +122,19 @@ def _vo_yaw(res, est) -> float | None:
     return float(math.atan2(R_body[1, 0], R_body[0, 0]))
 
 
+def _road_yaw(order, ests) -> dict[str, float | None]:
+    """The camera's yaw relative to the road per frame (rad): the vanishing point's, despiked
+    by a 3-frame median (a turning car changes it steadily, a wider median would lag);
+    None where the frame has no confident one."""
+    raw = [math.radians(ests[f].yaw_deg) if ests[f].yaw_deg is not None and ests[f].confidence > 0.2 else None
+           for f in order]
+    out = {}
+    for k, f in enumerate(order):
+        near = [v for v in raw[max(k - 1, 0):k + 2] if v is not None]
+        out[f] = float(np.median(near)) if raw[k] is not None and len(near) == 3 else raw[k]
+    return out
+
+
 def _gnss_steps(rec, times: np.ndarray) -> np.ndarray | None:
     if len(rec.gnss) < 2 or times[0] < rec.gnss[0, 0] or times[-1] > rec.gnss[-1, 0]:
         return None
@@ -131,7 +148,7 @@ def _gnss_steps(rec, times: np.ndarray) -> np.ndarray | None:
 
 def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False) -> Track:
     """Poses and the per-step record; see the module doc."""
-    from blendgen.sync.vo import OrbVo
+    from blendgen.sync.vo import OrbVo, VoConfig
 
     frame_ids = list(frame_ids)
     ests = {f: _est(cameras[f]) for f in frame_ids}
@@ -141,13 +158,14 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
             track.poses[f] = _pose(0.0, 0.0, 0.0, ests[f])
             track.steps[f] = Step(status="still")
         return track
-    yaws = [e.yaw_deg for e in ests.values() if e.yaw_deg is not None and e.confidence > 0.2]
-    mount_yaw = math.radians(float(np.median(yaws))) if yaws else 0.0
     camera = rec.camera
-    vo = OrbVo(camera)
+    vo = OrbVo(camera, VoConfig(n_features=VO_FEATURES))
     index = {rec.frame_id(i): i for i in range(rec.n_frames)}
     order = sorted(frame_ids, key=index.__getitem__)
     times = np.array([rec.frames_t[index[f]] for f in order])
+    road_yaw = _road_yaw(order, ests)
+    known = [v for v in road_yaw.values() if v is not None]
+    mount_yaw = float(np.median(known)) if known else 0.0
     gnss = _gnss_steps(rec, times)
     x = y = heading = 0.0
     prev = near = None
@@ -194,8 +212,12 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
             c, s = math.cos(heading), math.sin(heading)
             x += c * step.forward - s * step.left
             y += s * step.forward + c * step.left
-            heading += step.dyaw
+            # the road's vanishing point holds the heading to the (straight) twin road; VO
+            # only carries it over frames without one
+            heading = road_yaw[fid] - mount_yaw if road_yaw[fid] is not None else heading + step.dyaw
             last = step
+        elif road_yaw[fid] is not None:
+            heading = road_yaw[fid] - mount_yaw
         track.poses[fid] = _pose(x, y, heading, est, mount_yaw)
         track.steps[fid] = step
     moved = [f for f in order if track.steps[f].status.startswith("constant_velocity")]

@@ -16,6 +16,7 @@ COMMAND_MODULES = [
     "blendgen.recording.importers.command",  # import
     "blendgen.eval.command",            # realism
     "blendgen.report.command",          # report
+    "blendgen.analysis.calibrate",      # calibrate
 ]
 
 

@@ -163,3 +163,45 @@ def test_udacity_dashcam_horizon_is_the_lane_vanishing_point():
         lh = np.linalg.inv(cam.K).T @ U
         v = -(lh[0] * vp[0] + lh[2]) / lh[1]
         assert abs(math.degrees(math.atan((v - vp[1]) / cam.fy))) < 0.5, (name, v, vp)
+
+
+def test_imu_gravity_gives_pitch_and_roll_without_lines(tmp_path):
+    """A dark video (no lines) with an IMU: pitch and roll come from gravity."""
+    from scipy.spatial.transform import Rotation
+
+    rec = write_images_recording(tmp_path / "rec", [np.zeros((360, 640, 3), np.uint8)] * 3, fmt="video")
+    R_cam_imu = Rotation.from_euler("xyz", [80, 5, -90], degrees=True).as_matrix()
+    rec.T_cam_imu = make_pose(R_cam_imu, [0.1, 0.0, 0.0])
+    R_world_imu = R_world_cam_from_ypr(0.3, math.radians(3.0), math.radians(-2.0)) @ R_cam_imu
+    t = np.arange(0, 3, 0.01)
+    rng = np.random.default_rng(0)
+    acc = (R_world_imu.T @ [0, 0, 9.81])[None, :] + rng.normal(0, 0.05, (len(t), 3))
+    rec.imu = np.c_[t, np.zeros((len(t), 3)), acc]
+    out = estimate_cameras(rec, [rec.frame_id(i) for i in range(3)])
+    for est, _ in out.values():
+        assert est.source["pitch"] == "imu" and est.source["roll"] == "imu"
+        assert abs(est.pitch_deg - 3.0) < 0.2 and abs(est.roll_deg + 2.0) < 0.2 and est.confidence > 0.2
+
+
+def test_video_is_smoothed_and_a_dark_frame_takes_its_neighbours(tmp_path):
+    frames = [line_scene(2.0, -1.0, seed=i) for i in range(5)]
+    frames[2] = np.zeros_like(frames[0])
+    rec = write_images_recording(tmp_path / "rec", frames, fmt="video")
+    rec.frames_t = np.arange(5) * 0.1
+    out = estimate_cameras(rec, [rec.frame_id(i) for i in range(5)])
+    for fid, (est, _) in out.items():
+        assert est.source["pitch"] == "smoothed" and abs(est.pitch_deg - 2.0) < 0.3 and abs(est.roll_deg + 1) < 0.3
+        assert est.source["height"] == "lane_width"     # one height for the whole video
+    assert "line segments" in out["f000002"][0].reasons[0]
+
+
+def test_focal_length_from_two_vanishing_points_when_the_fov_was_guessed():
+    guess = Camera.from_hfov(640, 360, 60)            # the real camera has 70 deg
+    r = estimate_frame(line_scene(5, 3), guess, fit_focal=True)
+    assert r.fx == pytest.approx(CAM.fx, rel=0.03) and abs(r.pitch - 5) < 0.2 and abs(r.roll - 3) < 0.2
+    # nearly level: the vertical vanishing point is too far to fix f, the guess is kept and the
+    # angles agree with it, so the horizon still lands on the right image row
+    r = estimate_frame(line_scene(3, -2), guess, fit_focal=True)
+    assert r.fx is None
+    v_true = CAM.cy + CAM.fy * math.tan(math.radians(3))
+    assert guess.cy + guess.fy * math.tan(math.radians(r.pitch)) == pytest.approx(v_true, abs=2)

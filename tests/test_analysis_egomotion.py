@@ -110,3 +110,34 @@ def test_stills_keep_a_fixed_pose(tmp_path):
         want = R_world_cam_from_ypr(0.0, math.radians(e.pitch_deg), math.radians(e.roll_deg))
         assert np.allclose(T[:3, :3], want)
     assert np.allclose(invert_pose(poses["f000000"]) @ poses["f000000"], np.eye(4))
+
+
+def test_ground_plane_twin_has_roll_and_takes_auto_fields():
+    from blendgen.job.schema import GroundPlane
+    from blendgen.scene.ground_plane import GroundPlaneTwin
+
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.3, pitch_deg=2.0, roll_deg=-1.5))
+    T = twin.camera_pose(4.0)
+    assert np.allclose(T[:3, :3], R_world_cam_from_ypr(0.0, math.radians(2.0), math.radians(-1.5)))
+    assert T[:3, 3] == pytest.approx([4.0, 0.0, 1.3])
+    auto = GroundPlaneTwin.from_job(GroundPlane(camera_height_m="auto", pitch_deg="auto", roll_deg="auto"))
+    assert (auto.camera_height_m, auto.pitch_deg, auto.roll_deg) == (1.5, 0.0, 0.0)
+
+
+def test_heading_follows_the_road_vanishing_point(tmp_path):
+    """With the camera's yaw to the road known per frame (vanishing point), the pose keeps the
+    twin's straight road on the real one instead of integrating VO's heading drift."""
+    true = drive(n=8, yaw_rate_deg=0.8)
+    rec = write_drive(tmp_path / "drive", true)
+    ids = [rec.frame_id(i) for i in range(len(true))]
+    rng = np.random.default_rng(3)
+    cams = {f: CameraEstimate(1.4, 2.0, -1.0, yaw_deg=0.8 * i + rng.normal(0, 0.1), confidence=0.8)
+            for i, f in enumerate(ids)}
+    poses = ground_plane_poses(rec, ids, cams)
+    mount = np.median([c.yaw_deg for c in cams.values()])
+    for i, f in enumerate(ids):
+        fwd = poses[f][:3, 2]
+        yaw = math.degrees(math.atan2(fwd[1], fwd[0]))
+        assert yaw == pytest.approx(0.8 * i, abs=0.5)           # camera yaw to the road kept
+        assert poses[f][0, 3] == pytest.approx(sum(math.cos(math.radians(0.8 * k - mount)) for k in range(i)),
+                                               abs=0.1)

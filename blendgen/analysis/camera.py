@@ -39,7 +39,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from blendgen.analysis.model import CameraEstimate
-from blendgen.geometry import Camera
+from blendgen.geometry import Camera, R_world_cam_from_ypr
 
 log = logging.getLogger(__name__)
 
@@ -47,8 +47,7 @@ DEFAULT_HEIGHT_M = 1.5      # a car's dashcam
 DEFAULT_LANE_WIDTH_M = 3.5
 CAR_WIDTH_M = 1.8           # typical passenger car (mirrors folded out of the box)
 CAR_LENGTH_M = 4.5
-# Body frame (x forward, y left, z up) -> camera (x right, y down, z forward), as geometry.py.
-_R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+SMOOTH_S = 0.5              # video: pitch and roll are a weighted median over +- this
 
 
 @dataclass
@@ -89,13 +88,9 @@ class FrameCamera:
 # ----------------------------------------------------------------------------- geometry
 
 def road_axes(pitch: float, roll: float, yaw: float) -> np.ndarray:
-    """Rows: the road's forward F, left L and up U axes in the camera frame (radians in).
-    This is R_world_cam of `geometry.R_world_cam_from_ypr` with the road along world x."""
-    cy, sy, cp, sp, cr, sr = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
-    Ry = np.array([[cp, 0, -sp], [0, 1.0, 0], [sp, 0, cp]])       # rotation by -pitch about y
-    Rx = np.array([[1.0, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    return Rz @ Ry @ Rx @ _R_BODY_CAM
+    """Rows: the road's forward F, left L and up U axes in the camera frame (radians in):
+    R_world_cam of `geometry.R_world_cam_from_ypr` with the road along world x."""
+    return R_world_cam_from_ypr(yaw, pitch, roll)
 
 
 def angles_from_axes(F: np.ndarray, U: np.ndarray) -> tuple[float, float, float]:
@@ -267,46 +262,52 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
         return out
     # the focal length needs two finite orthogonal vanishing points: the road's and the vertical
     fit_focal = fit_focal and support["F"] >= cfg.min_support and support["U"] >= cfg.min_support
-    p, r, y = best[1]
-    f = 1.0
+    def Kf(f):      # the focal lengths scaled, the principal point kept
+        return K * np.array([[f, 1.0, 1.0], [1.0, f, 1.0], [1.0, 1.0, 1.0]]) if f != 1.0 else K
 
-    def unpack(x):
-        return x[0], (x[2] if roll_free else roll0), x[1], (math.exp(x[-1]) if fit_focal else 1.0)
+    def fit(p, r, y, labels, with_focal):
+        """Fit on the inliers, relabel with the fit, fit again; (p, r, y, f, labels, sd)."""
+        f = 1.0
 
-    def Kf(f):
-        return np.diag([f, f, 1.0]) @ K if f != 1.0 else K
+        def unpack(x):
+            return x[0], (x[2] if roll_free else roll0), x[1], (math.exp(x[-1]) if with_focal else 1.0)
 
-    for _ in range(2):   # fit on the inliers, relabel with the fit, fit again
-        idx = np.flatnonzero(labels >= 0)
-        sw, lab, rows = np.sqrt(length[idx]), labels[idx], np.arange(len(idx))
+        for _ in range(2):
+            idx = np.flatnonzero(labels >= 0)
+            sw, lab, rows = np.sqrt(length[idx]), labels[idx], np.arange(len(idx))
 
-        def fun(x):
-            p_, r_, y_, f_ = unpack(x)
-            return S.residuals(road_axes(p_, r_, y_) @ Kf(f_).T, idx)[rows, lab] * sw
+            def fun(x):
+                p_, r_, y_, f_ = unpack(x)
+                return S.residuals(road_axes(p_, r_, y_) @ Kf(f_).T, idx)[rows, lab] * sw
 
-        x0 = [p, y] + ([r] if roll_free else []) + ([math.log(f)] if fit_focal else [])
-        sol = least_squares(fun, x0, loss="soft_l1", f_scale=thr * float(np.median(sw)))
-        p, r, y, f = unpack(sol.x)
-        res = S.residuals(road_axes(p, r, y) @ Kf(f).T)
-        lab_all = res.argmin(axis=1)
-        labels = np.where(res[np.arange(len(seg)), lab_all] < thr, lab_all, -1)
+            x0 = [p, y] + ([r] if roll_free else []) + ([math.log(f)] if with_focal else [])
+            sol = least_squares(fun, x0, loss="soft_l1", f_scale=thr * float(np.median(sw)))
+            p, r, y, f = unpack(sol.x)
+            res = S.residuals(road_axes(p, r, y) @ Kf(f).T)
+            lab_all = res.argmin(axis=1)
+            labels = np.where(res[np.arange(len(seg)), lab_all] < thr, lab_all, -1)
+        # standard deviations from the Jacobian (residual scale from the fit)
+        sigma2 = float(np.sum(sol.fun ** 2)) / max(len(idx) - len(x0), 1)
+        try:
+            sd = np.sqrt(np.clip(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * sigma2), 0, None))
+        except np.linalg.LinAlgError:
+            sd = np.full(len(x0), 1.0)
+        return p, r, y, f, labels, sd
+
+    p, r, y, f, labels, sd = fit(*best[1], labels, fit_focal)
+    if fit_focal and not (0.5 < f < 2.0 and sd[-1] < 0.03):
+        # the focal length is not known to 3 %: keep the calibration's, and angles that agree with it
+        fit_focal = False
+        p, r, y, f, labels, sd = fit(p, r, y, labels, False)
     out.labels = labels
     support = {ax: int(np.count_nonzero(labels == i)) for i, ax in enumerate("FLU")}
     out.support = support
-    # angles' standard deviation from the Jacobian (residual scale from the fit)
-    dof = max(len(idx) - len(x0), 1)
-    sigma2 = float(np.sum(sol.fun ** 2)) / dof
-    try:
-        cov = np.linalg.inv(sol.jac.T @ sol.jac) * sigma2
-        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    except np.linalg.LinAlgError:
-        sd = np.full(len(x0), 1.0)
     std = np.degrees(sd)
     out.pitch, out.yaw = math.degrees(p), math.degrees(y)
     out.pitch_std = float(std[0])
     out.roll = math.degrees(r)
     out.roll_std = float(std[2]) if roll_free else float("inf")
-    if fit_focal and 0.5 < f < 2.0 and sd[-1] < 0.03:    # f known to 3 %
+    if fit_focal:
         out.fx = float(camera.fx * f)
     n_used = support["F"] + (support["U"] + support["L"] if roll_free else 0)
     worst_std = max(out.pitch_std, out.roll_std if roll_free else 0.0)
@@ -520,6 +521,8 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
     rec_height = (float(np.median(hl)), "lane_width") if hl else (float(np.median(hc)), "cars") if hc else None
     cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
                                            camera.cx, camera.cy, list(camera.dist))
+    by_time = sorted(per, key=t_of.__getitem__)
+    t_sorted = np.array([t_of[g] for g in by_time])
     for fid in frame_ids:
         fc = per.get(fid, FrameCamera(None, None))
         est = CameraEstimate(height_m=DEFAULT_HEIGHT_M, pitch_deg=0.0, roll_deg=0.0, fx=fx,
@@ -527,7 +530,8 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
         if fx is not None:
             est.source["fx"] = "vanishing_point"
         t = t_of[fid]
-        near = [g for g in per if seq and abs(t_of[g] - t) <= 0.5]
+        near = by_time[np.searchsorted(t_sorted, t - SMOOTH_S):np.searchsorted(t_sorted, t + SMOOTH_S, "right")] \
+            if seq else []
         up = gravity_up(rec, t)
         for name, std_name, key in (("pitch", "pitch_std", "pitch_deg"), ("roll", "roll_std", "roll_deg")):
             if fixed[key] is not None:
@@ -551,6 +555,7 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
                 gv = math.degrees(p_i if name == "pitch" else r_i)
                 if value is None:
                     value, src = gv, "imu"
+                    est.confidence = max(est.confidence, 1.0 / (1.0 + (up[1] / 1.0) ** 2))
                 else:   # inverse-variance average of lines and gravity
                     w1, w2 = 1 / std ** 2, 1 / up[1] ** 2
                     value, src = (w1 * value + w2 * gv) / (w1 + w2), src + "+imu"

@@ -10,19 +10,24 @@ camera starts at (0, 0, height). Stills (an images recording without temporal or
 a fixed pose per frame, with that frame's own height, pitch and roll.
 
 For a video, between consecutive requested frames (`ground_track`):
-  - road points (below the horizon, above the hood, 3..25 m ahead) are tracked with
-    pyramidal Lucas-Kanade (forward-backward checked) and put on the ground with each
-    frame's height, pitch and roll: a RANSAC rigid 2-D fit of the two point sets is the
-    metric step (forward, left, heading change), the camera height giving the scale;
   - ORB visual odometry (blendgen.sync.vo) gives the heading change from the whole image;
-    it is averaged in when it agrees with the road's within 1 deg and replaces it when the
-    road gives no step;
+  - the road 12 m long from 5 m ahead (7, 9, 12 when the hood or a narrow field of view
+    hides it), +-3 m across, is warped to a bird's-eye view (4 cm/px) with each frame's
+    height, pitch and roll, the newer one along the older heading; phase correlation of
+    the two views' derivatives along the road is the metric step (forward, left): the
+    camera height gives the scale; the derivative removes lines along the road (lane lines,
+    kerbs), which match at any forward shift and pinned tracked points and plain
+    correlation to a zero step (aperture problem);
   - GNSS, when the recording has it, gives the step length (ENU distance between the
     interpolated positions at the two frame times);
-  - a step with neither keeps the previous step's motion (constant velocity), said in
-    `status`.
-The camera's yaw relative to the vehicle is the recording's median vanishing-point yaw
-(the mount does not turn), so a parked car beside the road recedes as the ego car passes.
+  - a step without a reliable road match (weak phase-correlation peak, no step while VO
+    sees parallax, or a step unlike the median of the last good ones) keeps that median
+    (constant velocity), said in `status`.
+The heading over the (straight) twin road is the camera's vanishing-point yaw relative to
+the road (despiked by a 3-frame median), so the twin's lanes stay on the real road; VO carries it
+through frames without one. The camera's yaw relative to the vehicle is the median of
+those (the mount does not turn). A parked car beside the road recedes as the ego car
+passes it.
 """
 
 from __future__ import annotations
@@ -39,8 +44,12 @@ from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 
 log = logging.getLogger(__name__)
 
-MAX_WIDTH = 640
-NEAR_M, FAR_M = 3.0, 12.0     # road points used for the metric step (farther: noisier)
+NEAR_M = (5.0, 7.0, 9.0, 12.0)  # the road patch starts at the first of these fully in view...
+PATCH_M = 12.0                  # ...and is this long
+LATERAL_M = 3.0                 # +- across: the ego lane's two lines
+BEV_RES = 0.04                  # metres per bird's-eye pixel
+MIN_RESPONSE = 0.1              # phase-correlation peak below this: no reliable step
+VO_FEATURES = 500               # VO only gives the heading here: fewer features than sync's 1500
 
 
 @dataclass
@@ -67,69 +76,41 @@ def _pose(x, y, heading, est, mount_yaw=0.0) -> np.ndarray:
     return make_pose(R, [x, y, est.height_m])
 
 
-def _road_mask(shape, camera: Camera, est, hood, scale: float) -> np.ndarray:
-    """Pixels (at the working scale) of the ground between NEAR_M and FAR_M ahead, above the hood."""
-    h, w = shape
-    R = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)
-    vs, us = np.mgrid[0:h:4, 0:w:4]
-    px = np.c_[us.ravel(), vs.ravel()].astype(float)
-    fwd, _ = _ground_points((px + 0.5) / scale - 0.5, camera, R)
-    ok = (np.nan_to_num(fwd, nan=-1.0) * est.height_m).reshape(vs.shape)
-    small = ((ok > NEAR_M) & (ok < FAR_M)).astype(np.uint8)
-    mask = cv2.resize(small, (w, h), interpolation=cv2.INTER_NEAREST)
+def bird_eye(gray: np.ndarray, camera: Camera, est, hood=None, yaw: float = 0.0,
+             near: float = NEAR_M[0]) -> tuple[np.ndarray, bool]:
+    """The road patch near..near + PATCH_M ahead, +-LATERAL_M across, seen from above at
+    BEV_RES m/px (rows: forward, far at the top; columns: left to right) along a heading
+    `yaw` (rad, > 0: the camera looks left of it), and whether all of it was in view
+    (inside the frame, above the hood)."""
+    fwd = np.arange(near + PATCH_M, near, -BEV_RES)
+    left = np.arange(LATERAL_M, -LATERAL_M, -BEV_RES)
+    F, L = np.meshgrid(fwd, left, indexing="ij")
+    R = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), yaw)
+    X = F[..., None] * R[0] + L[..., None] * R[1] - est.height_m * R[2]       # camera frame
+    uv, _ = camera.project(X.reshape(-1, 3))
+    mx, my = uv[:, 0].reshape(F.shape).astype(np.float32), uv[:, 1].reshape(F.shape).astype(np.float32)
+    inside = (mx >= 0) & (mx <= gray.shape[1] - 1) & (my >= 0) & (my <= gray.shape[0] - 1)
     if hood is not None:
-        poly = np.round((np.array(hood) + 0.5) * scale - 0.5).astype(np.int32)
-        cv2.fillPoly(mask, [poly], 0)
-        mask = cv2.erode(mask, np.ones((9, 9), np.uint8))
-    return mask
+        edge = np.array(hood[:-2], dtype=float)
+        inside &= my < np.interp(mx, edge[:, 0], edge[:, 1]) - 2
+    bev = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return bev.astype(np.float32), bool(inside.mean() > 0.98)
 
 
-def _to_ground(px: np.ndarray, camera: Camera, est) -> np.ndarray:
-    if camera.distorted and len(px):
-        px = cv2.undistortPoints(px.reshape(-1, 1, 2), camera.K, camera.D, P=camera.K).reshape(-1, 2)
-    R = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)
-    fwd, left = _ground_points(px, camera, R)
-    return np.c_[fwd, left] * est.height_m
-
-
-def ground_step(prev_gray, gray, camera: Camera, est0, est1, mask, scale: float) -> Step | None:
-    """Metric motion between two frames from road points tracked on the ground plane."""
-    p0 = cv2.goodFeaturesToTrack(prev_gray, 400, 0.005, 7, mask=mask)
-    if p0 is None or len(p0) < 12:
+def ground_step(bev0: np.ndarray, bev1: np.ndarray) -> Step | None:
+    """Metric step between two bird's-eye views of the road by phase correlation: the
+    ground moves back by the distance the car moves forward."""
+    win = cv2.createHanningWindow(bev0.shape[::-1], cv2.CV_32F)
+    # the derivative along the road removes lines along it (lane lines, kerbs): they match at
+    # every forward shift and would tie the peak to zero
+    a = cv2.Sobel(bev0, cv2.CV_32F, 0, 1, ksize=3)
+    b = cv2.Sobel(bev1, cv2.CV_32F, 0, 1, ksize=3)
+    (dx, dy), response = cv2.phaseCorrelate(a, b, win)
+    if response < MIN_RESPONSE:
         return None
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p0, None, winSize=(21, 21), maxLevel=3)
-    pb, st2, _ = cv2.calcOpticalFlowPyrLK(gray, prev_gray, p1, None, winSize=(21, 21), maxLevel=3)
-    good = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((pb - p0).reshape(-1, 2), axis=1) < 0.7)
-    if good.sum() < 12:
-        return None
-    a = (p0.reshape(-1, 2)[good] + 0.5) / scale - 0.5
-    b = (p1.reshape(-1, 2)[good] + 0.5) / scale - 0.5
-    g0, g1 = _to_ground(a, camera, est0), _to_ground(b, camera, est1)
-    ok = np.all(np.isfinite(g0), axis=1) & np.all(np.isfinite(g1), axis=1)
-    if ok.sum() < 12:
-        return None
-    g0, g1 = g0[ok], g1[ok]
-    A, inl = cv2.estimateAffinePartial2D(g0.astype(np.float32), g1.astype(np.float32),
-                                         method=cv2.RANSAC, ransacReprojThreshold=0.15, maxIters=500)
-    if A is None or inl.sum() < 10:
-        return None
-    if not 0.9 < math.hypot(A[0, 0], A[1, 0]) < 1.1:   # not a rigid motion: not points on the ground
-        return None
-    inl = inl.ravel() > 0
-    # g1 = M g0 + c refitted on the inliers; a pixel's error on the ground grows with distance^2
-    M, c = _rigid_2d(g0[inl], g1[inl], 1.0 / np.sum(g0[inl] ** 2, axis=1))
-    d = -M.T @ c                            # camera 1's origin in camera 0's ground frame
-    fwd1 = M.T @ np.array([1.0, 0.0])
-    return Step(float(d[0]), float(d[1]), float(math.atan2(fwd1[1], fwd1[0])), "ground", int(inl.sum()))
-
-
-def _rigid_2d(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least-squares rotation M and translation c with b = M a + c (2-D Kabsch)."""
-    w = w / w.sum()
-    ca, cb = w @ a, w @ b
-    U, _, Vt = np.linalg.svd((w[:, None] * (b - cb)).T @ (a - ca))
-    M = U @ np.diag([1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    return M, cb - M @ ca
+    # rows run from far to near: the ground moving back by d metres shifts the patch down (+dy)
+    return Step(forward=float(dy * BEV_RES), left=float(dx * BEV_RES), status="ground",
+                inliers=int(round(response * 100)))
 
 
 def _vo_yaw(res, est) -> float | None:
@@ -139,6 +120,19 @@ def _vo_yaw(res, est) -> float | None:
     U = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)
     R_body = U @ res.R_c1c2 @ U.T         # rotation in the (forward, left, up) frame
     return float(math.atan2(R_body[1, 0], R_body[0, 0]))
+
+
+def _road_yaw(order, ests) -> dict[str, float | None]:
+    """The camera's yaw relative to the road per frame (rad): the vanishing point's, despiked
+    by a 3-frame median (a turning car changes it steadily, a wider median would lag);
+    None where the frame has no confident one."""
+    raw = [math.radians(ests[f].yaw_deg) if ests[f].yaw_deg is not None and ests[f].confidence > 0.2 else None
+           for f in order]
+    out = {}
+    for k, f in enumerate(order):
+        near = [v for v in raw[max(k - 1, 0):k + 2] if v is not None]
+        out[f] = float(np.median(near)) if raw[k] is not None and len(near) == 3 else raw[k]
+    return out
 
 
 def _gnss_steps(rec, times: np.ndarray) -> np.ndarray | None:
@@ -154,7 +148,7 @@ def _gnss_steps(rec, times: np.ndarray) -> np.ndarray | None:
 
 def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False) -> Track:
     """Poses and the per-step record; see the module doc."""
-    from blendgen.sync.vo import OrbVo
+    from blendgen.sync.vo import OrbVo, VoConfig
 
     frame_ids = list(frame_ids)
     ests = {f: _est(cameras[f]) for f in frame_ids}
@@ -164,37 +158,51 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
             track.poses[f] = _pose(0.0, 0.0, 0.0, ests[f])
             track.steps[f] = Step(status="still")
         return track
-    yaws = [e.yaw_deg for e in ests.values() if e.yaw_deg is not None and e.confidence > 0.2]
-    mount_yaw = math.radians(float(np.median(yaws))) if yaws else 0.0
     camera = rec.camera
-    vo = OrbVo(camera)
+    vo = OrbVo(camera, VoConfig(n_features=VO_FEATURES))
     index = {rec.frame_id(i): i for i in range(rec.n_frames)}
     order = sorted(frame_ids, key=index.__getitem__)
     times = np.array([rec.frames_t[index[f]] for f in order])
+    road_yaw = _road_yaw(order, ests)
+    known = [v for v in road_yaw.values() if v is not None]
+    mount_yaw = float(np.median(known)) if known else 0.0
     gnss = _gnss_steps(rec, times)
     x = y = heading = 0.0
-    prev = None
+    prev = near = None
+    recent: list[tuple[float, float]] = []      # the last good steps: constant velocity uses their median
     last = Step(status="first")
     for k, (fid, im) in enumerate(read_frames(rec, order, progress=progress, desc="ego motion")):
         est = ests[fid]
+        hood = (hoods or {}).get(fid)
         if im is None:
             step = Step(last.forward, last.left, last.dyaw, "constant_velocity")
-            gray = None
+            prev = None
         else:
-            full = cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
-            res = vo.track(full)
-            scale = min(1.0, MAX_WIDTH / full.shape[1])
-            gray = cv2.resize(full, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else full
+            gray = cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
+            res = vo.track(gray)
             step = Step(status="first")
+            if near is None:
+                near = next((n for n in NEAR_M if bird_eye(gray, camera, est, hood, near=n)[1]), NEAR_M[-1])
             if prev is not None:
-                pgray, pest, pfid = prev
-                mask = _road_mask(pgray.shape, camera, pest, (hoods or {}).get(pfid), scale)
-                step = ground_step(pgray, gray, camera, pest, est, mask, scale) if pgray is not None else None
                 vy = _vo_yaw(res, est)
+                dyaw = vy if vy is not None else 0.0
+                # this frame's road seen along the previous heading: the shift is then the step
+                bev, whole = bird_eye(gray, camera, est, hood, yaw=dyaw, near=near)
+                step = ground_step(prev[0], bev) if whole and prev[1] else None
+                if step is not None and res.status == "ok" and abs(step.forward) < 0.05:
+                    step = None     # the image moves with parallax but the road would not: distrust
+                typical = np.median(recent, axis=0) if len(recent) >= 5 else None
+                if (step is not None and typical is not None
+                        and abs(step.forward - typical[0]) > 0.5 * abs(typical[0]) + 0.2):
+                    step = None     # a car cannot change speed that much between two frames
                 if step is None:
-                    step = Step(last.forward, last.left, vy if vy is not None else last.dyaw, "constant_velocity")
-                elif vy is not None and abs(vy - step.dyaw) < math.radians(1.0):
-                    step.dyaw, step.status = 0.5 * (vy + step.dyaw), "ground+vo"   # they agree: average
+                    f_, l_ = typical if typical is not None else (last.forward, last.left)
+                    step = Step(float(f_), float(l_), vy if vy is not None else last.dyaw, "constant_velocity")
+                else:
+                    recent = (recent + [(step.forward, step.left)])[-9:]
+                    step.dyaw = dyaw
+                    step.status = "ground+vo" if vy is not None else "ground"
+            prev = bird_eye(gray, camera, est, hood, near=near)
         if k > 0 and gnss is not None:
             n = math.hypot(step.forward, step.left)
             direction = (step.forward / n, step.left / n) if n > 1e-6 else (1.0, 0.0)
@@ -204,11 +212,14 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
             c, s = math.cos(heading), math.sin(heading)
             x += c * step.forward - s * step.left
             y += s * step.forward + c * step.left
-            heading += step.dyaw
+            # the road's vanishing point holds the heading to the (straight) twin road; VO
+            # only carries it over frames without one
+            heading = road_yaw[fid] - mount_yaw if road_yaw[fid] is not None else heading + step.dyaw
             last = step
+        elif road_yaw[fid] is not None:
+            heading = road_yaw[fid] - mount_yaw
         track.poses[fid] = _pose(x, y, heading, est, mount_yaw)
         track.steps[fid] = step
-        prev = (gray, est, fid)
     moved = [f for f in order if track.steps[f].status.startswith("constant_velocity")]
     if moved:
         log.info("ego motion: %d of %d steps kept the previous motion (no road points or VO)", len(moved), len(order))

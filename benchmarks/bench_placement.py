@@ -199,6 +199,36 @@ def camera_accuracy(n: int) -> dict:
     return err
 
 
+def timing_split(name: str = "bdd_street_photos") -> dict:
+    """CPU seconds per frame of each part of the analysis on one core (second of two passes)."""
+    from blendgen.analysis import objects
+    from blendgen.analysis.camera import estimate_cameras
+    from blendgen.analysis.hood import find_hood
+    from blendgen.analysis.stage import analyse_frame
+
+    rec = read_recording(recording(name))
+    ids = [rec.frame_id(i) for i in range(rec.n_frames)]
+    det = objects.load_detector()
+    gp = parse_job({"name": "t", "recording": str(recording(name)), "ground_plane": "auto", "output": str(TMP)}
+                   ).ground_plane
+    t = {}
+    for _ in range(2):
+        t0 = time.process_time()
+        hoods = find_hood(rec, ids)
+        t1 = time.process_time()
+        ims = {f: read_frame(rec, int(f[1:])) for f in ids}
+        t2 = time.process_time()
+        users = {f: objects.road_users(im, det) for f, im in ims.items()}
+        t3 = time.process_time()
+        cams = estimate_cameras(rec, ids, user=gp, hoods=hoods, car_boxes={f: [o.box for o in u] for f, u in users.items()})
+        t4 = time.process_time()
+        for f, im in ims.items():
+            analyse_frame(im, f, rec.camera, cams[f][0], det, horizon=cams[f][1], hood=hoods[f], users=users[f])
+        t5 = time.process_time()
+        t = {"hood": t1 - t0, "detector": t3 - t2, "camera": t4 - t3, "road, direction, footprints": t5 - t4}
+    return {k: v / len(ids) for k, v in t.items()}
+
+
 def gallery(rows: list[tuple[str, Path, Path]]) -> np.ndarray:
     tiles = []
     for name, old, new in rows:
@@ -222,8 +252,13 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="3 frames per data set")
     ap.add_argument("--samples", type=int, default=8)
     ap.add_argument("--only", nargs="*", default=list(DATASETS))
+    ap.add_argument("--timing", action="store_true", help="only the analysis time split on the BDD photos")
     args = ap.parse_args()
     cv2.setNumThreads(1)  # analysis seconds on one core
+    if args.timing:
+        split = timing_split()
+        print(" | ".join(f"{k} {v:.3f}" for k, v in split.items()) + f" | total {sum(split.values()):.3f} CPU s/frame")
+        return
     from blendgen.analysis.objects import load_detector
 
     det = load_detector()

@@ -281,6 +281,8 @@ def main() -> None:
                      f"{np.nanmedian(v):.2f}, {np.nanmax(v):.2f}" for v in cam_err.values())
                  + f" | {sum(np.isnan(v).sum() for v in map(np.asarray, cam_err.values()))} values |")
     results["camera_accuracy"] = cam_err
+    split = timing_split()
+    split_line = " | ".join(f"{k} {v:.3f}" for k, v in split.items()) + f" | total {sum(split.values()):.3f}"
     print(table)
     print(cam_table)
     cmd = "PYTHONPATH=. .venv/bin/python benchmarks/bench_placement.py" + (" --quick" if args.quick else "")
@@ -291,6 +293,8 @@ def main() -> None:
           "selected one): " + "; ".join(f"{k}: ego motion {v['egomotion'][0]:.3f} s per tracked frame over "
                                           f"{v['egomotion'][1]} frames" for k, v in results.items()
                                           if k != "camera_accuracy" and v.get("egomotion")) + ".", "",
+          "Where the BDD analysis time goes (`PYTHONPATH=. .venv/bin/python benchmarks/bench_placement.py "
+          "--timing`, CPU s per 1280x720 frame, one thread, machine shared): " + split_line + ".", "",
           "![placement](../../benchmarks/results/placement.png)", "",
           "Camera estimate (h12cam's `analysis.camera.estimate_frame`, merged) on demo-town frames rendered "
           "at known poses (960x540, hfov 70, height 1.2-1.9 m, pitch -4..4 deg, roll -3..3 deg, yaw -3..3 deg; "

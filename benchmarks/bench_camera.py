@@ -272,6 +272,7 @@ def main(argv=None):
                   f"| {nh} | {cpu * 1000:.0f} | {ok} |")
     md += ["", "A frame with too few vertical (4) or crosswise (8) segments keeps the roll prior (0) with a logged "
            "reason and confidence <= 0.3: its horizon error is then the true roll (the max column).",
+           "", "CPU ms varied by up to 40 % between runs of the same configuration on this shared machine (load average above 10 on 2 cores): compare the accuracy columns, not small timing differences.",
            "", f"Goals: horizon <= 0.5 deg median, height <= 10 %, <= 0.3 s per 1280x720 frame for the whole analysis.",
            (f"Hood search + camera estimate on the three real 1280x720 BDD photos: {real * 1000:.0f} ms CPU per "
             "frame (median of 9)." if real else "BDD photos not found: no 1280x720 timing."),

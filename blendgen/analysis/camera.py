@@ -459,10 +459,15 @@ def read_frames(rec, frame_ids, *, progress: bool = False, desc: str = "frames")
         bar.close()
 
 
+def imu_usable(rec) -> bool:
+    """The recording has IMU samples and a T_cam_imu that was given, not assumed."""
+    return len(rec.imu) > 0 and not _import_note(rec, "T_cam_imu").startswith("assumed")
+
+
 def gravity_up(rec, t: float, window_s: float = 0.5) -> tuple[np.ndarray, float] | None:
     """The up axis in the camera frame from the accelerometer around t (mean specific force),
     and its standard deviation in degrees (larger while the vehicle accelerates)."""
-    if len(rec.imu) == 0 or _import_note(rec, "T_cam_imu").startswith("assumed"):
+    if not imu_usable(rec):
         return None
     ti = t + rec.time_offset_cam_imu
     m = np.abs(rec.imu[:, 0] - ti) <= window_s / 2

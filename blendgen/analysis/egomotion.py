@@ -60,7 +60,7 @@ class Step:
     left: float = 0.0
     dyaw: float = 0.0             # radians, > 0 turns left
     status: str = "first"        # "ground", "ground+vo", "ground+imu", "constant_velocity", "still", "first"; "+gnss"
-    inliers: int = 0
+    response: float = 0.0         # phase-correlation peak (0..1) of a step from the road
 
 
 @dataclass
@@ -111,8 +111,7 @@ def ground_step(bev0: np.ndarray, bev1: np.ndarray) -> Step | None:
     if response < MIN_RESPONSE:
         return None
     # rows run from far to near: the ground moving back by d metres shifts the patch down (+dy)
-    return Step(forward=float(dy * BEV_RES), left=float(dx * BEV_RES), status="ground",
-                inliers=int(round(response * 100)))
+    return Step(forward=float(dy * BEV_RES), left=float(dx * BEV_RES), status="ground", response=float(response))
 
 
 def _vo_yaw(res, est) -> float | None:
@@ -198,7 +197,7 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
         else:
             gray = cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
             res = vo.track(gray)
-            step = Step(status="first")
+            step = Step(status="first") if k == 0 else Step(last.forward, last.left, last.dyaw, "constant_velocity")
             if near is None:
                 near = next((n for n in NEAR_M if bird_eye(gray, camera, est, hood, near=n)[1]), NEAR_M[-1])
             if prev is not None:
@@ -232,8 +231,8 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
             c, s = math.cos(heading), math.sin(heading)
             x += c * step.forward - s * step.left
             y += s * step.forward + c * step.left
-            # the road's vanishing point holds the heading to the (straight) twin road; VO
-            # only carries it over frames without one
+            # the road's vanishing point holds the heading to the (straight) twin road; the
+            # gyro or VO only carries it over frames without one
             heading = road_yaw[fid] - mount_yaw if road_yaw[fid] is not None else heading + step.dyaw
             last = step
         elif road_yaw[fid] is not None:

@@ -141,3 +141,22 @@ def test_heading_follows_the_road_vanishing_point(tmp_path):
         assert yaw == pytest.approx(0.8 * i, abs=0.5)           # camera yaw to the road kept
         assert poses[f][0, 3] == pytest.approx(sum(math.cos(math.radians(0.8 * k - mount)) for k in range(i)),
                                                abs=0.1)
+
+
+def test_gyro_gives_the_heading_change(tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    true = drive(n=6, yaw_rate_deg=0.5)                         # 5 deg/s at 10 fps
+    rec = write_drive(tmp_path / "drive", true)
+    R_cam_imu = Rotation.from_euler("xyz", [-90, 3, -90], degrees=True).as_matrix()
+    rec.T_cam_imu = make_pose(R_cam_imu, [0.0, 0.0, 0.0])
+    t = np.arange(-0.1, 0.7, 0.005)
+    R_world_cam = true[0][:3, :3]
+    w_imu = (R_world_cam @ R_cam_imu).T @ [0, 0, math.radians(5.0)]   # yaw rate about world up
+    rec.imu = np.c_[t, np.tile(w_imu, (len(t), 1)), np.zeros((len(t), 3))]
+    ids = [rec.frame_id(i) for i in range(len(true))]
+    track = ground_track(rec, ids, {f: CameraEstimate(1.4, 2.0, -1.0) for f in ids})
+    steps = [track.steps[f] for f in ids[1:]]
+    assert all(s.status == "ground+imu" for s in steps), [s.status for s in steps]
+    for s in steps:
+        assert math.degrees(s.dyaw) == pytest.approx(0.5, abs=0.02)

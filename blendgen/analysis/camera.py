@@ -380,20 +380,31 @@ def height_from_lanes(seg_f: np.ndarray, camera: Camera, R: np.ndarray, lane_wid
 
 
 def height_from_cars(boxes, camera: Camera, R: np.ndarray) -> float | None:
-    """Camera height from real cars' boxes: a box's bottom edge on the ground for a 1 m high
-    camera gives its distance; its width at that distance against a typical car's width
-    (and length, seen at the bearing) gives the scale. Median over the cars."""
+    """Camera height from real cars' boxes (cars along the road, CAR_WIDTH_M x CAR_LENGTH_M).
+    For a camera 1 m high the box's bottom row is the rear face's distance `a`, its left and
+    right columns the bearings tL > tR (lateral / forward). The box spans the outer rear
+    corner to the inner front corner (or the rear face when the car straddles the optical
+    axis), so for a car left of the axis  tR (h a + L) = tL h a - W, and mirrored on the
+    right: solved for h. Median over the cars."""
     hs = []
-    for x, y, w, h in boxes:
-        fwd, left = _ground_points(np.array([[x + w / 2, y + h]]), camera, R)
-        if not np.isfinite(fwd[0]) or fwd[0] <= 0:
+    for x, y, w, hb in boxes:
+        if w <= 8:
             continue
-        dist = math.hypot(fwd[0], left[0])
-        bearing = math.atan2(abs(left[0]), fwd[0])
-        width_m = CAR_WIDTH_M * math.cos(bearing) + CAR_LENGTH_M * math.sin(bearing)
-        width_at_1m = w / camera.fx * dist     # box width in metres for a 1 m high camera
-        if width_at_1m > 0 and w > 8:
-            hs.append(width_m / width_at_1m)
+        px = np.array([[x + w / 2, y + hb], [x, y + hb], [x + w, y + hb]])
+        fwd, left = _ground_points(px, camera, R)
+        if not np.all(np.isfinite(fwd)) or np.any(fwd <= 0):
+            continue
+        a = float(fwd[0])
+        tL, tR = float(left[1] / fwd[1]), float(left[2] / fwd[2])
+        if tL - tR <= 0:
+            continue
+        if tR > 0:      # left of the axis: its right (inner) side is seen, the front ends it
+            num = CAR_WIDTH_M + tR * CAR_LENGTH_M
+        elif tL < 0:    # right of the axis
+            num = CAR_WIDTH_M - tL * CAR_LENGTH_M
+        else:           # straddling: the rear face only
+            num = CAR_WIDTH_M
+        hs.append(num / (a * (tL - tR)))
     hs = [h for h in hs if 0.5 <= h <= 4.0]
     return float(np.median(hs)) if hs else None
 
@@ -459,10 +470,15 @@ def read_frames(rec, frame_ids, *, progress: bool = False, desc: str = "frames")
         bar.close()
 
 
+def imu_usable(rec) -> bool:
+    """The recording has IMU samples and a T_cam_imu that was given, not assumed."""
+    return len(rec.imu) > 0 and not _import_note(rec, "T_cam_imu").startswith("assumed")
+
+
 def gravity_up(rec, t: float, window_s: float = 0.5) -> tuple[np.ndarray, float] | None:
     """The up axis in the camera frame from the accelerometer around t (mean specific force),
     and its standard deviation in degrees (larger while the vehicle accelerates)."""
-    if len(rec.imu) == 0 or _import_note(rec, "T_cam_imu").startswith("assumed"):
+    if not imu_usable(rec):
         return None
     ti = t + rec.time_offset_cam_imu
     m = np.abs(rec.imu[:, 0] - ti) <= window_s / 2

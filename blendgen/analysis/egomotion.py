@@ -10,7 +10,9 @@ camera starts at (0, 0, height). Stills (an images recording without temporal or
 a fixed pose per frame, with that frame's own height, pitch and roll.
 
 For a video, between consecutive requested frames (`ground_track`):
-  - ORB visual odometry (blendgen.sync.vo) gives the heading change from the whole image;
+  - the heading change between the frames comes from the IMU's gyro when the recording has
+    one (rate about the road's up axis, integrated), else from ORB visual odometry
+    (blendgen.sync.vo) over the whole image;
   - the road 12 m long from 5 m ahead (7, 9, 12 when the hood or a narrow field of view
     hides it), +-3 m across, is warped to a bird's-eye view (4 cm/px) with each frame's
     height, pitch and roll, the newer one along the older heading; phase correlation of
@@ -24,8 +26,8 @@ For a video, between consecutive requested frames (`ground_track`):
     sees parallax, or a step unlike the median of the last good ones) keeps that median
     (constant velocity), said in `status`.
 The heading over the (straight) twin road is the camera's vanishing-point yaw relative to
-the road (despiked by a 3-frame median), so the twin's lanes stay on the real road; VO carries it
-through frames without one. The camera's yaw relative to the vehicle is the median of
+the road (despiked by a 3-frame median), so the twin's lanes stay on the real road; the
+gyro or VO carries it through frames without one. The camera's yaw relative to the vehicle is the median of
 those (the mount does not turn). A parked car beside the road recedes as the ego car
 passes it.
 """
@@ -39,7 +41,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from blendgen.analysis.camera import _ground_points, is_sequence, read_frames, road_axes
+from blendgen.analysis.camera import imu_usable, is_sequence, read_frames, road_axes
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 
 log = logging.getLogger(__name__)
@@ -57,8 +59,8 @@ class Step:
     forward: float = 0.0          # metres, in the previous frame's heading
     left: float = 0.0
     dyaw: float = 0.0             # radians, > 0 turns left
-    status: str = "first"        # "ground", "ground+vo", "constant_velocity", "still", "first"; "+gnss"
-    inliers: int = 0
+    status: str = "first"        # "ground", "ground+vo", "ground+imu", "constant_velocity", "still", "first"; "+gnss"
+    response: float = 0.0         # phase-correlation peak (0..1) of a step from the road
 
 
 @dataclass
@@ -109,8 +111,7 @@ def ground_step(bev0: np.ndarray, bev1: np.ndarray) -> Step | None:
     if response < MIN_RESPONSE:
         return None
     # rows run from far to near: the ground moving back by d metres shifts the patch down (+dy)
-    return Step(forward=float(dy * BEV_RES), left=float(dx * BEV_RES), status="ground",
-                inliers=int(round(response * 100)))
+    return Step(forward=float(dy * BEV_RES), left=float(dx * BEV_RES), status="ground", response=float(response))
 
 
 def _vo_yaw(res, est) -> float | None:
@@ -120,6 +121,22 @@ def _vo_yaw(res, est) -> float | None:
     U = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)
     R_body = U @ res.R_c1c2 @ U.T         # rotation in the (forward, left, up) frame
     return float(math.atan2(R_body[1, 0], R_body[0, 0]))
+
+
+def _gyro_yaw(rec, t0: float, t1: float, est) -> float | None:
+    """Heading change (rad, > 0 left) between two frame times from the IMU's gyro: the rate
+    about the road's up axis, integrated."""
+    if not imu_usable(rec):
+        return None
+    t = rec.imu[:, 0]
+    t0, t1 = t0 + rec.time_offset_cam_imu, t1 + rec.time_offset_cam_imu
+    if t0 < t[0] or t1 > t[-1]:
+        return None
+    U = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)[2]
+    rate = rec.imu[:, 1:4] @ np.asarray(rec.T_cam_imu)[:3, :3].T @ U
+    a, b = np.searchsorted(t, t0, "right"), np.searchsorted(t, t1)
+    ts = np.r_[t0, t[a:b], t1]
+    return float(np.trapz(np.interp(ts, t, rate), ts))
 
 
 def _road_yaw(order, ests) -> dict[str, float | None]:
@@ -180,11 +197,13 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
         else:
             gray = cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
             res = vo.track(gray)
-            step = Step(status="first")
+            step = Step(status="first") if k == 0 else Step(last.forward, last.left, last.dyaw, "constant_velocity")
             if near is None:
                 near = next((n for n in NEAR_M if bird_eye(gray, camera, est, hood, near=n)[1]), NEAR_M[-1])
             if prev is not None:
-                vy = _vo_yaw(res, est)
+                vy, yaw_src = _gyro_yaw(rec, times[k - 1], times[k], est), "imu"
+                if vy is None:
+                    vy, yaw_src = _vo_yaw(res, est), "vo"
                 dyaw = vy if vy is not None else 0.0
                 # this frame's road seen along the previous heading: the shift is then the step
                 bev, whole = bird_eye(gray, camera, est, hood, yaw=dyaw, near=near)
@@ -201,7 +220,7 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
                 else:
                     recent = (recent + [(step.forward, step.left)])[-9:]
                     step.dyaw = dyaw
-                    step.status = "ground+vo" if vy is not None else "ground"
+                    step.status = f"ground+{yaw_src}" if vy is not None else "ground"
             prev = bird_eye(gray, camera, est, hood, near=near)
         if k > 0 and gnss is not None:
             n = math.hypot(step.forward, step.left)
@@ -212,8 +231,8 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
             c, s = math.cos(heading), math.sin(heading)
             x += c * step.forward - s * step.left
             y += s * step.forward + c * step.left
-            # the road's vanishing point holds the heading to the (straight) twin road; VO
-            # only carries it over frames without one
+            # the road's vanishing point holds the heading to the (straight) twin road; the
+            # gyro or VO only carries it over frames without one
             heading = road_yaw[fid] - mount_yaw if road_yaw[fid] is not None else heading + step.dyaw
             last = step
         elif road_yaw[fid] is not None:

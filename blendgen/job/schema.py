@@ -204,8 +204,8 @@ class Job(Section):
     def _ground_plane_auto(cls, v):
         if isinstance(v, str):
             if v.strip().lower() != "auto":
-                raise ValueError(f"expected `auto` or a block (camera_height_m, pitch_deg, roll_deg, "
-                                 f"lane_width_m)")
+                raise ValueError("expected `auto` or a block (camera_height_m, pitch_deg, roll_deg, "
+                                 "lane_width_m)")
             return {"camera_height_m": "auto", "pitch_deg": "auto", "roll_deg": "auto"}
         return v
 

@@ -17,6 +17,7 @@ COMMAND_MODULES = [
     "blendgen.eval.command",            # realism
     "blendgen.report.command",          # report
     "blendgen.scene.map_import",        # twin import / show
+    "blendgen.analysis.calibrate",      # calibrate
 ]
 
 

@@ -26,6 +26,7 @@ class CameraEstimate:
     pitch_deg: float
     roll_deg: float
     fx: float | None = None                 # focal length (px) when re-estimated from vanishing points
+    yaw_deg: float | None = None            # camera heading relative to the road's vanishing point (> 0: looks left of it)
     confidence: float = 0.0                 # 0..1, the weakest of the estimates that were used
     source: dict[str, str] = field(default_factory=dict)   # quantity -> "vanishing_point" | "imu" | "lane_width" | "cars" | "user" | "default" | "smoothed"
     reasons: list[str] = field(default_factory=list)        # why a quantity fell back, one sentence each

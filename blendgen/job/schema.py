@@ -165,10 +165,39 @@ class Frames(Section):
     step: Annotated[int, Field(ge=1)] = 1
 
 
+_GROUND_PLANE_RANGES = {"camera_height_m": (0.2, 5.0, "0.2 < h <= 5 m"), "pitch_deg": (-45.0, 45.0, "-45..45 deg"),
+                        "roll_deg": (-30.0, 30.0, "-30..30 deg")}
+
+
 class GroundPlane(Section):
-    camera_height_m: Annotated[float, Field(gt=0.2, le=5)] = 1.5
-    pitch_deg: Annotated[float, Field(ge=-45, le=45)] = 0.0
+    """A number fixes a value; "auto" estimates it from the frames (blendgen.analysis.camera).
+    `ground_plane: auto` sets all three of height, pitch and roll to "auto"."""
+
+    camera_height_m: float | Literal["auto"] = 1.5
+    pitch_deg: float | Literal["auto"] = 0.0
+    roll_deg: float | Literal["auto"] = 0.0
     lane_width_m: Annotated[float, Field(gt=1, le=6)] = 3.5
+    # Analyse every background frame (real road users, road, hood) and keep objects clear of
+    # them; false: the fixed pose with no analysis (the behaviour before issue 12).
+    analysis: bool = True
+    detector: Path | None = None  # a YOLOX-format COCO ONNX model; default: the bundled YOLOX-Nano
+
+    @field_validator("camera_height_m", "pitch_deg", "roll_deg", mode="before")
+    @classmethod
+    def _number_or_auto(cls, v, info):
+        lo, hi, what = _GROUND_PLANE_RANGES[info.field_name]
+        if isinstance(v, str) and v.strip().lower() == "auto":
+            return "auto"
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"expected a number ({what}) or `auto`")
+        if not (lo < v <= hi if info.field_name == "camera_height_m" else lo <= v <= hi):
+            raise ValueError(f"expected {what} or `auto`")
+        return float(v)
+
+    @property
+    def auto(self) -> list[str]:
+        """The fields to estimate."""
+        return [k for k in ("camera_height_m", "pitch_deg", "roll_deg") if getattr(self, k) == "auto"]
 
 
 class Job(Section):
@@ -189,6 +218,16 @@ class Job(Section):
 
     # Set by load_job, not by the user.
     job_dir: Path | None = Field(default=None, exclude=True)
+
+    @field_validator("ground_plane", mode="before")
+    @classmethod
+    def _ground_plane_auto(cls, v):
+        if isinstance(v, str):
+            if v.strip().lower() != "auto":
+                raise ValueError("expected `auto` or a block (camera_height_m, pitch_deg, roll_deg, "
+                                 "lane_width_m)")
+            return {"camera_height_m": "auto", "pitch_deg": "auto", "roll_deg": "auto"}
+        return v
 
     @model_validator(mode="after")
     def _sources(self):
@@ -233,6 +272,8 @@ class Job(Section):
         if self.sync.lut is not None:
             d["sync"]["lut"] = str(self.path(self.sync.lut))
         d["inject"]["assets"] = [str(p) for p in self.asset_paths]
+        if self.ground_plane is not None and self.ground_plane.detector is not None:
+            d["ground_plane"]["detector"] = str(self.path(self.ground_plane.detector))
         return d
 
     @property
@@ -273,6 +314,11 @@ def _check_files(job: Job, source: str) -> None:
         names = sorted(p.stem for p in BUILTIN_TWINS_DIR.glob("*.yaml"))
         raise UserError(f"twin: {job.twin!r} is neither a built-in twin {names} nor an existing YAML or map file "
                         f"({tp})", where=source)
+    gp = job.ground_plane
+    if gp is not None and gp.detector is not None:
+        det = job.path(gp.detector)
+        if not det.is_file() or det.suffix.lower() != ".onnx":
+            raise UserError(f"ground_plane.detector: expected an existing .onnx file, got {det}", where=source)
     if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
         raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)
     if job.inject.assets:  # sidecars and file headers, without Blender (docs/assets.md)

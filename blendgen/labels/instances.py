@@ -113,7 +113,7 @@ def truncation(corners_cam: np.ndarray, camera: Camera) -> float:
 
 def extract_instances(index: np.ndarray, plan: FramePlan, camera: Camera, *,
                       amodal_px: dict[int, int] | None = None, min_visible_px: int = 64,
-                      small_objects: str = "drop") -> list[dict]:
+                      small_objects: str = "drop", real_boxes: list[dict] | None = None) -> list[dict]:
     """Labels for every planned object that has at least one visible pixel in `index`.
 
     index: HxW integer object ids (0 = background), the renderer's instance pass.
@@ -121,6 +121,10 @@ def extract_instances(index: np.ndarray, plan: FramePlan, camera: Camera, *,
         (inside the image); gives occlusion = 1 - visible/amodal. None -> occlusion None.
     Objects with fewer than `min_visible_px` visible pixels are dropped
     (`small_objects="drop"`) or kept with `ignore=True` (`"ignore"`).
+    real_boxes: the real road users of the background frame ({"cls", "box" [x,y,w,h]} at
+        this resolution); each instance then lists in `covers_real` the real boxes its
+        visible pixels cover, with the covered fraction of the box, so that labels of the
+        real objects can be updated.
     """
     index = np.asarray(index)
     where = f"frame {plan.frame_id}"
@@ -179,6 +183,24 @@ def extract_instances(index: np.ndarray, plan: FramePlan, camera: Camera, *,
                       if obj.variant.get("rides") else None),  # a rider: the two-wheeler it rides
             "ignore": bool(ignore),
         })
+        if real_boxes is not None:
+            out[-1]["covers_real"] = covered_real(mask, real_boxes)
+    return out
+
+
+def covered_real(mask: np.ndarray, real_boxes: list[dict], min_fraction: float = 0.01) -> list[dict]:
+    """The real boxes whose area the object's visible `mask` covers by >= min_fraction."""
+    H, W = mask.shape
+    out = []
+    for r in real_boxes:
+        x, y, w, h = r["box"]
+        x0, y0, x1, y1 = max(0, int(x)), max(0, int(y)), min(W, int(np.ceil(x + w))), min(H, int(np.ceil(y + h)))
+        if x1 <= x0 or y1 <= y0:
+            continue
+        frac = float(mask[y0:y1, x0:x1].sum()) / max(w * h, 1.0)
+        if frac >= min_fraction:
+            out.append({"cls": r["cls"], "bbox": [round(float(v), 1) for v in (x, y, w, h)],
+                        "covered_fraction": round(frac, 3)})
     return out
 
 

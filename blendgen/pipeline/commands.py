@@ -89,7 +89,7 @@ def cmd_status(args) -> int:
     folder = JobFolder(args.out)
     if not folder.resolved_job.exists():
         raise UserError("not a blendgen job folder (no job.resolved.yaml)", where=str(args.out))
-    stages = ["sync", "plan", "export"]
+    stages = ["sync", "analysis", "plan", "export"] if folder.stage_done("analysis") else ["sync", "plan", "export"]
     print(f"{args.out}: " + ", ".join(f"{s} {'done' if folder.stage_done(s) else 'not done'}" for s in stages))
     from blendgen.farm.status import status_report
 

@@ -103,6 +103,14 @@ class FrameProcessor:
         timings["render"] = time.perf_counter() - t1
 
         t2 = time.perf_counter()
+        fa, real_boxes = self._analysis(frame_id)
+        if fa is not None and fa.hood:  # the real hood hides whatever is behind it
+            from blendgen.analysis.stage import hood_mask
+            from blendgen.post.composite import apply_occluder
+
+            sx, sy = self.camera.width / fa.width, self.camera.height / fa.height
+            passes = apply_occluder(passes, hood_mask(np.asarray(fa.hood) * [sx, sy], self.camera.width,
+                                                      self.camera.height))
         composite, post_info = composite_frame(real, passes, settings=job.post, illumination=illum, seed=seed)
         timings["post"] = time.perf_counter() - t2
 
@@ -110,7 +118,7 @@ class FrameProcessor:
         index = passes["index"]
         instances = extract_instances(index, plan, self.camera, amodal_px=info.get("amodal_px"),
                                       min_visible_px=job.export.min_visible_px,
-                                      small_objects=job.export.small_objects)
+                                      small_objects=job.export.small_objects, real_boxes=real_boxes)
         atomic.write_image(fdir / "instances.png", np.clip(index, 0, 65535).astype(np.uint16))
         atomic.write_image(fdir / "composite.png", composite)
         # labels.json last: its presence (with the others) marks the frame finished.
@@ -130,7 +138,22 @@ class FrameProcessor:
             "timings": {k: round(v, 4) for k, v in timings.items()},
             "render": {k: v for k, v in info.items() if k != "amodal_px"},
             "post": post_info,
+            "analysis": None if fa is None else {
+                "camera": fa.camera.__dict__, "road_direction_deg": fa.road_direction_deg,
+                "real_objects": len(fa.real_objects), "hood": fa.hood is not None, "decisions": fa.decisions},
+            "plan_decisions": plan.decisions,
         }
+
+    def _analysis(self, frame_id: str):
+        """The frame's analysis (ground-plane jobs) and its real boxes at the render resolution."""
+        from blendgen.analysis.stage import read_analysis
+
+        fa = read_analysis(self.folder.analysis, frame_id)
+        if fa is None:
+            return None, None
+        sx, sy = self.camera.width / fa.width, self.camera.height / fa.height
+        return fa, [{"cls": o.cls, "box": [o.box[0] * sx, o.box[1] * sy, o.box[2] * sx, o.box[3] * sy]}
+                    for o in fa.real_objects]
 
     def close(self):
         if self.session is not None:

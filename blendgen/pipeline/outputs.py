@@ -39,6 +39,10 @@ class JobFolder:
         return self.root / "plan.jsonl"
 
     @property
+    def analysis(self) -> Path:
+        return self.root / "analysis"
+
+    @property
     def manifest(self) -> Path:
         return self.root / "manifest.jsonl"
 

@@ -21,7 +21,7 @@ from blendgen.job.schema import Job
 from blendgen.pipeline.outputs import JobFolder
 from blendgen.recording.folder import read_recording
 
-STAGES = ("record", "sync", "plan", "frames", "export", "report")
+STAGES = ("record", "sync", "analysis", "plan", "frames", "export", "report")
 
 
 class Runner:
@@ -36,10 +36,11 @@ class Runner:
         self.progress = progress
         self.times: dict[str, float] = {}
         self.skipped: list[str] = []
+        self.warnings: list[str] = []
 
     def _say(self, k: int, stage: str, what: str) -> None:
         if self.progress:
-            print(f"[{k}/{len(STAGES)}] {stage}: {what}", flush=True)
+            print(f"[{STAGES.index(stage) + 1}/{len(STAGES)}] {stage}: {what}", flush=True)
 
     @functools.cached_property
     def twin(self):
@@ -113,7 +114,8 @@ class Runner:
         quality = [{"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0, "flags": ["ground_plane"]}
                    for _ in poses]
         write_poses(self.folder.root, SyncResult(poses, np.zeros((len(poses), 6)), quality))
-        self._say(2, "sync", f"ground-plane twin: fixed camera pose for {len(poses)} frames")
+        self._say(2, "sync", f"ground-plane twin: fixed camera pose for {len(poses)} frames"
+                             + (" (the analysis stage estimates each frame's)" if self.job.ground_plane.analysis else ""))
         self.folder.mark_stage("sync", {"frames": len(poses), "ground_plane": True})
         return poses
 
@@ -129,30 +131,66 @@ class Runner:
             self.twin.export_lut(lut, 5.0)
         return lut
 
-    def plan(self, rec, poses) -> list[str]:
-        from blendgen.farm.seeds import frame_seed
-        from blendgen.scene.planner import plan_sequence
-
+    def _selected(self, poses):
         job = self.job
         sel = poses[job.frames.start:job.frames.stop:job.frames.step]
         if not sel:
             raise UserError(f"frames: start {job.frames.start}, stop {job.frames.stop} select no frame of the "
                             f"recording's {len(poses)}", where="job")
+        return sel
+
+    def analysis(self, rec, poses) -> bool:
+        """Ground-plane jobs: camera, hood, road and real road users of every selected frame."""
+        from blendgen.analysis.stage import run_analysis
+
+        gp = self.job.ground_plane
+        if gp is None or not gp.analysis:
+            self.skipped.append("analysis")
+            self._say(3, "analysis", "not needed (twin job)" if gp is None else "off (ground_plane.analysis: false)")
+            return False
+        ids = [fid for fid, _, _ in self._selected(poses)]
+        if self.folder.stage_done("analysis") and self.folder.stage_info("analysis").get("frames") == ids:
+            self.skipped.append("analysis")
+            self._say(3, "analysis", f"analyses exist ({self.folder.analysis})")
+            return True
+        self._say(3, "analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
+        run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
+                     detector_model=self.job.path(gp.detector) if gp.detector else None)
+        self.folder.mark_stage("analysis", {"frames": ids})
+        return True
+
+    def plan(self, rec, poses, analysed: bool = False) -> list[str]:
+        from blendgen.farm.seeds import frame_seed
+        from blendgen.scene.planner import plan_sequence, unplaced_warnings
+
+        job = self.job
+        sel = self._selected(poses)
         ids = [fid for fid, _, _ in sel]
         if self.folder.stage_done("plan"):
             self.skipped.append("plan")
             self._say(3, "plan", f"plan exists ({self.folder.plan})")
+            self.warnings = self.folder.stage_info("plan").get("warnings", [])
             return ids
         w, h = job.render.resolution or (rec.camera.width, rec.camera.height)
         camera = rec.camera.scaled(w, h)
+        real = None
+        if analysed:  # the camera over the real road, and the real frame's constraints
+            from blendgen.analysis.stage import read_analysis
+            from blendgen.scene.real_scene import load_real_scene
+
+            sel = [(fid, t, np.asarray(read_analysis(self.folder.analysis, fid).T_world_cam)) for fid, t, _ in sel]
+            real = load_real_scene(self.folder.analysis, ids, camera)
         # the layout's stream starts from (seed, first frame id): a job starting at another frame
         # gets its own layout, not the same one shifted (README: seed + frame id)
         plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]),
-                              assets=self.assets())
+                              assets=self.assets(), real=real)
         n_obj = sum(len(p.objects) for p in plans)
+        self.warnings = unplaced_warnings(plans, job.inject)
         self._say(3, "plan", f"{len(plans)} frames, {n_obj} objects")
+        for w in self.warnings:
+            print(f"  WARNING: {w}", flush=True)
         atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))
-        self.folder.mark_stage("plan", {"frames": len(plans), "objects": n_obj})
+        self.folder.mark_stage("plan", {"frames": len(plans), "objects": n_obj, "warnings": self.warnings})
         return ids
 
     def assets(self):
@@ -259,7 +297,8 @@ class Runner:
         timed("record", self.record)
         rec = getattr(self, "_rec", None) or read_recording(self.job.recording_dir, require_frames=True)
         poses = timed("sync", self.sync, rec)
-        ids = timed("plan", self.plan, rec, poses)
+        analysed = timed("analysis", self.analysis, rec, poses)
+        ids = timed("plan", self.plan, rec, poses, analysed)
         farm_summary = timed("frames", self.frames, ids)
         export = timed("export", self.export, ids)
         self.times["total"] = round(time.perf_counter() - t_all, 3)
@@ -287,7 +326,7 @@ class Runner:
             "frames": {"total": len(ids), "done": len(done), "failed": len(failed)},
             "failed_frames": failed,
             "labels_per_class": dict(sorted(per_class.items())),
-            "seconds_per_stage": self.times, "skipped_stages": self.skipped,
+            "seconds_per_stage": self.times, "skipped_stages": self.skipped, "warnings": self.warnings,
             "throughput": self._throughput(farm_summary),
             "outputs": {"labels": str(self.folder.labels), "report": str(self.folder.root / "report" / "index.md"),
                         "manifest": str(self.folder.manifest), "frames": str(self.folder.root / "frames")},
@@ -297,7 +336,7 @@ class Runner:
         return summary
 
     def _throughput(self, farm_summary) -> dict:
-        """Frames/min of the frame work alone (sync, plan, frames, export): what a real
+        """Frames/min of the frame work alone (sync, analysis, plan, frames, export): what a real
         recording costs. The synthetic `record` stage is the demo's own recording, not work
         done per augmented frame, so it is left out."""
         from blendgen.report.build import FRAME_WORK
@@ -325,6 +364,8 @@ def print_summary(s: dict) -> None:
     tp = s.get("throughput") or {}
     if tp.get("frames_per_min"):
         print(f"  speed:   {tp['frames_per_min']:.1f} frames/min of frame work ({tp['frames']} frames in "
-              f"{tp['frame_work_s']:.1f} s of sync+plan+frames+export; recording synthesis not counted)")
+              f"{tp['frame_work_s']:.1f} s of sync+analysis+plan+frames+export; recording synthesis not counted)")
+    for w in s.get("warnings", []):
+        print(f"  WARNING: {w}")
     o = s["outputs"]
     print(f"  outputs: {o['frames']}/<frame>/composite.png, {o['labels']}/, {o['report']}")

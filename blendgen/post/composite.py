@@ -190,6 +190,19 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, obj_any, shadowed, sett
     return tm
 
 
+def apply_occluder(passes: dict, mask: np.ndarray) -> dict:
+    """The passes with a real occluder in front of every virtual object (the ego hood):
+    under `mask` (HxW bool) no object, no alpha and no shadow, so neither the composite
+    nor the labels see what the occluder hides."""
+    out = dict(passes)
+    for name, empty in (("rgba", 0.0), ("index", 0), ("shadow_catcher", 1.0)):
+        if name in out and np.shape(out[name])[:2] == mask.shape:
+            a = np.array(out[name], copy=True)
+            a[mask] = empty
+            out[name] = a
+    return out
+
+
 def _take(a: np.ndarray, flat: np.ndarray) -> np.ndarray:
     """Rows ``flat`` of an HxW(xC) image viewed as (H*W, C)."""
     a = np.asarray(a)

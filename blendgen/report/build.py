@@ -30,6 +30,7 @@ def build_report(out_dir: Path) -> Path:
     md = [f"# blendgen report: `{out_dir.name}`", ""]
     md += _summary_section(out_dir, frames)
     md += _sheet_section(rep, frames)
+    md += _analysis_section(out_dir, rep)
     md += _stats_section(rep, frames)
     md += _realism_section(out_dir)
     md += _timing_section(rep, out_dir)
@@ -71,6 +72,41 @@ def _sheet_section(rep: Path, frames: list[dict]) -> list[str]:
     return lines + [f"{len(tiles) // 2} of {len(frames)} frames: each composite as written, then with mask outlines, "
                     f"boxes and `class #track` tags ({legend}; grey = ignore).",
                     "", "![contact sheet](contact_sheet.jpg)", ""]
+
+
+def _analysis_section(out_dir: Path, rep: Path) -> list[str]:
+    """Ground-plane jobs: each frame's horizon, road, bands, hood and real road users, drawn
+    over the real frame, so a person can check the analysis the planner trusted at a glance."""
+    import yaml
+
+    from blendgen.analysis.stage import read_analysis, read_road_mask
+    from blendgen.recording.folder import read_frame, read_recording
+    from blendgen.report.draw import draw_analysis
+
+    folder = out_dir / "analysis"
+    ids = sorted(p.stem for p in folder.glob("f*.json"))
+    if not ids:
+        return []
+    try:
+        rec = read_recording(yaml.safe_load((out_dir / "job.resolved.yaml").read_text())["recording"])
+    except (OSError, KeyError, TypeError, UserError):
+        return ["## Frame analysis", "", "The recording is not readable from here: no overlay.", ""]
+    pick = [ids[k] for k in np.unique(np.linspace(0, len(ids) - 1, min(SHEET_FRAMES, len(ids))).round().astype(int))]
+    tiles, fell_back = [], 0
+    for fid in pick:
+        fa = read_analysis(folder, fid)
+        img = cv2.resize(read_frame(rec, int(fid.lstrip("f"))), (TILE_W, round(TILE_W * fa.height / fa.width)),
+                         interpolation=cv2.INTER_AREA)
+        tiles.append((fid, draw_analysis(img, fa, read_road_mask(folder, fa))))
+    for fid in ids:
+        fa = read_analysis(folder, fid)
+        fell_back += fa.road_mask is None or fa.road_direction_deg is None
+    atomic.write_image(rep / "analysis_sheet.jpg", contact_sheet(tiles, tile_w=TILE_W), [cv2.IMWRITE_JPEG_QUALITY, 88])
+    return ["## Frame analysis", "",
+            f"{len(tiles)} of {len(ids)} frames: horizon red, road green, walkable bands yellow, hood magenta, "
+            f"real road users white (class, distance). {fell_back} frame(s) fell back for road or direction; "
+            "the reasons are in `analysis/<frame>.json` (decisions) and in the manifest.", "",
+            "![frame analysis](analysis_sheet.jpg)", ""]
 
 
 def _stats_section(rep: Path, frames: list[dict]) -> list[str]:
@@ -169,7 +205,7 @@ def read_manifest(path: Path) -> list[dict]:
 STAGE_TITLES = {"record": "Recording synthesis (`record`: Cycles renders the synthetic recording's own "
                           "frames; a real recording skips it)",
                 "frames": "Frame work (`frames`: render + post + labels of each augmented frame)"}
-FRAME_WORK = ("sync", "plan", "frames", "export")  # what a real recording costs; `record` is not part of it
+FRAME_WORK = ("sync", "analysis", "plan", "frames", "export")  # what a real recording costs; `record` is not part of it
 
 
 def _timing_section(rep: Path, out_dir: Path) -> list[str]:

@@ -85,3 +85,40 @@ def contact_sheet(tiles: list[tuple[str, np.ndarray]], cols: int = 4, tile_w: in
         r, c = divmod(k, cols)
         sheet[r * (th + 4):r * (th + 4) + t.shape[0], c * (tile_w + 4):c * (tile_w + 4) + tile_w] = t
     return sheet
+
+
+def draw_analysis(img: np.ndarray, fa, road_mask: np.ndarray | None = None) -> np.ndarray:
+    """A frame's analysis over the frame: road green, bands yellow, hood magenta, horizon
+    red, real road users' boxes white with class and distance; `fa` is a FrameAnalysis."""
+    H, W = img.shape[:2]
+    sx, sy = W / fa.width, H / fa.height
+    out = img.copy()
+    if road_mask is not None:
+        m = cv2.resize(road_mask, (W, H), interpolation=cv2.INTER_NEAREST)
+        tint = out.copy()
+        tint[m == 255] = (0, 200, 0)
+        tint[m == 128] = (0, 220, 255)
+        out = cv2.addWeighted(tint, 0.35, out, 0.65, 0)
+    thick = max(1, round(W / 640))
+    if fa.hood:
+        poly = np.round(np.asarray(fa.hood) * [sx, sy]).astype(np.int32)
+        tint = out.copy()
+        cv2.fillPoly(tint, [poly], (200, 0, 200))
+        out = cv2.addWeighted(tint, 0.35, out, 0.65, 0)
+    if fa.horizon:
+        (u0, v0), (u1, v1) = fa.horizon
+        cv2.line(out, (int(u0 * sx), int(v0 * sy)), (int(u1 * sx), int(v1 * sy)), (0, 0, 255), thick, cv2.LINE_AA)
+    for o in fa.real_objects:
+        x, y, w, h = o.box
+        p0, p1 = (int(x * sx), int(y * sy)), (int((x + w) * sx), int((y + h) * sy))
+        cv2.rectangle(out, p0, p1, (255, 255, 255), thick)
+        tag = o.cls + (f" {o.distance_m:.0f}m" if o.distance_m is not None else "")
+        org = (p0[0], max(p0[1] - 3, 10))
+        cv2.putText(out, tag, org, cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick, (0, 0, 0), thick + 2, cv2.LINE_AA)
+        cv2.putText(out, tag, org, cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thick, (255, 255, 255), thick, cv2.LINE_AA)
+    c = fa.camera
+    txt = (f"h {c.height_m:.2f} m  pitch {c.pitch_deg:+.1f}  roll {c.roll_deg:+.1f}  road "
+           + (f"{fa.road_direction_deg:+.1f} deg" if fa.road_direction_deg is not None else "dir ?"))
+    cv2.putText(out, txt, (5, H - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * thick, (0, 0, 0), thick + 2, cv2.LINE_AA)
+    cv2.putText(out, txt, (5, H - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * thick, (255, 255, 255), thick, cv2.LINE_AA)
+    return out

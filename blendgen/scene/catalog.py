@@ -150,3 +150,19 @@ def shape_extent(cls: str, variant: dict) -> tuple[float, float, float]:
     mb = MeshBuilder()
     BUILDERS[cls](mb, variant, *variant["shape_dims"])
     return tuple(round(float(x), 4) for x in natural_extent(mb))
+
+
+def _mid(ranges) -> tuple[float, float, float]:
+    return tuple(float(np.mean([np.mean(r[i]) for r in ranges])) for i in range(3))
+
+
+# Typical (length, width, height) per class: what a real road user found by a detector is
+# assumed to measure (the mean of the body-type ranges above; riders included).
+TYPICAL_DIMS: dict[str, tuple[float, float, float]] = {
+    "car": _mid(CAR_BODIES.values()),
+    "truck": _mid(TRUCK_BODIES.values()),
+    "bus": _mid(BUS_BODIES.values()),
+    "person": (0.45, 0.55, 1.71),
+    "bicycle": (1.75, 0.61, 1.65),
+    "motorcycle": (2.1, 0.81, 1.55),
+}

@@ -51,6 +51,7 @@ class FramePlan:
     T_world_cam: list[list[float]]
     objects: list[PlacedObject] = field(default_factory=list)
     lighting: dict[str, Any] | None = None  # sun/sky settings from the post stage's estimate
+    decisions: list[dict[str, Any]] = field(default_factory=list)  # planner: rejected placements and why, covered real objects
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -62,4 +63,4 @@ class FramePlan:
         objs = [PlacedObject(**{**o, "position": tuple(o["position"]), "dims": tuple(o["dims"]),
                                 "velocity": tuple(o.get("velocity", (0, 0, 0)))})
                 for o in d.get("objects", [])]
-        return cls(d["frame_id"], float(d["t"]), d["T_world_cam"], objs, d.get("lighting"))
+        return cls(d["frame_id"], float(d["t"]), d["T_world_cam"], objs, d.get("lighting"), d.get("decisions", []))

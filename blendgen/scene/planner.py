@@ -26,6 +26,7 @@ from blendgen.scene.catalog import SPEED, sample_variant
 from blendgen.scene.geom2d import convex_overlap, point_in_convex, wrap_angle
 from blendgen.scene.plan import FramePlan, PlacedObject
 from blendgen.scene.riders import split_rider
+from blendgen.scene.real_scene import BAND, ROAD, ROAD_EDGE
 from blendgen.scene.twin import Twin
 
 # The ego vehicle's footprint relative to the camera (dashcam behind the windscreen).
@@ -110,9 +111,11 @@ class _Ego:
 
 
 class Planner:
-    def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int, assets=None):
+    def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int, assets=None, real=None):
         self.twin, self.camera, self.inject = twin, camera, inject
         self.assets = assets  # blendgen.scene.assets.AssetSampler or None
+        self.real = real  # scene.real_scene.RealScene: the real frames' road users, road and hood
+        self.reason = ""  # why the last candidate was rejected (for the manifest)
         self.rng = np.random.default_rng(seed)
         self.poses = list(poses)
         self.ego = _Ego(self.poses, twin)
@@ -175,9 +178,11 @@ class Planner:
         margin = 0.0 if ego_margin == "headway" else 0.3
         ego_c = ego.mean(1)
         near = np.linalg.norm(ego_c - tr.xy, axis=1) < tr.radius + EGO_LENGTH + 40.0
+        self.reason = "overlaps the ego vehicle or its path"
         for i in np.nonzero(near)[0]:
             if convex_overlap(tr.corners[i], ego[i], margin):
                 return True
+        self.reason = "overlaps another virtual object"
         for o in self.tracks:
             a, b = max(tr.k0, o.k0), min(tr.k1, o.k1)
             if a >= b:
@@ -194,6 +199,15 @@ class Planner:
             hit = d < self.twin._st_radius[None] + tr.radius + 0.1
             for i, s in zip(*np.nonzero(hit)):
                 if convex_overlap(tr.corners[i], self.twin.structures[s].polygon, 0.05):
+                    self.reason = "inside a structure of the twin"
+                    return True
+        if self.real is not None:
+            crossing = tr.scenario in ("jaywalker", "occluded_pedestrian")
+            for i, k in enumerate(range(tr.k0, tr.k1)):
+                why = self.real.reject(k, self.ego.T[k], tr.cls, tr.corners[i], tr.z[i], tr.dims[2],
+                                       crossing=crossing)
+                if why:
+                    self.reason = why
                     return True
         return False
 
@@ -297,9 +311,17 @@ class Planner:
         drawn = self.assets.draw(cls, self.rng) if self.assets is not None else None
         variant, dims = drawn or sample_variant(cls, self.rng)
         p = self._view_point(k)
+        if cls in VEHICLES + ("bicycle",) and self.real is not None and self.real.has(k, ROAD):
+            edge = cls == "bicycle" or (cls == "motorcycle" and "rider" not in variant)
+            p = self.real.sample_ground(k, ROAD_EDGE if edge else ROAD, self.ego.T[k], self.rng, self.d0, self.d1)
+            if p is None:
+                self.reason = f"no estimated road between {self.d0:g} and {self.d1:g} m"
+                return None
         if cls in VEHICLES or cls == "bicycle":
             return self._spawn_on_road(cls, variant, dims, k, p)
         if cls == "person":
+            if self.real is not None and self.real.has(k, BAND):
+                return self._spawn_on_band(variant, dims, k)
             return self._spawn_person(variant, dims, k, p)
         return self._spawn_signal(variant, dims, k)
 
@@ -310,7 +332,9 @@ class Planner:
         rg = self.twin.roads[lane.road]
         rider = "rider" in variant
         lat = 0.0
-        if cls == "bicycle" or (cls == "motorcycle" and not rider):
+        if self.real is not None and (cls == "bicycle" or (cls == "motorcycle" and not rider)):
+            lat = lane.lateral  # where it was sampled: the real road's edge
+        elif cls == "bicycle" or (cls == "motorcycle" and not rider):
             # bicycles (and parked motorcycles) keep to the curb side of the outermost lane
             n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
             lane = self.twin.lane_at(*rg.line.offset_point(
@@ -384,6 +408,19 @@ class Planner:
             a = self.rng.uniform(-math.pi, math.pi)
             u, speed = np.array([math.cos(a), math.sin(a)]), 0.0
         return self.walk_track(k, variant, dims, p, u, speed, tw.sidewalk_mask)
+
+    def _spawn_on_band(self, variant, dims, k):
+        """A pedestrian on the real frame's walkable band: standing, or walking along the road."""
+        p = self.real.sample_ground(k, BAND, self.ego.T[k], self.rng, self.d0, self.d1)
+        if p is None:
+            self.reason = f"no walkable band beside the road between {self.d0:g} and {self.d1:g} m"
+            return None
+        if variant["kind"] == "walking":
+            u, speed = np.array([1.0 if self.rng.random() < 0.5 else -1.0, 0.0]), float(self.rng.uniform(*SPEED["person"]))
+        else:
+            a = self.rng.uniform(-math.pi, math.pi)
+            u, speed = np.array([math.cos(a), math.sin(a)]), 0.0
+        return self.walk_track(k, variant, dims, p, u, speed, lambda xy: np.ones(len(xy), bool))
 
     def _spawn_signal(self, variant, dims, k):
         slots = self.twin.signal_slots
@@ -582,17 +619,24 @@ class Planner:
                         retry_at[name] = t + SCENARIO_RETRY_S
             vis = [tr for tr in self.tracks if tr.k0 <= k < tr.k1 and self.visible(tr, k)]
             failures: dict[str, int] = {}
+            rejected: dict[tuple[str, str], int] = {}
             tries = 0
-            while len(vis) < target and tries < SPAWN_TRIES and self.classes:
+            # real frames reject more candidates (road users, road edges): more tries
+            while len(vis) < target and tries < SPAWN_TRIES * (1 if self.real is None else 3) and self.classes:
                 tries += 1
-                usable = [c for c in self.classes if failures.get(c, 0) < 12]
+                usable = [c for c in self.classes if failures.get(c, 0) < (12 if self.real is None else 36)]
                 if not usable:
                     break
                 w = np.array([self.weights[self.classes.index(c)] for c in usable])
                 cls = usable[int(self.rng.choice(len(usable), p=w / w.sum()))]
+                self.reason = ""
                 tr = self.spawn(cls, k)
-                if tr is None or not self.visible(tr, k) or self.conflicts(tr):
+                why = (self.reason or NO_PLACE.get(cls, NO_PLACE[None])) if tr is None else \
+                    "not visible from the camera" if not self.visible(tr, k) else \
+                    self.reason if self.conflicts(tr) else None
+                if why:
                     failures[cls] = failures.get(cls, 0) + 1
+                    rejected[cls, why] = rejected.get((cls, why), 0) + 1
                     continue
                 vis.append(self.accept(tr))
             objs = []
@@ -603,9 +647,39 @@ class Planner:
                     yaw=float(tr.yaw[i]), dims=tuple(float(x) for x in tr.dims), variant=dict(tr.variant),
                     velocity=tr.velocity(i, self.times), state=tr.states[i] if tr.states else None,
                     scenario=tr.scenario), tr.rider_id)
-            plans.append(FramePlan(str(frame_id), float(t), np.asarray(T, float).tolist(), objs))
+            decisions = [{"what": "rejected", "cls": c, "reason": r, "count": n} for (c, r), n in rejected.items()]
+            if self.real is not None:
+                for tr in vis:
+                    i = k - tr.k0
+                    cov = self.real.covered(k, T, tr.corners[i], tr.z[i], tr.dims[2])
+                    if cov:
+                        decisions.append({"what": "covers_real", "id": tr.id, "cls": tr.cls, "real": cov})
+            plans.append(FramePlan(str(frame_id), float(t), np.asarray(T, float).tolist(), objs,
+                                   decisions=decisions))
             self.tracks = [tr for tr in self.tracks if tr.k1 > k + 1]
         return plans
+
+
+NO_PLACE = {"traffic light": "no signal pole or intersection slot in the scene to mount a traffic light on",
+            "person": "no sidewalk, band or crosswalk near the sampled point",
+            None: "no lane near the sampled point"}
+
+
+def unplaced_warnings(plans: list[FramePlan], inject) -> list[str]:
+    """One sentence per weighted class that no frame holds, with its most common rejection."""
+    placed = {o.cls for p in plans for o in p.objects}
+    out = []
+    for cls, w in inject.classes.items():
+        if w <= 0 or cls in placed:
+            continue
+        reasons: dict[str, int] = {}
+        for p in plans:
+            for d in p.decisions:
+                if d.get("what") == "rejected" and d["cls"] == cls:
+                    reasons[d["reason"]] = reasons.get(d["reason"], 0) + d["count"]
+        why = max(reasons, key=reasons.get) if reasons else "never drawn (its weight is small)"
+        out.append(f"class {cls!r} (weight {w:g}) was placed in none of {len(plans)} frames: {why}")
+    return out
 
 
 def signal_state(t: float) -> str:
@@ -618,12 +692,13 @@ def signal_state(t: float) -> str:
     return SIGNAL_CYCLE[-1][0]
 
 
-def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int, assets=None) -> list[FramePlan]:
+def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int, assets=None, real=None) -> list[FramePlan]:
     """Per-frame plans for `poses` = [(frame_id, t, T_world_cam)], deterministic per seed.
 
     `inject` is a `blendgen.job.schema.Inject`. With `inject.sequences` objects keep their id
     and move along their lane/path across frames; otherwise every frame is planned afresh.
-    `assets` (an AssetSampler) mixes library assets in; scenario actors stay procedural."""
+    `assets` (an AssetSampler) mixes library assets in; scenario actors stay procedural.
+    `real`: a `scene.real_scene.RealScene` with the real frames' constraints (ground-plane jobs)."""
     if not poses:
         return []
-    return Planner(twin, camera, poses, inject, seed, assets).run()
+    return Planner(twin, camera, poses, inject, seed, assets, real).run()

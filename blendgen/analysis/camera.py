@@ -1,0 +1,606 @@
+"""The camera from the frames: pitch, roll, height and focal length over the road (bpy-free).
+
+Entry point (called by the analysis stage):
+
+    estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress=False)
+        -> {frame_id: (CameraEstimate, horizon)}
+
+`user` is the job's `ground_plane` section (numbers are fixed, "auto" is estimated; None:
+all estimated), `car_boxes` maps frame_id -> [[x, y, w, h], ...] of real cars, `horizon` is
+[[0, v0], [width - 1, v1]] (model.py) or None when it leaves the frame's rows far behind.
+
+Per frame (`estimate_frame`):
+  1. line segments (OpenCV LSD or FLD on a <= 640 px wide grey image), undistorted;
+  2. a Manhattan frame by RANSAC: the road direction F (lane markings, road edges, kerbs,
+     building lines along the street), the vertical U (building edges, poles) and the
+     crosswise L, hypothesised from two segments for one vanishing point and one segment
+     for the other (orthogonality), scored by the length of the segments that point at
+     one of the three vanishing points; priors |pitch|, |roll| < 25 deg, |yaw| < 50 deg;
+  3. least squares (soft L1) on pitch, roll, yaw over the inliers; roll is only estimated
+     when vertical or crosswise segments support it, otherwise it is the prior (reason
+     logged); the focal length too when the calibration was a guessed field of view and
+     two orthogonal vanishing points are seen;
+  4. confidence from the inlier counts and the fitted angles' standard deviation.
+Over a recording: video frames are smoothed by a confidence-weighted median over +-0.5 s
+(frames that fell back take it); gravity from the IMU, when there is one, is averaged in
+with its own weight; the height is one robust median per recording (lane-width prior:
+spacing of the ego lane's markings on the ground at the estimated pitch, or the widths of
+real cars) unless the user fixed it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from blendgen.analysis.model import CameraEstimate
+from blendgen.geometry import Camera, R_world_cam_from_ypr
+
+log = logging.getLogger(__name__)
+
+DEFAULT_HEIGHT_M = 1.5      # a car's dashcam
+DEFAULT_LANE_WIDTH_M = 3.5
+CAR_WIDTH_M = 1.8           # typical passenger car (mirrors folded out of the box)
+CAR_LENGTH_M = 4.5
+SMOOTH_S = 0.5              # video: pitch and roll are a weighted median over +- this
+
+
+@dataclass
+class CameraConfig:
+    detector: str = "lsd"             # "lsd" (cv2.createLineSegmentDetector) or "fld" (ximgproc)
+    max_width: int = 640              # frames are downscaled to this for line detection
+    max_segments: int = 250           # the longest ones are kept
+    min_length_frac: float = 0.025    # of the (downscaled) image diagonal
+    ransac_iters: int = 250
+    inlier_deg: float = 1.5           # angle between a segment and the line to its vanishing point
+    min_support: int = 4              # segments an axis needs before it constrains anything
+    min_segments: int = 8             # fewer usable segments: the frame falls back
+    max_pitch_deg: float = 25.0
+    max_roll_deg: float = 25.0
+    max_yaw_deg: float = 50.0
+    seed: int = 0
+
+
+@dataclass
+class FrameCamera:
+    """One frame's estimate before smoothing (angles in degrees)."""
+
+    pitch: float | None
+    roll: float | None
+    yaw: float | None = None
+    fx: float | None = None
+    pitch_std: float = float("inf")
+    roll_std: float = float("inf")
+    confidence: float = 0.0
+    support: dict[str, int] = field(default_factory=dict)   # axis -> inlier segments
+    height_lanes: float | None = None     # height from the lane-width prior, m
+    height_cars: float | None = None      # from real cars' widths, m
+    reasons: list[str] = field(default_factory=list)
+    segments: np.ndarray | None = None    # (N, 4) undistorted pixel endpoints, for drawing
+    labels: np.ndarray | None = None      # (N,) axis index 0 F, 1 L, 2 U, -1 none
+
+
+# ----------------------------------------------------------------------------- geometry
+
+def road_axes(pitch: float, roll: float, yaw: float) -> np.ndarray:
+    """Rows: the road's forward F, left L and up U axes in the camera frame (radians in):
+    R_world_cam of `geometry.R_world_cam_from_ypr` with the road along world x."""
+    return R_world_cam_from_ypr(yaw, pitch, roll)
+
+
+def angles_from_axes(F: np.ndarray, U: np.ndarray) -> tuple[float, float, float]:
+    """(pitch, roll, yaw) in radians from the forward and up axes in the camera frame;
+    yaw > 0: the camera looks left of the road."""
+    U = U / np.linalg.norm(U)
+    pitch = math.asin(float(np.clip(U[2], -1, 1)))
+    roll = math.atan2(-U[0], -U[1])
+    # yaw: F in the camera's level frame (undo roll and pitch)
+    R0 = road_axes(pitch, roll, 0.0)           # rows: F0, L0, U at yaw 0
+    yaw = math.atan2(-float(F @ R0[1]), float(F @ R0[0]))
+    return pitch, roll, yaw
+
+
+def horizon_line(camera: Camera, U: np.ndarray) -> list[list[float]] | None:
+    """The ground plane's vanishing line K^-T U as [[0, v0], [w - 1, v1]] (None if ~vertical)."""
+    lh = np.linalg.inv(camera.K).T @ U
+    if abs(lh[1]) < 1e-9:
+        return None
+    u = np.array([0.0, camera.width - 1.0])
+    v = -(lh[0] * u + lh[2]) / lh[1]
+    return [[float(u[0]), float(v[0])], [float(u[1]), float(v[1])]]
+
+
+# ----------------------------------------------------------------------------- segments
+
+def detect_segments(bgr: np.ndarray, camera: Camera, cfg: CameraConfig) -> np.ndarray:
+    """(N, 4) x1 y1 x2 y2 in undistorted full-resolution pixels, longest first."""
+    gray = bgr if bgr.ndim == 2 else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    h, w = gray.shape
+    s = min(1.0, cfg.max_width / w)
+    small = cv2.resize(gray, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA) if s < 1 else gray
+    min_len = cfg.min_length_frac * math.hypot(*small.shape)
+    if cfg.detector == "lsd":
+        lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(small)[0]
+    elif cfg.detector == "fld":
+        lines = cv2.ximgproc.createFastLineDetector(int(min_len), 1.414, 50, 50, 3, True).detect(small)
+    else:
+        raise ValueError(f"detector: expected 'lsd' or 'fld', got {cfg.detector!r}")
+    if lines is None or len(lines) == 0:
+        return np.zeros((0, 4))
+    seg = lines.reshape(-1, 4).astype(float)
+    length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+    keep = np.argsort(-length)[: cfg.max_segments]
+    seg = seg[keep][length[keep] >= min_len]
+    seg = (seg + 0.5) / s - 0.5
+    if camera.distorted and len(seg):
+        pts = cv2.undistortPoints(seg.reshape(-1, 1, 2), camera.K, camera.D, P=camera.K)
+        seg = pts.reshape(-1, 4)
+    return seg
+
+
+class _Segments:
+    """Segments prepared for residuals against many vanishing points at once."""
+
+    def __init__(self, seg: np.ndarray):
+        self.seg = seg
+        p1 = np.c_[seg[:, :2], np.ones(len(seg))]
+        p2 = np.c_[seg[:, 2:], np.ones(len(seg))]
+        self.c = 0.5 * np.cross(p1, p2)          # p1 x midpoint
+        self.mid = 0.5 * (seg[:, :2] + seg[:, 2:])
+        self.half = np.maximum(0.5 * np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]), 1e-9)
+
+    def residuals(self, vps: np.ndarray, idx=slice(None)) -> np.ndarray:
+        """(N, k): sin of the angle between each segment and the line from its midpoint to
+        each homogeneous vanishing point (rows of vps)."""
+        vps = np.atleast_2d(vps)
+        mx, my = self.mid[idx, :1], self.mid[idx, 1:]
+        lx = my * vps[:, 2] - vps[:, 1]
+        ly = vps[:, 0] - mx * vps[:, 2]
+        return np.abs(self.c[idx] @ vps.T) / (self.half[idx, None] * np.maximum(np.hypot(lx, ly), 1e-12))
+
+
+def _unit(v: np.ndarray) -> np.ndarray | None:
+    n = math.sqrt(float(v @ v))
+    return v / n if n > 1e-9 else None
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+# ----------------------------------------------------------------------------- one frame
+
+def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None = None,
+                   roll_prior_deg: float = 0.0, fit_focal: bool = False,
+                   lane_width_m: float = DEFAULT_LANE_WIDTH_M, car_boxes=None, hood=None) -> FrameCamera:
+    """Pitch, roll (and yaw of the road, the focal length if asked) from one frame's lines.
+    `hood`: the ego hood polygon (hood.py); its edges are not the world's lines."""
+    cfg = cfg or CameraConfig()
+    seg = detect_segments(bgr, camera, cfg)
+    if hood is not None and len(seg):
+        edge = np.array(hood[:-2], dtype=float)
+        mid = 0.5 * (seg[:, :2] + seg[:, 2:])
+        seg = seg[mid[:, 1] < np.interp(mid[:, 0], edge[:, 0], edge[:, 1]) - 3]
+    if len(seg) < cfg.min_segments:
+        why = _why_no_structure(bgr, len(seg), cfg)
+        return FrameCamera(None, None, reasons=[why], segments=seg)
+    K = camera.K
+    Kinv = np.linalg.inv(K)
+    S = _Segments(seg)
+    length = 2 * S.half
+    rays1 = np.c_[seg[:, :2], np.ones(len(seg))] @ Kinv.T
+    rays2 = np.c_[seg[:, 2:], np.ones(len(seg))] @ Kinv.T
+    normals = np.cross(rays1, rays2)            # of the plane through the camera and the segment
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    ang = np.degrees(np.arctan2(np.abs(seg[:, 3] - seg[:, 1]), np.abs(seg[:, 2] - seg[:, 0])))
+    steep = np.flatnonzero(ang > 60)            # candidates for the vertical
+    flat = np.flatnonzero(ang <= 60)            # candidates for the road direction / crosswise
+    thr = math.sin(math.radians(cfg.inlier_deg))
+    rng = np.random.default_rng(cfg.seed)
+    sin_p, max_r = math.sin(math.radians(cfg.max_pitch_deg)), math.radians(cfg.max_roll_deg)
+    cos_y = math.cos(math.radians(cfg.max_yaw_deg))
+    roll0 = math.radians(roll_prior_deg)
+    up0 = road_axes(0.0, roll0, 0.0)[2]
+    n_it = cfg.ransac_iters
+    coin = rng.random((n_it, 2))
+    pick_s = rng.integers(0, max(len(steep), 1), (n_it, 2))
+    pick_f = rng.integers(0, max(len(flat), 1), (n_it, 2))
+    best = (0.0, None, None)
+    for it in range(n_it):
+        if len(steep) >= 2 and len(flat) and coin[it, 0] < 0.5:
+            # vertical from two steep segments, road direction from one more
+            U = _unit(_cross(normals[steep[pick_s[it, 0]]], normals[steep[pick_s[it, 1]]]))
+            F = None if U is None else _unit(_cross(U, normals[flat[pick_f[it, 0]]]))
+        elif len(flat) >= 2:
+            F = _unit(_cross(normals[flat[pick_f[it, 0]]], normals[flat[pick_f[it, 1]]]))
+            if F is None:
+                continue
+            F = F if F[2] > 0 else -F
+            if len(steep) and coin[it, 1] < 0.5:
+                U = _unit(_cross(F, normals[steep[pick_s[it, 0]]]))
+            else:  # the up axis nearest the prior roll
+                U = _unit(up0 - F * (F @ up0))
+        else:
+            break
+        if U is None or F is None:
+            continue
+        U = U if U[1] < 0 else -U
+        F = _unit(F - U * (F @ U))
+        if F is None or F[2] < cos_y or abs(U[2]) > sin_p or abs(math.atan2(-U[0], -U[1])) > max_r:
+            continue
+        R = np.array([F, _cross(U, F), U])
+        res = S.residuals(R @ K.T)
+        lab = res.argmin(axis=1)
+        inl = res[np.arange(len(seg)), lab] < thr
+        sc = float(length[inl].sum())
+        if sc > best[0]:
+            best = (sc, angles_from_axes(F, U), np.where(inl, lab, -1))
+    if best[1] is None:
+        return FrameCamera(None, None, reasons=[f"no vanishing point within the priors among {len(seg)} segments"],
+                           segments=seg)
+    labels = best[2]
+    support = {ax: int(np.count_nonzero(labels == i)) for i, ax in enumerate("FLU")}
+    out = FrameCamera(None, None, support=support, segments=seg, labels=labels)
+    if support["F"] + support["U"] + support["L"] < cfg.min_segments:
+        out.reasons.append(f"only {support['F'] + support['U'] + support['L']} segments agree on vanishing points "
+                           f"(need {cfg.min_segments})")
+        return out
+    # near-horizontal clutter (car rears, kerb stones, the hood) also points at a far crosswise
+    # vanishing point: crosswise lines alone must be twice as many as vertical ones
+    roll_free = support["U"] >= cfg.min_support or support["L"] >= 2 * cfg.min_support
+    if not roll_free:
+        out.reasons.append(f"roll: {support['U']} vertical and {support['L']} crosswise segments "
+                           f"(need {cfg.min_support} or {2 * cfg.min_support}): roll from the prior")
+    if support["F"] < cfg.min_support and support["U"] < cfg.min_support:
+        out.reasons.append(f"pitch: {support['F']} segments along the road and {support['U']} vertical ones "
+                           f"(need {cfg.min_support})")
+        return out
+    # the focal length needs two finite orthogonal vanishing points: the road's and the vertical
+    fit_focal = fit_focal and support["F"] >= cfg.min_support and support["U"] >= cfg.min_support
+    def Kf(f):      # the focal lengths scaled, the principal point kept
+        return K * np.array([[f, 1.0, 1.0], [1.0, f, 1.0], [1.0, 1.0, 1.0]]) if f != 1.0 else K
+
+    def fit(p, r, y, labels, with_focal):
+        """Fit on the inliers, relabel with the fit, fit again; (p, r, y, f, labels, sd)."""
+        f = 1.0
+
+        def unpack(x):
+            return x[0], (x[2] if roll_free else roll0), x[1], (math.exp(x[-1]) if with_focal else 1.0)
+
+        for _ in range(2):
+            idx = np.flatnonzero(labels >= 0)
+            sw, lab, rows = np.sqrt(length[idx]), labels[idx], np.arange(len(idx))
+
+            def fun(x):
+                p_, r_, y_, f_ = unpack(x)
+                return S.residuals(road_axes(p_, r_, y_) @ Kf(f_).T, idx)[rows, lab] * sw
+
+            x0 = [p, y] + ([r] if roll_free else []) + ([math.log(f)] if with_focal else [])
+            sol = least_squares(fun, x0, loss="soft_l1", f_scale=thr * float(np.median(sw)))
+            p, r, y, f = unpack(sol.x)
+            res = S.residuals(road_axes(p, r, y) @ Kf(f).T)
+            lab_all = res.argmin(axis=1)
+            labels = np.where(res[np.arange(len(seg)), lab_all] < thr, lab_all, -1)
+        # standard deviations from the Jacobian (residual scale from the fit)
+        sigma2 = float(np.sum(sol.fun ** 2)) / max(len(idx) - len(x0), 1)
+        try:
+            sd = np.sqrt(np.clip(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * sigma2), 0, None))
+        except np.linalg.LinAlgError:
+            sd = np.full(len(x0), 1.0)
+        return p, r, y, f, labels, sd
+
+    p, r, y, f, labels, sd = fit(*best[1], labels, fit_focal)
+    if fit_focal and not (0.5 < f < 2.0 and sd[-1] < 0.03):
+        # the focal length is not known to 3 %: keep the calibration's, and angles that agree with it
+        fit_focal = False
+        p, r, y, f, labels, sd = fit(p, r, y, labels, False)
+    out.labels = labels
+    support = {ax: int(np.count_nonzero(labels == i)) for i, ax in enumerate("FLU")}
+    out.support = support
+    std = np.degrees(sd)
+    out.pitch, out.yaw = math.degrees(p), math.degrees(y)
+    out.pitch_std = float(std[0])
+    out.roll = math.degrees(r)
+    out.roll_std = float(std[2]) if roll_free else float("inf")
+    if fit_focal:
+        out.fx = float(camera.fx * f)
+    n_used = support["F"] + (support["U"] + support["L"] if roll_free else 0)
+    worst_std = max(out.pitch_std, out.roll_std if roll_free else 0.0)
+    out.confidence = float(n_used / (n_used + 10.0) / (1.0 + (worst_std / 0.5) ** 2))
+    if not roll_free:
+        out.confidence = min(out.confidence, 0.3)
+    cam = camera if out.fx is None else Camera(camera.width, camera.height, out.fx, out.fx * camera.fy / camera.fx,
+                                               camera.cx, camera.cy)
+    R = road_axes(p, r, y)
+    out.height_lanes = height_from_lanes(seg[labels == 0], cam, R, lane_width_m)
+    if car_boxes:
+        out.height_cars = height_from_cars(car_boxes, cam, R)
+    return out
+
+
+def _why_no_structure(bgr: np.ndarray, n: int, cfg: CameraConfig) -> str:
+    gray = bgr if bgr.ndim == 2 else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    mean, std = float(gray.mean()), float(gray.std())
+    what = ("the frame is dark" if mean < 20 else "the frame is nearly uniform" if std < 8
+            else "no straight edges (texture or noise only)")
+    return f"{n} line segments (need {cfg.min_segments}): {what}"
+
+
+# ----------------------------------------------------------------------------- height
+
+def _ground_points(px: np.ndarray, camera: Camera, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels -> (forward, left) on the ground for a camera 1 m above it; rays above the
+    horizon give NaN."""
+    rays = np.c_[px, np.ones(len(px))] @ np.linalg.inv(camera.K).T
+    down = -(rays @ R[2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = rays / down[:, None]
+    X[down <= 1e-3] = np.nan
+    return X @ R[0], X @ R[1]
+
+
+def height_from_lanes(seg_f: np.ndarray, camera: Camera, R: np.ndarray, lane_width_m: float,
+                      max_range: float = 25.0) -> float | None:
+    """Camera height from the ego lane's two marking lines: their spacing on the ground,
+    for a camera 1 m high, is lane_width / height. `seg_f`: segments along the road."""
+    if len(seg_f) < 2:
+        return None
+    ends = seg_f.reshape(-1, 2)
+    fwd, left = _ground_points(ends, camera, R)
+    fwd, left = fwd.reshape(-1, 2), left.reshape(-1, 2)
+    ok = np.all(np.isfinite(fwd), axis=1) & np.all(fwd > 0, axis=1) & np.all(fwd < max_range, axis=1)
+    if ok.sum() < 2:
+        return None
+    y = left[ok].mean(axis=1)
+    w = np.abs(fwd[ok, 1] - fwd[ok, 0])       # ground length: long markings weigh more
+    # a line's two paint edges and its dashes fall together: cluster the lateral offsets
+    order = np.argsort(y)
+    y, w = y[order], w[order]
+    clusters, cur = [], [0]
+    for i in range(1, len(y)):
+        if y[i] - y[cur[-1]] < 0.12:
+            cur.append(i)
+        else:
+            clusters.append(cur)
+            cur = [i]
+    clusters.append(cur)
+    lines = [(float(np.average(y[c], weights=w[c])), float(w[c].sum())) for c in clusters if w[c].sum() > 0.5]
+    left_l = [c for c in lines if c[0] > 0]
+    right_l = [c for c in lines if c[0] < 0]
+    if not left_l or not right_l:
+        return None
+    d = min(c[0] for c in left_l) - max(c[0] for c in right_l)
+    h = lane_width_m / d
+    return float(h) if 0.8 <= h <= 3.5 else None
+
+
+def height_from_cars(boxes, camera: Camera, R: np.ndarray) -> float | None:
+    """Camera height from real cars' boxes (cars along the road, CAR_WIDTH_M x CAR_LENGTH_M).
+    For a camera 1 m high the box's bottom row is the rear face's distance `a`, its left and
+    right columns the bearings tL > tR (lateral / forward). The box spans the outer rear
+    corner to the inner front corner (or the rear face when the car straddles the optical
+    axis), so for a car left of the axis  tR (h a + L) = tL h a - W, and mirrored on the
+    right: solved for h. Median over the cars."""
+    hs = []
+    for x, y, w, hb in boxes:
+        if w <= 8:
+            continue
+        px = np.array([[x + w / 2, y + hb], [x, y + hb], [x + w, y + hb]])
+        fwd, left = _ground_points(px, camera, R)
+        if not np.all(np.isfinite(fwd)) or np.any(fwd <= 0):
+            continue
+        a = float(fwd[0])
+        tL, tR = float(left[1] / fwd[1]), float(left[2] / fwd[2])
+        if tL - tR <= 0:
+            continue
+        if tR > 0:      # left of the axis: its right (inner) side is seen, the front ends it
+            num = CAR_WIDTH_M + tR * CAR_LENGTH_M
+        elif tL < 0:    # right of the axis
+            num = CAR_WIDTH_M - tL * CAR_LENGTH_M
+        else:           # straddling: the rear face only
+            num = CAR_WIDTH_M
+        hs.append(num / (a * (tL - tR)))
+    hs = [h for h in hs if 0.5 <= h <= 4.0]
+    return float(np.median(hs)) if hs else None
+
+
+# ----------------------------------------------------------------------------- recording
+
+AUTO = "auto"
+
+
+def _user_value(user, name: str):
+    """A number the user fixed, or None when the field is "auto" (or there is no section)."""
+    v = getattr(user, name, AUTO) if user is not None and user != AUTO else AUTO
+    return None if v is None or v == AUTO else float(v)
+
+
+def _import_note(rec, key: str) -> str:
+    meta = rec.extra.get("import") or {}
+    return str(meta.get(key, "")) if isinstance(meta, dict) else ""
+
+
+def focal_was_guessed(rec) -> bool:
+    """The importer assumed a field of view instead of reading a calibration."""
+    return _import_note(rec, "camera_calibration").startswith("assumed")
+
+
+def is_sequence(rec) -> bool:
+    """Frames in temporal order (a video, or image frames that are not a set of stills)."""
+    return rec.video is not None or (rec.extra.get("import") or {}).get("format") != "images"
+
+
+def frame_indices(rec, frame_ids) -> list[int]:
+    from blendgen.errors import UserError
+
+    index = {rec.frame_id(i): i for i in range(rec.n_frames)}
+    bad = [f for f in frame_ids if f not in index]
+    if bad:
+        raise UserError(f"frame id(s) {bad[:3]} are not in the recording ({rec.n_frames} frames, "
+                        f"f000000..{rec.frame_id(max(rec.n_frames - 1, 0))})", where=str(rec.root))
+    return [index[f] for f in frame_ids]
+
+
+def read_frames(rec, frame_ids, *, progress: bool = False, desc: str = "frames"):
+    """Yield (frame_id, BGR) for the given ids in recording order (videos decode sequentially)."""
+    from blendgen.recording.folder import iter_frames, read_frame
+
+    idx = sorted(set(frame_indices(rec, frame_ids)))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(idx), desc=desc, unit="frame")
+    if rec.video is not None and len(idx) > 1:
+        want = set(idx)
+        gen = ((i, im) for i, im in iter_frames(rec, skip_bad=True) if i in want)
+    else:
+        gen = ((i, read_frame(rec, i)) for i in idx)
+    for i, im in gen:
+        if bar is not None:
+            bar.update(1)
+        yield rec.frame_id(i), im
+        if i >= idx[-1]:
+            break
+    if bar is not None:
+        bar.close()
+
+
+def imu_usable(rec) -> bool:
+    """The recording has IMU samples and a T_cam_imu that was given, not assumed."""
+    return len(rec.imu) > 0 and not _import_note(rec, "T_cam_imu").startswith("assumed")
+
+
+def gravity_up(rec, t: float, window_s: float = 0.5) -> tuple[np.ndarray, float] | None:
+    """The up axis in the camera frame from the accelerometer around t (mean specific force),
+    and its standard deviation in degrees (larger while the vehicle accelerates)."""
+    if not imu_usable(rec):
+        return None
+    ti = t + rec.time_offset_cam_imu
+    m = np.abs(rec.imu[:, 0] - ti) <= window_s / 2
+    if m.sum() < 3:
+        return None
+    a = rec.imu[m, 4:7].mean(axis=0)
+    g = float(np.linalg.norm(a))
+    if g < 5:
+        return None
+    U = np.asarray(rec.T_cam_imu)[:3, :3] @ (a / g)
+    # a car's longitudinal acceleration tilts the apparent vertical by atan(a / g)
+    std = 0.5 + math.degrees(math.atan(abs(g - 9.81) / 9.81)) + 2.0 * float(rec.imu[m, 4:7].std(axis=0).max())
+    return U, std
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    o = np.argsort(values)
+    c = np.cumsum(weights[o])
+    return float(values[o][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: bool = False,
+                     hoods=None, cfg: CameraConfig | None = None) -> dict[str, tuple[CameraEstimate, list | None]]:
+    """Camera (height, pitch, roll, focal length) and horizon per frame; see the module doc.
+    `hoods`: find_hood's result when the caller has it (otherwise it is found here)."""
+    from blendgen.analysis.hood import find_hood, hood_in_still
+
+    cfg = cfg or CameraConfig()
+    camera: Camera = rec.camera
+    car_boxes = car_boxes or {}
+    fixed = {k: _user_value(user, k) for k in ("camera_height_m", "pitch_deg", "roll_deg")}
+    lane_w = _user_value(user, "lane_width_m") or DEFAULT_LANE_WIDTH_M
+    fit_focal = focal_was_guessed(rec)
+    frame_ids = list(frame_ids)
+    need_lines = any(v is None for v in fixed.values())
+    seq = is_sequence(rec)
+    per: dict[str, FrameCamera] = {}
+    if need_lines:
+        if hoods is None and seq:
+            hoods = find_hood(rec, frame_ids)
+        for fid, im in read_frames(rec, frame_ids, progress=progress, desc="calibrate"):
+            if im is None:
+                per[fid] = FrameCamera(None, None, reasons=["frame does not decode"])
+                continue
+            hood = hoods.get(fid) if hoods is not None else hood_in_still(im)[0]
+            per[fid] = estimate_frame(im, camera, cfg=cfg, roll_prior_deg=fixed["roll_deg"] or 0.0,
+                                      fit_focal=fit_focal, lane_width_m=lane_w, car_boxes=car_boxes.get(fid),
+                                      hood=hood)
+    t_of = {rec.frame_id(i): float(rec.frames_t[i]) for i in frame_indices(rec, frame_ids)}
+    out = {}
+    # recording-wide values: focal length, height, and the fallbacks for pitch and roll
+    fxs = [f.fx for f in per.values() if f.fx is not None and f.confidence > 0.3]
+    fx = float(np.median(fxs)) if fxs else None
+    hl = [f.height_lanes for f in per.values() if f.height_lanes]
+    hc = [f.height_cars for f in per.values() if f.height_cars]
+    rec_height = (float(np.median(hl)), "lane_width") if hl else (float(np.median(hc)), "cars") if hc else None
+    cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
+                                           camera.cx, camera.cy, list(camera.dist))
+    by_time = sorted(per, key=t_of.__getitem__)
+    t_sorted = np.array([t_of[g] for g in by_time])
+    for fid in frame_ids:
+        fc = per.get(fid, FrameCamera(None, None))
+        est = CameraEstimate(height_m=DEFAULT_HEIGHT_M, pitch_deg=0.0, roll_deg=0.0, fx=fx,
+                             yaw_deg=fc.yaw, confidence=fc.confidence, reasons=list(fc.reasons))
+        if fx is not None:
+            est.source["fx"] = "vanishing_point"
+        t = t_of[fid]
+        near = by_time[np.searchsorted(t_sorted, t - SMOOTH_S):np.searchsorted(t_sorted, t + SMOOTH_S, "right")] \
+            if seq else []
+        up = gravity_up(rec, t)
+        for name, std_name, key in (("pitch", "pitch_std", "pitch_deg"), ("roll", "roll_std", "roll_deg")):
+            if fixed[key] is not None:
+                setattr(est, key, fixed[key])
+                est.source[name] = "user"
+                continue
+            vals = [(getattr(per[g], name), per[g].confidence) for g in near
+                    if getattr(per[g], name) is not None and math.isfinite(getattr(per[g], std_name))]
+            own = getattr(fc, name)
+            if len(vals) >= 2:       # video: confidence-weighted median over +-0.5 s
+                v = np.array(vals)
+                value, src = _weighted_median(v[:, 0], v[:, 1] + 1e-6), "smoothed"
+                std = max(0.05, float(np.median([getattr(per[g], std_name) for g in near
+                                                 if math.isfinite(getattr(per[g], std_name))])))
+            elif own is not None and math.isfinite(getattr(fc, std_name)):
+                value, src, std = own, "vanishing_point", max(0.05, getattr(fc, std_name))
+            else:
+                value, src, std = None, None, None
+            if up is not None:
+                p_i, r_i, _ = angles_from_axes(np.array([0.0, 0.0, 1.0]), up[0])
+                gv = math.degrees(p_i if name == "pitch" else r_i)
+                if value is None:
+                    value, src = gv, "imu"
+                    est.confidence = max(est.confidence, 1.0 / (1.0 + (up[1] / 1.0) ** 2))
+                else:   # inverse-variance average of lines and gravity
+                    w1, w2 = 1 / std ** 2, 1 / up[1] ** 2
+                    value, src = (w1 * value + w2 * gv) / (w1 + w2), src + "+imu"
+            if value is None:
+                allv = [getattr(f, name) for f in per.values()
+                        if getattr(f, name) is not None and math.isfinite(getattr(f, std_name))]
+                if allv:
+                    value, src = float(np.median(allv)), "recording_median"
+                    est.reasons.append(f"{name}: no estimate in this frame, the recording's median")
+                else:
+                    value, src = (fc.roll if name == "roll" and fc.roll is not None else 0.0), "default"
+                    est.reasons.append(f"{name}: nothing to estimate it from, assumed {value:g} deg")
+                est.confidence = 0.0 if src == "default" else min(est.confidence, 0.3)
+            setattr(est, key, float(value))
+            est.source[name] = src
+        if fixed["camera_height_m"] is not None:
+            est.height_m, est.source["height"] = fixed["camera_height_m"], "user"
+        elif not seq and (fc.height_lanes or fc.height_cars):
+            est.height_m, est.source["height"] = ((fc.height_lanes, "lane_width") if fc.height_lanes
+                                                  else (fc.height_cars, "cars"))
+        elif rec_height is not None:
+            est.height_m, est.source["height"] = rec_height
+        else:
+            est.height_m, est.source["height"] = DEFAULT_HEIGHT_M, "default"
+            est.reasons.append(f"height: no lane markings or cars to scale with, assumed {DEFAULT_HEIGHT_M} m")
+        if est.source["pitch"] == "user" and est.source["roll"] == "user":
+            est.confidence = 1.0
+        for r in est.reasons:
+            log.info("%s: %s", fid, r)
+        U = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)[2]
+        out[fid] = (est, horizon_line(cam, U))
+    return out

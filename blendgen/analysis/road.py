@@ -1,0 +1,200 @@
+"""The real road in a frame: drivable surface, the bands beside it, its direction (bpy-free).
+
+Drivable surface: a colour/texture model of the asphalt seeded just in front of the hood
+(Lab colour within a Mahalanobis distance of the seed, low local texture), below the
+horizon, above the hood, outside the detected road users; the connected part that holds
+the seed, closed over lane markings and filled between its edges row by row. A user mask
+`masks/road/<frame_id>.png` in the recording (non-zero = road) replaces the estimate.
+
+Bands: the ground beside the road up to `BAND_M` metres on either side (sidewalks,
+verges, parking lanes): where pedestrians may stand and traffic-light poles go.
+
+Direction: the vanishing point of the road's long lines (lane markings, edges) on the
+horizon, back-projected to a yaw relative to the camera's heading; the road's centreline
+in the mask when no line is found.
+
+Mask encoding (`<frame_id>_road.png`): 255 road, 128 band, 0 anything else.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blendgen.analysis.ground import horizon_v, rays_world, to_ground
+from blendgen.geometry import Camera
+
+ROAD, BAND = 255, 128
+WORK_W = 320            # the estimate runs at this width (then scaled back up)
+BAND_M = 4.0            # band width beside the road
+MAX_MAHAL = 3.5         # colour distance (in seed standard deviations) still counted as road
+MIN_STD_LAB = (5.0, 2.5, 2.5)   # floor on the seed's spread: flat seeds would reject everything
+MIN_SEED_PX = 60
+MIN_SEED_L = 8.0        # OpenCV Lab lightness 0..255; the BDD night street's asphalt is ~30
+MAX_ROAD_YAW_DEG = 35.0
+
+
+def user_road_mask(recording_dir: Path, frame_id: str, size: tuple[int, int]) -> np.ndarray | None:
+    """The user's road mask for a frame (bool HxW), or None when there is none."""
+    p = Path(recording_dir) / "masks" / "road" / f"{frame_id}.png"
+    if not p.is_file():
+        return None
+    m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+    if m is None:
+        from blendgen.errors import UserError
+
+        raise UserError("not a readable PNG road mask", where=str(p))
+    if m.shape[::-1] != tuple(size):
+        m = cv2.resize(m, tuple(size), interpolation=cv2.INTER_NEAREST)
+    return m > 0
+
+
+def estimate_road(image: np.ndarray, horizon, hood_mask: np.ndarray | None, boxes: list[list[float]],
+                  ) -> tuple[np.ndarray | None, str]:
+    """(road bool HxW or None, reason). `boxes`: real road users [x, y, w, h] (not road)."""
+    H, W = image.shape[:2]
+    s = WORK_W / W
+    h, w = int(round(H * s)), WORK_W
+    small = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+    lab = cv2.cvtColor(cv2.GaussianBlur(small, (5, 5), 0), cv2.COLOR_BGR2LAB).astype(np.float32)
+    allowed = np.ones((h, w), bool)
+    hz = horizon_v(horizon, np.arange(w) / s) * s
+    rows = np.arange(h)[:, None]
+    allowed &= rows > hz[None, :] + 0.02 * h
+    hood = None
+    if hood_mask is not None:
+        hood = cv2.resize(hood_mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+        allowed &= ~hood
+    objects = np.zeros((h, w), bool)
+    for x, y, bw, bh in boxes:
+        objects[int(y * s):int(math.ceil((y + bh) * s)) + 1, int(x * s):int(math.ceil((x + bw) * s)) + 1] = True
+    allowed &= ~objects
+    # seed: a patch centred just above the hood (or the image bottom)
+    cols = slice(int(0.4 * w), int(0.6 * w))
+    free = np.flatnonzero(allowed[:, cols].all(axis=1))
+    if len(free) == 0:
+        return None, "no free ground in front of the camera (all hood, horizon or road users)"
+    bottom = int(free.max())
+    seed = np.zeros((h, w), bool)
+    seed[max(0, bottom - int(0.08 * h)):bottom + 1, cols] = True
+    seed &= allowed
+    if seed.sum() < MIN_SEED_PX:
+        return None, f"only {int(seed.sum())} free seed pixels in front of the hood (need {MIN_SEED_PX})"
+    px = lab[seed]
+    mu = np.median(px, axis=0)
+    if mu[0] < MIN_SEED_L:
+        return None, f"the patch in front of the hood is black (L {mu[0]:.0f} < {MIN_SEED_L}): nothing to tell road from"
+    cov = np.cov((px - mu).T) + np.diag(np.square(MIN_STD_LAB))
+    d = lab.reshape(-1, 3) - mu
+    mahal = np.sqrt(np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d)).reshape(h, w)
+    L = lab[..., 0]
+    texture = np.sqrt(np.maximum(cv2.blur(L * L, (5, 5)) - cv2.blur(L, (5, 5)) ** 2, 0))
+    tex_max = max(3.0, 2.0 * float(np.percentile(texture[seed], 90)))
+    # painted markings (thin bright or yellow stripes) are road too: they must not cut the
+    # oncoming lane off the seed's lane
+    kern = cv2.getStructuringElement(cv2.MORPH_RECT, (15, 1))
+    paint = (cv2.morphologyEx(lab[..., 0], cv2.MORPH_TOPHAT, kern) > 20) | \
+        (cv2.morphologyEx(lab[..., 2], cv2.MORPH_TOPHAT, kern) > 8)
+    cand = allowed & (((mahal < MAX_MAHAL) & (texture < tex_max)) | paint)
+    cand = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0
+    n, lab_cc = cv2.connectedComponents(cand.astype(np.uint8), connectivity=4)
+    keep = np.unique(lab_cc[seed & cand])
+    keep = keep[keep > 0]
+    if len(keep) == 0:
+        return None, "the seed patch in front of the hood does not look like road (no connected region)"
+    road = np.isin(lab_cc, keep)
+    # lane markings and small holes: fill between the road's edges in every row
+    any_row = road.any(axis=1)
+    left = np.where(any_row, road.argmax(axis=1), w)
+    right = np.where(any_row, w - 1 - road[:, ::-1].argmax(axis=1), -1)
+    cols_i = np.arange(w)[None, :]
+    road = (cols_i >= left[:, None]) & (cols_i <= right[:, None]) & allowed
+    road = cv2.morphologyEx(road.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    return cv2.resize(road.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST) > 0, \
+        f"colour model seeded at rows {int(free.max() / s)} and above ({int(seed.sum())} px)"
+
+
+def bands(road: np.ndarray, camera: Camera, T_world_cam: np.ndarray, blocked: np.ndarray) -> np.ndarray:
+    """Ground beside the road, up to BAND_M metres to either side in every row (bool HxW)."""
+    H, W = road.shape
+    out = np.zeros_like(road)
+    rows = np.flatnonzero(road.any(axis=1))
+    if len(rows) == 0:
+        return out
+    left = road[rows].argmax(axis=1)
+    right = W - 1 - road[rows, ::-1].argmax(axis=1)
+    # pixels per metre across the road at each row: two ground points 1 m apart at that depth
+    g = to_ground(camera, T_world_cam, np.column_stack([np.full(len(rows), camera.cx), rows]))
+    T = np.asarray(T_world_cam)
+    depth = np.linalg.norm(g - T[:2, 3], axis=1)
+    ppm = np.where(np.isfinite(depth), camera.fx / np.maximum(depth, 0.5), 0.0)
+    width = np.minimum(BAND_M * ppm, W).astype(int)
+    for r, a, b, bw in zip(rows, left, right, width):
+        out[r, max(0, a - bw):a] = True
+        out[r, b + 1:min(W, b + 1 + bw)] = True
+    return out & ~road & ~blocked
+
+
+def road_direction(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_world_cam: np.ndarray,
+                   horizon) -> tuple[float | None, str]:
+    """(road yaw relative to the camera heading in degrees, left > 0; how it was found)."""
+    if horizon is None:
+        return None, "no horizon"
+    H, W = image.shape[:2]
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    region = np.zeros((H, W), np.uint8)
+    if road is not None:
+        region = cv2.dilate(road.astype(np.uint8), np.ones((15, 15), np.uint8))
+    else:
+        region[int(max(horizon[0][1], horizon[1][1])):] = 1
+    edges = cv2.Canny(gray, 60, 160) * region
+    segs = cv2.HoughLinesP(edges, 1, np.pi / 180, 40, minLineLength=max(20, W // 30), maxLineGap=8)
+    u_vp = []
+    if segs is not None:
+        (hu0, hv0), (hu1, hv1) = horizon
+        for x0, y0, x1, y1 in segs[:, 0].astype(float):
+            ang = abs(math.degrees(math.atan2(y1 - y0, x1 - x0))) % 180
+            if not 20 <= min(ang, 180 - ang) <= 80:
+                continue  # nearly flat or vertical: not a line along the road
+            # intersect the segment's line with the horizon line
+            a1, b1 = y1 - y0, x0 - x1
+            a2, b2 = hv1 - hv0, hu0 - hu1
+            det = a1 * b2 - a2 * b1
+            if abs(det) < 1e-9:
+                continue
+            c1, c2 = a1 * x0 + b1 * y0, a2 * hu0 + b2 * hv0
+            u = (c1 * b2 - c2 * b1) / det
+            if -W <= u <= 2 * W:
+                u_vp.append(u)
+    if len(u_vp) >= 2:
+        # lines on either side of the road meet at the vanishing point: take the densest u
+        u_vp = np.sort(np.asarray(u_vp))
+        k = max(2, len(u_vp) // 3)
+        spans = u_vp[k - 1:] - u_vp[:len(u_vp) - k + 1]
+        i = int(np.argmin(spans))
+        u = float(np.median(u_vp[i:i + k]))
+        how = f"vanishing point of {k} of {len(u_vp)} road lines at u = {u:.0f}"
+    elif road is not None and road.any():
+        rows = np.flatnonzero(road.any(axis=1))
+        left = road[rows].argmax(axis=1)
+        right = W - 1 - road[rows, ::-1].argmax(axis=1)
+        ok = (left > 0) & (right < W - 1)
+        if ok.sum() < 5:
+            return None, "no road lines and the road's edges leave the image"
+        b, a = np.polyfit(rows[ok], (left[ok] + right[ok]) / 2, 1)
+        u = float(a + b * horizon_v(horizon, camera.cx))
+        how = f"centreline of the road mask meets the horizon at u = {u:.0f}"
+    else:
+        return None, "no road lines and no road region"
+    v = float(horizon_v(horizon, u))
+    ray = rays_world(camera, T_world_cam, [[u, v]])[0]
+    T = np.asarray(T_world_cam)
+    heading = math.atan2(T[1, 2], T[0, 2])
+    yaw = math.degrees(math.atan2(ray[1], ray[0]) - heading)
+    yaw = (yaw + 180) % 360 - 180
+    if abs(yaw) > MAX_ROAD_YAW_DEG:
+        return None, f"{how}: {yaw:.1f} deg is beyond +-{MAX_ROAD_YAW_DEG:g} deg, not trusted"
+    return yaw, how

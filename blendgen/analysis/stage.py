@@ -1,0 +1,211 @@
+"""The analysis stage: once per background frame of a ground-plane job, before planning.
+
+For each frame: camera estimate and horizon, hood, real road users (detector ->
+footprints), road region and bands, road direction, and the camera pose over the road.
+Leaves `OUT/analysis/<frame_id>.json` (model.FrameAnalysis) and `<frame_id>_road.png`
+(255 road, 128 band); a frame whose JSON exists is not analysed again, so an interrupted
+stage resumes where it stopped. Nothing here raises on a hard frame: every quantity that
+cannot be estimated falls back with its reason in `decisions`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blendgen import atomic
+from blendgen.analysis import ground, objects, road
+from blendgen.analysis.model import CameraEstimate, FrameAnalysis
+from blendgen.geometry import Camera
+
+log = logging.getLogger(__name__)
+EGO_BOX_MIN_WIDTH = 0.5   # a "vehicle" box this wide (fraction of the image) touching the bottom is our own hood
+
+
+def not_ego(users: list, hmask: np.ndarray | None, W: int, H: int) -> tuple[list, list]:
+    """(road users, boxes of our own hood): a very wide box touching the frame's bottom, or
+    one centred on the hood, is the ego vehicle."""
+    kept, dropped = [], []
+    for o in users:
+        x, y, w, h = o.box
+        on_hood = hmask is not None and hmask[int(min(y + h / 2, H - 1)), int(min(x + w / 2, W - 1))]
+        (dropped if (w > EGO_BOX_MIN_WIDTH * W and y + h >= H - 0.05 * H) or on_hood else kept).append(o)
+    return kept, dropped
+
+
+def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
+    if hood is None or len(hood) == 0:
+        return None
+    m = np.zeros((height, width), np.uint8)
+    cv2.fillPoly(m, [np.round(np.asarray(hood)).astype(np.int32)], 1)
+    return m > 0
+
+
+def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraEstimate, detector, *,
+                  horizon=None, hood=None, user_road: np.ndarray | None = None,
+                  T_world_cam: np.ndarray | None = None, users: list | None = None,
+                  ) -> tuple[FrameAnalysis, np.ndarray | None]:
+    """One frame's analysis and its road/band mask (uint8, or None without a road).
+    `users`: the frame's detections when already run (`objects.road_users`)."""
+    H, W = image.shape[:2]
+    decisions: list[dict] = []
+
+    def decide(what, value, reason):
+        decisions.append({"what": what, "value": value, "reason": reason})
+        if value is None:  # a fallback: say it where the user looks (the run's log)
+            log.warning("%s: %s: %s", frame_id, what, reason)
+
+    T0 = ground.camera_pose(est)
+    if horizon is None:
+        horizon = ground.horizon(camera, T0)
+    hmask = hood_mask(hood, W, H)
+    hood_top = float(np.asarray(hood)[:, 1].min()) if hood else None
+    decide("camera", {"height_m": est.height_m, "pitch_deg": est.pitch_deg, "roll_deg": est.roll_deg},
+           "; ".join(est.reasons) or ", ".join(f"{k}: {v}" for k, v in est.source.items()))
+    decide("hood", hood is not None, "hood polygon found" if hood else "no hood found: the whole frame is scene")
+
+    kept, dropped = not_ego(objects.road_users(image, detector) if users is None else users, hmask, W, H)
+    for o in dropped:
+        decide("real_object_dropped", {"cls": o.cls, "box": o.box}, "the ego vehicle's own hood, not a road user")
+    decide("real_objects", len(kept), f"{detector.model_path.name}, score >= {detector.score_min}")
+
+    mask = None
+    if user_road is not None:
+        road_px, how = user_road, "user mask masks/road"
+    else:
+        road_px, how = road.estimate_road(image, horizon, hmask, [o.box for o in kept])
+    decide("road", None if road_px is None else round(float(road_px.mean()), 4), how)
+
+    if est.yaw_deg is not None:  # the camera estimate's road vanishing point
+        yaw, how = -est.yaw_deg, "the camera estimate's vanishing point of the road"
+    else:
+        yaw, how = road.road_direction(image, road_px, camera, T0, horizon)
+    decide("road_direction_deg", None if yaw is None else round(yaw, 2),
+           how if yaw is not None else f"straight ahead (0 deg) assumed: {how}")
+    T = ground.camera_pose(est, yaw) if T_world_cam is None else np.asarray(T_world_cam, float)
+    objects.with_footprints(kept, camera, T, H, horizon=horizon, hood_top_v=hood_top)
+    if road_px is not None:
+        blocked = np.zeros((H, W), bool) if hmask is None else hmask.copy()
+        for x, y, w, h in (o.box for o in kept):
+            blocked[int(y):int(y + h) + 1, int(x):int(x + w) + 1] = True
+        mask = np.where(road_px, road.ROAD, np.where(road.bands(road_px, camera, T, blocked), road.BAND, 0))
+        mask = mask.astype(np.uint8)
+    fa = FrameAnalysis(frame_id=frame_id, width=W, height=H, camera=est, T_world_cam=T.tolist(),
+                       horizon=horizon, hood=[list(map(float, p)) for p in hood] if hood else None,
+                       road_mask=f"{frame_id}_road.png" if mask is not None else None,
+                       road_direction_deg=None if yaw is None else round(yaw, 2), real_objects=kept,
+                       decisions=decisions)
+    return fa, mask
+
+
+def write_analysis(folder: Path, fa: FrameAnalysis, mask: np.ndarray | None) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    if mask is not None:
+        atomic.write_image(folder / f"{fa.frame_id}_road.png", mask)
+    atomic.write_json(folder / f"{fa.frame_id}.json", fa.to_dict())  # last: marks the frame done
+
+
+def read_analysis(folder: Path, frame_id: str) -> FrameAnalysis | None:
+    p = Path(folder) / f"{frame_id}.json"
+    return FrameAnalysis.from_dict(json.loads(p.read_text())) if p.is_file() else None
+
+
+def read_road_mask(folder: Path, fa: FrameAnalysis) -> np.ndarray | None:
+    if not fa.road_mask:
+        return None
+    return cv2.imread(str(Path(folder) / fa.road_mask), cv2.IMREAD_GRAYSCALE)
+
+
+def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model: Path | None = None,
+                 progress: bool = False) -> dict[str, FrameAnalysis]:
+    """Analyse the frames not yet analysed in `folder`; return every frame's analysis.
+
+    Hood (`hood.find_hood`), real road users, then the camera (`camera.estimate_cameras`,
+    which scales the height with the real cars found), then road, direction and footprints.
+    `gp`: the job's ground_plane section (numbers fix values, "auto" estimates them)."""
+    from blendgen.analysis.camera import estimate_cameras, is_sequence, read_frames
+    from blendgen.analysis.hood import find_hood
+
+    folder = Path(folder)
+    todo = [f for f in frame_ids if not (folder / f"{f}.json").is_file()]
+    if todo:
+        t0 = time.process_time()
+        detector = objects.load_detector(detector_model)
+        hoods = find_hood(rec, frame_ids)  # a video's hood comes from many frames
+        users = {}
+        for fid, image in read_frames(rec, todo, progress=progress, desc="road users"):
+            if image is None:
+                continue
+            users[fid] = not_ego(objects.road_users(image, detector), hood_mask(hoods.get(fid), image.shape[1],
+                                                                                 image.shape[0]), *image.shape[1::-1])[0]
+        cams = estimate_cameras(rec, todo, user=gp, hoods=hoods, progress=progress,
+                                car_boxes={f: [o.box for o in u if o.cls == "car"] for f, u in users.items()})
+        shared = (time.process_time() - t0) / len(todo)
+        for n, (fid, image) in enumerate(read_frames(rec, todo)):
+            t1 = time.process_time()
+            if image is None:
+                continue
+            est, horizon = cams[fid]
+            # the recording's focal length, also when est.fx re-estimated it: the planner and
+            # the renderer project with the recording's camera, and placement must match them
+            camera = rec.camera.scaled(image.shape[1], image.shape[0])
+            user = road.user_road_mask(rec.root, fid, (image.shape[1], image.shape[0]))
+            fa, mask = analyse_frame(image, fid, camera, est, detector, horizon=horizon, hood=hoods.get(fid),
+                                     user_road=user, users=users[fid])
+            fa.decisions.append({"what": "cpu_s", "value": round(time.process_time() - t1 + shared, 3),
+                                 "reason": "analysis CPU seconds (hood, detector and camera shared per frame)"})
+            write_analysis(folder, fa, mask)
+            if progress:
+                print(f"  analysis {n + 1}/{len(todo)} {fid}: {len(fa.real_objects)} road users, "
+                      f"road {'yes' if fa.road_mask else 'no'}, hood {'yes' if fa.hood else 'no'}, "
+                      f"h {est.height_m:.2f} m pitch {est.pitch_deg:+.1f} roll {est.roll_deg:+.1f}, direction "
+                      f"{fa.road_direction_deg if fa.road_direction_deg is not None else '-'} deg", flush=True)
+        for fid in todo:  # a frame that does not decode keeps the camera estimate, and says why
+            if not (folder / f"{fid}.json").is_file():
+                est, horizon = cams[fid]
+                log.warning("%s: frame does not decode: the camera estimate only", fid)
+                write_analysis(folder, FrameAnalysis(
+                    fid, rec.camera.width, rec.camera.height, est, ground.camera_pose(est).tolist(), horizon,
+                    decisions=[{"what": "frame", "value": None, "reason": "does not decode: no road users, road "
+                                                                         "or hood, the camera estimate only"}]), None)
+    analyses = {f: read_analysis(folder, f) for f in frame_ids}
+    if is_sequence(rec) and len(frame_ids) > 1 and any(
+            not any(d["what"] == "pose" for d in fa.decisions) for fa in analyses.values()):
+        moving_poses(analyses, rec, folder, progress=progress)
+    return analyses
+
+
+def moving_poses(analyses: dict[str, FrameAnalysis], rec, folder: Path, *, progress: bool = False) -> None:
+    """Video: the camera moves over the ground plane with the ego motion
+    (`egomotion.ground_plane_poses`: road-point odometry, VO heading, GNSS step length;
+    the mount's yaw from the vanishing point), so tracks keep one world and a parked car
+    recedes as the ego car passes it. Footprints follow each frame's pose; every frame is
+    rewritten with the pose decision."""
+    from blendgen.analysis.egomotion import ground_track
+
+    # odometry needs consecutive frames: track every recording frame between the first and
+    # the last selected one, each with the camera of the nearest analysed frame
+    t0 = time.process_time()
+    idx = sorted(int(f.lstrip("f")) for f in analyses)
+    dense = [rec.frame_id(i) for i in range(idx[0], idx[-1] + 1)]
+    near = {f: rec.frame_id(idx[int(np.argmin(np.abs(np.asarray(idx) - int(f.lstrip("f")))))]) for f in dense}
+    track = ground_track(rec, dense, {f: analyses[near[f]].camera for f in dense},
+                         hoods={f: analyses[near[f]].hood for f in dense}, progress=progress)
+    cpu = round((time.process_time() - t0) / len(analyses), 3)
+    for fid, fa in analyses.items():
+        T = np.asarray(track.poses[fid], float)
+        camera = rec.camera.scaled(fa.width, fa.height)
+        hood_top = float(np.asarray(fa.hood)[:, 1].min()) if fa.hood else None
+        objects.with_footprints(fa.real_objects, camera, T, fa.height, horizon=fa.horizon, hood_top_v=hood_top)
+        fa.T_world_cam = T.tolist()
+        step = track.steps.get(fid)
+        fa.decisions.append({"what": "pose", "value": [round(float(v), 3) for v in T[:3, 3]],
+                             "reason": f"video ego motion over the ground plane ({step.status if step else 'first'})"})
+        fa.decisions.append({"what": "cpu_s", "value": cpu, "reason": f"ego motion over {len(dense)} frames, "
+                                                                       "shared per analysed frame"})
+        atomic.write_json(Path(folder) / f"{fid}.json", fa.to_dict())

@@ -1,0 +1,153 @@
+"""What a real background frame allows the planner (bpy-free): its real road users, road,
+bands and hood, read from the analysis stage's files.
+
+`RealScene.reject(...)` says why a virtual object may not stand somewhere in a frame, or
+None: inside a real road user's footprint; behind a real one in the image (there is no
+pixel-exact mask of the real object to put in front of it); touching the hood; a
+vehicle's wheel off the estimated road; a pedestrian outside the bands beside the road
+(unless crossing). A virtual object in front of a real one is allowed: it covers it.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from blendgen.analysis.model import FrameAnalysis
+from blendgen.analysis.road import BAND, ROAD  # noqa: F401 - the planner takes them from here
+from blendgen.geometry import Camera
+from blendgen.scene.geom2d import convex_overlap
+
+WHEELED = ("car", "bus", "truck", "motorcycle", "bicycle")
+ROAD_EDGE = -1             # sample_ground: road pixels within EDGE_PX of its left or right edge
+EDGE_PX = 24
+FOOTPRINT_MARGIN_M = 0.3
+MIN_IMAGE_OVERLAP = 0.05   # of the virtual object's box: less is a touch, not "behind"
+
+
+class RealFrame:
+    def __init__(self, fa: FrameAnalysis, road_mask: np.ndarray | None, hood_mask: np.ndarray | None):
+        self.fa = fa
+        self.road = road_mask
+        self.hood = hood_mask
+        self.footprints = [(o, np.asarray(o.footprint, float)) for o in fa.real_objects if o.footprint]
+        self.boxes = [(o, np.asarray(o.box, float)) for o in fa.real_objects]
+
+
+class RealScene:
+    """Per frame index k of the plan: the real frame's constraints."""
+
+    def __init__(self, frames: list[RealFrame | None], camera: Camera):
+        self.frames = frames
+        self.camera = camera
+
+    def _pixels(self, rf: RealFrame, T, pts3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Analysis-resolution pixels of world points and whether each lies inside the image."""
+        uv, front = self.camera.project_world(T, pts3)
+        uv = uv * [rf.fa.width / self.camera.width, rf.fa.height / self.camera.height]
+        inside = front & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < rf.fa.width) & (uv[:, 1] < rf.fa.height)
+        return uv, inside
+
+    def reject(self, k: int, T, cls: str, corners: np.ndarray, z: float, height: float, *,
+               crossing: bool = False) -> str | None:
+        rf = self.frames[k] if k < len(self.frames) else None
+        if rf is None:
+            return None
+        T = np.asarray(T, float)
+        for o, fp in self.footprints_near(rf, corners):
+            if convex_overlap(corners, fp, FOOTPRINT_MARGIN_M):
+                return f"inside the footprint of a real {o.cls}"
+        box3 = np.concatenate([np.column_stack([corners, np.full(4, z)]),
+                               np.column_stack([corners, np.full(4, z + height)])])
+        uv, inside = self._pixels(rf, T, box3)
+        if not inside.any():
+            return None
+        lo, hi = uv.min(0), uv.max(0)
+        area = max(float(np.prod(hi - lo)), 1e-6)
+        near = float(np.min(np.linalg.norm(corners - T[:2, 3], axis=1)))
+        for o, (x, y, w, h) in rf.boxes:
+            ix = max(0.0, min(hi[0], x + w) - max(lo[0], x))
+            iy = max(0.0, min(hi[1], y + h) - max(lo[1], y))
+            if ix * iy > MIN_IMAGE_OVERLAP * area and (o.distance_m is None or near >= o.distance_m):
+                return f"behind a real {o.cls} (it would be drawn over it)"
+        if cls == "traffic light":
+            return None  # mounted on a pole: no ground contact to check
+        contact, cin = self._pixels(rf, T, np.column_stack([_inset(corners), np.full(4, z)]))
+        ci = np.clip(np.round(contact).astype(int), 0, [rf.fa.width - 1, rf.fa.height - 1])
+        if rf.hood is not None and (rf.hood[ci[cin, 1], ci[cin, 0]]).any():
+            return "on the ego vehicle's hood"
+        if rf.road is None:
+            return None
+        vals = rf.road[ci[cin, 1], ci[cin, 0]]
+        if cls in WHEELED and (vals != ROAD).any():
+            return "a wheel off the estimated road"
+        if cls == "person" and not crossing and (vals != BAND).all():
+            return "not on the walkable band beside the road"
+        return None
+
+    def has(self, k: int, value: int) -> bool:
+        """Whether frame k has road (ROAD) or band (BAND) pixels."""
+        rf = self.frames[k] if k < len(self.frames) else None
+        return rf is not None and rf.road is not None and bool((rf.road[::4, ::4] == value).any())
+
+    def sample_ground(self, k: int, value: int, T, rng: np.random.Generator, d0: float, d1: float
+                      ) -> np.ndarray | None:
+        """A ground point (x, y) on frame k's road or band between d0 and d1 metres away."""
+        from blendgen.analysis.ground import to_ground
+
+        rf = self.frames[k]
+        if value == ROAD_EDGE:
+            road = rf.road == ROAD
+            off = cv2.dilate((~road).astype(np.uint8), np.ones((1, 2 * EDGE_PX + 1), np.uint8)) > 0
+            v, u = np.nonzero((road & off)[::4, ::4])
+        else:
+            v, u = np.nonzero(rf.road[::4, ::4] == value)
+        if len(u) == 0:
+            return None
+        pick = rng.choice(len(u), size=min(len(u), 64), replace=False)
+        cam = self.camera.scaled(rf.fa.width, rf.fa.height)
+        T = np.asarray(T, float)
+        g = to_ground(cam, T, np.column_stack([u[pick] * 4 + 2, v[pick] * 4 + 2]))
+        d = np.linalg.norm(g - T[:2, 3], axis=1)
+        ok = np.flatnonzero(np.isfinite(d) & (d >= d0) & (d <= d1))
+        return None if len(ok) == 0 else g[ok[0]]
+
+    @staticmethod
+    def footprints_near(rf: RealFrame, corners: np.ndarray):
+        c = corners.mean(0)
+        r = float(np.max(np.linalg.norm(corners - c, axis=1)))
+        for o, fp in rf.footprints:
+            if np.linalg.norm(fp.mean(0) - c) < r + float(np.max(np.linalg.norm(fp - fp.mean(0), axis=1))) + 1:
+                yield o, fp
+
+    def covered(self, k: int, T, corners: np.ndarray, z: float, height: float) -> list[dict]:
+        """The real boxes the object's projected box overlaps (it stands in front of them)."""
+        rf = self.frames[k] if k < len(self.frames) else None
+        if rf is None:
+            return []
+        box3 = np.concatenate([np.column_stack([corners, np.full(4, z)]),
+                               np.column_stack([corners, np.full(4, z + height)])])
+        uv, _ = self._pixels(rf, np.asarray(T, float), box3)
+        lo, hi = uv.min(0), uv.max(0)
+        return [{"cls": o.cls, "box": o.box} for o, (x, y, w, h) in rf.boxes
+                if min(hi[0], x + w) > max(lo[0], x) and min(hi[1], y + h) > max(lo[1], y)]
+
+
+def _inset(corners: np.ndarray, f: float = 0.15) -> np.ndarray:
+    """Approximate wheel contact points: the footprint's corners pulled toward its centre."""
+    c = corners.mean(0)
+    return c + (corners - c) * (1 - f)
+
+
+def load_real_scene(analysis_dir, frame_ids: list[str], camera: Camera) -> RealScene:
+    """The analysis stage's files for `frame_ids` (a frame without a file gets None)."""
+    from blendgen.analysis.stage import hood_mask, read_analysis, read_road_mask
+
+    frames = []
+    for fid in frame_ids:
+        fa = read_analysis(analysis_dir, fid)
+        if fa is None:
+            frames.append(None)
+            continue
+        frames.append(RealFrame(fa, read_road_mask(analysis_dir, fa), hood_mask(fa.hood, fa.width, fa.height)))
+    return RealScene(frames, camera)

@@ -1,0 +1,58 @@
+"""A ground-plane job on real dashcam photos through the whole pipeline: the analysis stage
+runs before planning, its decisions reach the manifest, the hood hides objects, labels
+list the real boxes they cover, and a second run redoes nothing."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+pytestmark = [pytest.mark.bpy, pytest.mark.data]
+DATA = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+BDD = DATA / "real" / "bdd_street_photos"
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "blendgen.cli", *args], capture_output=True, text=True, timeout=900)
+
+
+def test_dashcam_photos_job_analyses_plans_and_resumes(tmp_path):
+    if not BDD.is_dir():
+        pytest.skip(f"needs {BDD}")
+    r = cli("import", "images", str(BDD), str(tmp_path / "rec"), "--hfov", "60", "--no-progress")
+    assert r.returncode == 0, r.stderr[-2000:]
+    job = tmp_path / "job.yaml"
+    job.write_text(yaml.safe_dump({
+        "name": "bdd", "seed": 2, "recording": "rec", "ground_plane": "auto",
+        "inject": {"objects_per_frame": [3, 3], "classes": {"car": 1, "person": 1, "traffic light": 1},
+                   "distance_m": [6, 30], "sequences": False, "min_projected_px": 8},
+        "render": {"resolution": [320, 180], "samples": 2, "denoise": False},
+        "export": {"formats": ["coco"], "min_visible_px": 4}, "output": "out"}))
+    r = cli("run", str(job))
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "[3/7] analysis" in r.stdout and "WARNING: class 'traffic light'" in r.stdout
+    out = tmp_path / "out"
+    ids = sorted(p.stem for p in (out / "analysis").glob("f*.json"))
+    assert ids == ["f000000", "f000001", "f000002"]
+    for fid in ids:
+        fa = json.loads((out / "analysis" / f"{fid}.json").read_text())
+        assert fa["hood"] and fa["real_objects"] and fa["road_mask"]
+    manifest = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines() if x]
+    frames = [m for m in manifest if m.get("stage") == "frames"]
+    assert len(frames) == 3 and all(m["analysis"]["decisions"] and "plan_decisions" in m for m in frames)
+    labels = [json.loads((out / "frames" / f / "labels.json").read_text()) for f in ids]
+    inst = [i for lab in labels for i in lab["instances"]]
+    assert inst and all("covers_real" in i for i in inst)
+    summary = json.loads((out / "run_summary.json").read_text())
+    assert any("traffic light" in w for w in summary["warnings"])
+
+    r2 = cli("run", str(job))
+    assert r2.returncode == 0, r2.stderr[-2000:]
+    skipped = json.loads((out / "run_summary.json").read_text())["skipped_stages"]
+    assert {"analysis", "plan", "frames"} <= set(skipped)

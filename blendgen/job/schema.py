@@ -131,7 +131,7 @@ class Render(Section):
 
 class Post(Section):
     illumination: Annotated[Literal["auto", "off"], OnOff] = "auto"
-    color_transfer: Literal["reinhard", "mkl", "histogram", "none"] = "reinhard"
+    color_transfer: Literal["reinhard", "mkl", "histogram", "none"] = "none"  # measured: no transfer helps YOLOX recall on real photos (docs/benchmarks/realism.md)
     shadows: bool = True
     sensor_match: bool = True
     relight: bool = True  # re-weight the EXR lighting passes toward the estimate

@@ -156,8 +156,23 @@ class Runner:
         self._say(3, "analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
         run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
                      detector_model=self.job.path(gp.detector) if gp.detector else None)
+        self._write_analysis_poses(poses, set(ids))
         self.folder.mark_stage("analysis", {"frames": ids})
         return True
+
+    def _write_analysis_poses(self, poses, ids: set[str]) -> None:
+        """poses.csv/.tum hold what plans and renders use: the analysed frames' camera over
+        the ground plane (ego motion for video), the fixed pose for the others."""
+        from blendgen.analysis.stage import read_analysis
+        from blendgen.sync.pipeline import SyncResult, write_poses
+
+        out, quality = [], []
+        for fid, t, T in poses:
+            a = read_analysis(self.folder.analysis, fid) if fid in ids else None
+            out.append((fid, t, np.asarray(a.T_world_cam) if a is not None and a.T_world_cam else T))
+            quality.append({"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0,
+                            "flags": ["ground_plane"] + (["analysis"] if a is not None else [])})
+        write_poses(self.folder.root, SyncResult(out, np.zeros((len(out), 6)), quality))
 
     def plan(self, rec, poses, analysed: bool = False) -> list[str]:
         from blendgen.farm.seeds import frame_seed

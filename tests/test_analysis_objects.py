@@ -97,7 +97,7 @@ def test_bdd_parked_cars_get_no_overlapping_placement(detector):
                     sequences=False)
     placed = 0
     for seed in range(4):
-        plan = plan_sequence(twin, cam, [("f000000", 0.0, np.asarray(fa.T_world_cam))], inject, seed, real)[0]
+        plan = plan_sequence(twin, cam, [("f000000", 0.0, np.asarray(fa.T_world_cam))], inject, seed, real=real)[0]
         T = np.asarray(plan.T_world_cam)
         for o in plan.objects:
             placed += 1

@@ -111,7 +111,7 @@ class _Ego:
 
 
 class Planner:
-    def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int, assets=None, real=None):
+    def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int, *, assets=None, real=None):
         self.twin, self.camera, self.inject = twin, camera, inject
         self.assets = assets  # blendgen.scene.assets.AssetSampler or None
         self.real = real  # scene.real_scene.RealScene: the real frames' road users, road and hood
@@ -692,7 +692,8 @@ def signal_state(t: float) -> str:
     return SIGNAL_CYCLE[-1][0]
 
 
-def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int, assets=None, real=None) -> list[FramePlan]:
+def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int, *, assets=None,
+                  real=None) -> list[FramePlan]:
     """Per-frame plans for `poses` = [(frame_id, t, T_world_cam)], deterministic per seed.
 
     `inject` is a `blendgen.job.schema.Inject`. With `inject.sequences` objects keep their id
@@ -701,4 +702,4 @@ def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int, assets=N
     `real`: a `scene.real_scene.RealScene` with the real frames' constraints (ground-plane jobs)."""
     if not poses:
         return []
-    return Planner(twin, camera, poses, inject, seed, assets, real).run()
+    return Planner(twin, camera, poses, inject, seed, assets=assets, real=real).run()

@@ -34,6 +34,8 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
     for s in slots:
         if s == "paint":
             out[s] = M.paint(paint, metallic, wear)
+        elif s == "well":  # the dark wheel well behind a tyre
+            out[s] = M.plastic((0.006, 0.006, 0.006))
         elif s == "cargo":
             out[s] = M.principled(M._key("cargo", v.get("cargo", (0.8, 0.8, 0.78))), v.get("cargo", (0.8, 0.8, 0.78)),
                                   roughness=0.5, coat=0.3)

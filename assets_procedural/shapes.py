@@ -20,15 +20,32 @@ from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, lo
 
 # ====================================================================== vehicles (4 wheels)
 def _wheel(mb, x, y, r, width, rim="alloy"):
-    v, f = cylinder(r, width, 20, "y", (x, y, r))
-    mb.add(v, f, "rubber", smooth=True)
+    """Tyre with a recessed rim and dark hub; the outer face at y + side * width / 2."""
     side = 1 if y > 0 else -1
-    v, f = cylinder(r * 0.6, 0.02, 16, "y", (x, y + side * (width / 2 + 0.002), r))
+    v, f = cylinder(r, width, 24, "y", (x, y, r))
+    mb.add(v, f, "rubber", smooth=True)
+    v, f = cylinder(r * 0.66, 0.02, 20, "y", (x, y + side * (width / 2 - 0.004), r))
     mb.add(v, f, rim)
+    v, f = cylinder(r * 0.2, 0.02, 10, "y", (x, y + side * (width / 2 + 0.002), r))
+    mb.add(v, f, "plastic")
+
+
+def _arch(mb, x, y_face, r, side, band=0.07, n=12):
+    """Black wheel-arch trim (half ring) and the dark wheel well behind the tyre, on the body side."""
+    a = np.linspace(0.0, math.pi, n)
+    outer = np.column_stack([x + (r + band) * np.cos(a), (r + band) * np.sin(a)])
+    inner = np.column_stack([x + (r + 0.015) * np.cos(a), (r + 0.015) * np.sin(a)])
+    yz = y_face + side * 0.006
+    v = [[px, yz, pz + r] for px, pz in outer] + [[px, yz, pz + r] for px, pz in inner]
+    f = [[i, i + 1, n + i + 1, n + i] for i in range(n - 1)]
+    mb.add(v, f, "plastic")
+    v, f = cylinder(r + 0.015, 0.01, 16, "y", (x, y_face + side * 0.002, r))
+    mb.add(v, f, "well")
 
 
 def _lower_body(L, hw, z_bot, tops, r=0.12):
-    """Loft of the lower body from rear (x=-L/2) to front; `tops` = [(x, z_top, width_frac)]."""
+    """Loft of the lower body from rear (x=-L/2) to front; `tops` = [(x, z_top, width_frac)];
+    `r` the corner radius of the cross-section."""
     st = []
     for x, zt, wf in tops:
         st.append((x, rounded_section(hw * wf, z_bot + (0.05 if wf < 0.97 else 0.0), zt, r,
@@ -37,62 +54,82 @@ def _lower_body(L, hw, z_bot, tops, r=0.12):
 
 
 CAR_SHAPES = {  # fractions: beltline/hood/deck heights of H; x positions of L; bottom of H
-    "sedan": dict(belt=.63, hood=.57, deck=.65, ws=.21, roof_f=.03, roof_r=-.24, rw=-.37, bot=.12, axle=.30),
-    "hatchback": dict(belt=.61, hood=.56, deck=.63, ws=.20, roof_f=.02, roof_r=-.36, rw=-.46, bot=.12, axle=.31),
-    "suv": dict(belt=.60, hood=.60, deck=.62, ws=.22, roof_f=.06, roof_r=-.42, rw=-.48, bot=.13, axle=.31),
-    "van": dict(belt=.50, hood=.44, deck=.52, ws=.42, roof_f=.28, roof_r=-.47, rw=-.495, bot=.10, axle=.33),
+    "sedan": dict(belt=.63, hood=.58, deck=.66, ws=.20, roof_f=.03, roof_r=-.22, rw=-.36, bot=.13, axle=.30),
+    "hatchback": dict(belt=.61, hood=.57, deck=.63, ws=.20, roof_f=.02, roof_r=-.38, rw=-.47, bot=.13, axle=.31),
+    "suv": dict(belt=.60, hood=.61, deck=.63, ws=.22, roof_f=.06, roof_r=-.43, rw=-.48, bot=.14, axle=.31),
+    "van": dict(belt=.52, hood=.46, deck=.54, ws=.40, roof_f=.27, roof_r=-.47, rw=-.495, bot=.11, axle=.33),
 }
 
 
 def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
+    """A car: lofted body, tapered dark greenhouse under a painted roof, black trim and
+    arches, tyres with rims, head/tail lamps, plates and mirrors."""
     p = CAR_SHAPES.get(v.get("kind", "sedan"), CAR_SHAPES["sedan"])
     r = float(v.get("wheel_radius", 0.33))
-    hw = W * 0.94 / 2
+    hw = W * 0.93 / 2
     belt, hood, deck = p["belt"] * H, p["hood"] * H, p["deck"] * H
     zb = max(p["bot"] * H, r * 0.55)
     x_ws, x_rw = p["ws"] * L, p["rw"] * L
-    tops = [(-L / 2, deck - 0.1, 0.92), (-L / 2 + 0.04 * L, deck, 0.99), (x_rw, belt, 1.0),
-            (x_ws, belt, 1.0), (L / 2 - 0.06 * L, hood, 0.99), (L / 2, hood - 0.12, 0.9)]
-    vv, f = _lower_body(L, hw, zb, tops)
+    # lower body: rounded tail, shoulder along the belt, sloping hood and rounded nose
+    tops = [(-L / 2, deck - 0.14, 0.88), (-L / 2 + 0.015 * L, deck - 0.03, 0.96), (-L / 2 + 0.05 * L, deck, 0.99),
+            (x_rw, belt, 1.0), (x_ws, belt, 1.0), (L / 2 - 0.08 * L, hood, 0.99),
+            (L / 2 - 0.02 * L, hood - 0.06, 0.95), (L / 2, hood - 0.16, 0.86)]
+    vv, f = _lower_body(L, hw, zb, tops, r=0.2)
     mb.add(vv, f, "paint", smooth=True)
-    # greenhouse: glass, with the painted roof panel on top
+    # greenhouse: tinted glass tapering inwards (tumblehome), the roof panel painted on top
     zc = belt - 0.04
-    cab = [(x_rw, rounded_section(hw * 0.92, zc, belt + 0.03, 0.05, top_half_w=hw * 0.9)),
-           (p["roof_r"] * L, rounded_section(hw * 0.92, zc, H - 0.03, 0.1, top_half_w=hw * 0.74)),
-           (p["roof_f"] * L, rounded_section(hw * 0.92, zc, H - 0.03, 0.1, top_half_w=hw * 0.74)),
-           (x_ws, rounded_section(hw * 0.92, zc, belt + 0.03, 0.05, top_half_w=hw * 0.9))]
+    roof_hw = hw * 0.72
+    cab = [(x_rw, rounded_section(hw * 0.95, zc, belt + 0.02, 0.05, top_half_w=hw * 0.93)),
+           (p["roof_r"] * L, rounded_section(hw * 0.93, zc, H - 0.035, 0.12, top_half_w=roof_hw)),
+           (p["roof_f"] * L, rounded_section(hw * 0.93, zc, H - 0.035, 0.12, top_half_w=roof_hw)),
+           (x_ws, rounded_section(hw * 0.95, zc, belt + 0.02, 0.05, top_half_w=hw * 0.93))]
     vv, f = loft(cab)
-    mb.add(vv, f, "glass", smooth=False)
-    roof = [(p["roof_r"] * L - 0.04, rounded_section(hw * 0.75, H - 0.06, H, 0.02, top_half_w=hw * 0.72)),
-            (p["roof_f"] * L + 0.04, rounded_section(hw * 0.75, H - 0.06, H, 0.02, top_half_w=hw * 0.72))]
+    mb.add(vv, f, "glass")
+    roof = [(p["roof_r"] * L - 0.03, rounded_section(roof_hw * 1.02, H - 0.06, H, 0.025, top_half_w=roof_hw * 0.97)),
+            (p["roof_f"] * L + 0.03, rounded_section(roof_hw * 1.02, H - 0.06, H, 0.025, top_half_w=roof_hw * 0.97))]
     vv, f = loft(roof)
     mb.add(vv, f, "paint", smooth=True)
-    # B-pillars
+    # B- and C-pillars in black trim split the side glass into windows
     xb = (p["roof_f"] + p["roof_r"]) / 2 * L
     for s in (1, -1):
-        vv, f = box((0.12, 0.04, H - 0.06 - zc), (xb, s * hw * 0.84, (H - 0.06 + zc) / 2))
-        mb.add(xf(vv, None, (0, 0, 0)), f, "paint")
-    # wheels
+        for xp, wp in ((xb, 0.10), (p["roof_r"] * L + 0.05, 0.07)):
+            hh = H - 0.06 - zc
+            vv, f = box((wp, 0.03, hh), (xp, 0.0, zc + hh / 2))
+            # lean the pillar with the tumblehome: bottom at the glass base, top at the roof edge
+            vv[:, 1] = s * (hw * 0.94 - (hw * 0.94 - roof_hw) * (vv[:, 2] - zc) / hh + 0.005)
+            mb.add(vv, f, "plastic")
+    # wheels in black arches
     ax = p["axle"] * L
     for x in (ax, -ax):
         for s in (1, -1):
-            _wheel(mb, x, s * (hw - 0.11), r, 0.22, "chrome" if v.get("chrome_trim") else "alloy")
-    # lights, grille, bumpers, plates, mirrors
-    zl = hood - 0.14
+            _wheel(mb, x, s * (hw - 0.1), r, 0.22, "chrome" if v.get("chrome_trim") else "alloy")
+            _arch(mb, x, s * hw, r, s)
+    # black sills and bumper bottoms
     for s in (1, -1):
-        vv, f = box((0.05, 0.30, 0.09), (L / 2 - 0.045, s * (hw - 0.28), zl))
-        mb.add(vv, f, "lamp_head")
-        vv, f = box((0.06, 0.40, 0.13), (-L / 2 + 0.035, s * (hw - 0.24), deck - 0.15))
-        mb.add(vv, f, "lamp_tail")
-        vv, f = box((0.18, (W / 2 - hw) + 0.06, 0.11), (x_ws - 0.12, s * (W / 2 - (W / 2 - hw + 0.06) / 2), belt + 0.06))
-        mb.add(vv, f, "paint")
-    vv, f = box((0.04, hw * 0.8, 0.16), (L / 2 - 0.02, 0, zl - 0.02))
-    mb.add(vv, f, "plastic")
-    for x in (L / 2 - 0.05, -L / 2 + 0.05):
-        vv, f = box((0.1, hw * 1.9, 0.14), (x, 0, zb + 0.1))
+        vv, f = box((2 * ax - 2 * r - 0.2, 0.02, 0.09), (0, s * (hw + 0.004), zb + 0.05))
         mb.add(vv, f, "plastic")
-        vv, f = box((0.02, 0.5, 0.11), (x + (0.05 if x > 0 else -0.05), 0, zb + 0.28))
+    for x, sgn in ((L / 2 - 0.04, 1), (-L / 2 + 0.04, -1)):  # the bumpers stand 2 cm proud of the body
+        vv, f = box((0.12, hw * 1.92, 0.15), (x, 0, zb + 0.07))
+        mb.add(vv, f, "plastic")
+        vv, f = box((0.02, 0.52, 0.12), (x + sgn * 0.045, 0, zb + 0.27))  # number plate
         mb.add(vv, f, "plate")
+    # head lamps and grille at the nose, tail lamps wrapping round the rear corners
+    zl = hood - 0.17
+    for s in (1, -1):
+        vv, f = box((0.06, 0.34, 0.10), (L / 2 - 0.03 * L + 0.01, s * (hw - 0.26), zl))
+        vv[:, 0] += np.where(vv[:, 0] > L / 2 - 0.03 * L, (0.015 * L) * (1 - np.abs(vv[:, 1]) / hw), 0)
+        mb.add(vv, f, "lamp_head")
+        vv, f = box((0.06, 0.34, 0.10), (-L / 2 + 0.025, s * (hw - 0.23), deck - 0.15))
+        mb.add(vv, f, "lamp_tail")
+        vv, f = box((0.16, 0.02, 0.09), (-L / 2 + 0.1, s * (hw * 0.985), deck - 0.15))
+        mb.add(vv, f, "lamp_tail")
+        # mirror on a short arm at the front of the side glass
+        vv, f = box((0.10, 0.17, 0.11), (x_ws - 0.14, s * (hw + 0.1), belt + 0.07))
+        mb.add(vv, f, "paint")
+        vv, f = box((0.01, 0.13, 0.08), (x_ws - 0.195, s * (hw + 0.11), belt + 0.07))
+        mb.add(vv, f, "plastic")
+    vv, f = box((0.05, hw * 0.85, 0.15), (L / 2 - 0.012 * L, 0, zl - 0.05))
+    mb.add(vv, f, "plastic")
 
 
 def _cab(mb, x_front, length, hw, z0, z1, glass_from):
@@ -166,7 +203,7 @@ def truck(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
 
 def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     r = float(v.get("wheel_radius", 0.5))
-    hw = W / 2
+    hw = W / 2 - 0.03  # the tyres stand proud of the body in their arches
     z0 = 0.3
     st = [(-L / 2, rounded_section(hw * 0.97, z0 + 0.05, H - 0.05, 0.25, top_half_w=hw * 0.9)),
           (-L / 2 + 0.15, rounded_section(hw, z0, H, 0.25, top_half_w=hw * 0.94)),
@@ -181,8 +218,12 @@ def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "glass")
     vv, f = box((0.04, W * 0.9, 0.86 * H - 0.3 * H), (L / 2 + 0.004, 0, 0.58 * H))
     mb.add(vv, f, "glass")
-    vv, f = box((0.04, W * 0.8, 0.3 * H), (-L / 2 - 0.004, 0, 0.68 * H))
+    vv, f = box((0.04, 2 * hw * 0.85, 0.42 * H), (-L / 2 - 0.004, 0, 0.62 * H))  # large rear window
     mb.add(vv, f, "glass")
+    vv, f = box((0.04, 2 * hw * 0.5, 0.16), (-L / 2 - 0.008, 0, 0.91 * H))  # rear route display
+    mb.add(vv, f, "lamp_sign")
+    vv, f = box((0.02, 0.52, 0.12), (-L / 2 - 0.015, 0, z0 + 0.14))  # number plate on the bumper
+    mb.add(vv, f, "plate")
     # doors on the right (y < 0), full height glass panels
     doors = [L / 2 - 1.2, -0.2, -L / 2 + 2.2][: int(v.get("doors", 3))]
     for x in doors:
@@ -192,7 +233,7 @@ def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     mb.add(vv, f, "lamp_sign")
     vv, f = box((L * 0.25, W * 0.6, 0.2), (-L * 0.1, 0, H + 0.05))  # roof air-conditioning unit
     mb.add(vv, f, "alloy")
-    vv, f = box((L + 0.01, W + 0.01, 0.28), (0, 0, z0 + 0.16))
+    vv, f = box((L + 0.01, 2 * hw + 0.01, 0.28), (0, 0, z0 + 0.16))
     mb.add(vv, f, "plastic")
     for s in (1, -1):
         vv, f = box((0.05, 0.3, 0.15), (L / 2 + 0.01, s * (hw - 0.35), z0 + 0.45))
@@ -201,7 +242,8 @@ def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "lamp_tail")
     for x in (L / 2 - 2.6, -L / 2 + 3.0):
         for s in (1, -1):
-            _wheel(mb, x, s * (hw - 0.2), r, 0.3, "alloy")
+            _wheel(mb, x, s * (hw - 0.13), r, 0.3, "alloy")
+            _arch(mb, x, s * (hw + 0.006), r, s, band=0.09)
 
 
 # ====================================================================== people

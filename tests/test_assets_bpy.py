@@ -135,7 +135,7 @@ def test_twin_builds_with_roles_and_materials(name):
     road = next(ob for ob in coll.objects if ob.name.startswith("road_"))
     asphalt = road.data.materials[0]
     assert any(n.bl_idname == "ShaderNodeTexNoise" for n in asphalt.node_tree.nodes)  # wear patches
-    marks = next(ob for ob in coll.objects if ob.name == "markings")
+    marks = next(ob for ob in coll.objects if ob.name.split(".")[0] == "markings")  # .001 after an earlier build
     z = np.array([v.co.z for v in marks.data.vertices])
     assert z.min() > 0.0 and z.max() < 0.02  # painted on the asphalt
     if name == "demo_town":

@@ -38,7 +38,7 @@ class Runner:
         self.skipped: list[str] = []
         self.warnings: list[str] = []
 
-    def _say(self, k: int, stage: str, what: str) -> None:
+    def _say(self, stage: str, what: str) -> None:
         if self.progress:
             print(f"[{STAGES.index(stage) + 1}/{len(STAGES)}] {stage}: {what}", flush=True)
 
@@ -57,19 +57,19 @@ class Runner:
         job = self.job
         if job.synthetic is None:
             self.skipped.append("record")
-            self._say(1, "record", f"using recording {job.recording_dir}")
+            self._say("record", f"using recording {job.recording_dir}")
             return
         root = job.recording_dir
         if (root / "frames.csv").exists():
             self.skipped.append("record")
-            self._say(1, "record", f"synthetic recording already made ({root})")
+            self._say("record", f"synthetic recording already made ({root})")
             return
         from blendgen.recording.folder import write_frames_csv
         from blendgen.recording.synthetic import clear_sky_lighting, write_sensor_data
 
         twin = self.twin
         s = job.synthetic
-        self._say(1, "record", f"synthetic drive {s.duration_s:g} s at {s.fps:g} fps, "
+        self._say("record", f"synthetic drive {s.duration_s:g} s at {s.fps:g} fps, "
                                f"{s.resolution[0]}x{s.resolution[1]}, Cycles {s.samples} spp -> {root}")
         frame_t = write_sensor_data(root, twin, s, job.seed)
         rec = read_recording(root)
@@ -92,12 +92,12 @@ class Runner:
         job = self.job
         if self.folder.stage_done("sync"):
             self.skipped.append("sync")
-            self._say(2, "sync", f"poses exist ({self.folder.poses_csv})")
+            self._say("sync", f"poses exist ({self.folder.poses_csv})")
             return read_poses(self.folder.poses_csv, rec)
         if job.ground_plane is not None:
             return self._ground_plane_poses(rec)
         lut = job.path(job.sync.lut) if job.sync.lut else self._default_lut()
-        self._say(2, "sync", f"{rec.n_frames} frames, {len(rec.imu)} IMU, {len(rec.gnss)} GNSS samples"
+        self._say("sync", f"{rec.n_frames} frames, {len(rec.imu)} IMU, {len(rec.gnss)} GNSS samples"
                              f"{', LUT ' + str(lut) if lut else ''}")
         result = run_sync(rec, job.sync, self.folder.root, lut_path=lut, georef=self.twin.georef,
                           progress=self.progress)
@@ -114,7 +114,7 @@ class Runner:
         quality = [{"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0, "flags": ["ground_plane"]}
                    for _ in poses]
         write_poses(self.folder.root, SyncResult(poses, np.zeros((len(poses), 6)), quality))
-        self._say(2, "sync", f"ground-plane twin: fixed camera pose for {len(poses)} frames"
+        self._say("sync", f"ground-plane twin: fixed camera pose for {len(poses)} frames"
                              + (" (the analysis stage estimates each frame's)" if self.job.ground_plane.analysis else ""))
         self.folder.mark_stage("sync", {"frames": len(poses), "ground_plane": True})
         return poses
@@ -139,28 +139,29 @@ class Runner:
                             f"recording's {len(poses)}", where="job")
         return sel
 
-    def analysis(self, rec, poses) -> bool:
-        """Ground-plane jobs: camera, hood, road and real road users of every selected frame."""
+    def analysis(self, rec, poses) -> tuple[list, bool]:
+        """Ground-plane jobs: camera, hood, road and real road users of every selected frame.
+        Returns the poses plans use (the analysed camera over the road) and whether it ran."""
         from blendgen.analysis.stage import run_analysis
 
         gp = self.job.ground_plane
         if gp is None or not gp.analysis:
             self.skipped.append("analysis")
-            self._say(3, "analysis", "not needed (twin job)" if gp is None else "off (ground_plane.analysis: false)")
-            return False
+            self._say("analysis", "not needed (twin job)" if gp is None else "off (ground_plane.analysis: false)")
+            return poses, False
         ids = [fid for fid, _, _ in self._selected(poses)]
         if self.folder.stage_done("analysis") and self.folder.stage_info("analysis").get("frames") == ids:
             self.skipped.append("analysis")
-            self._say(3, "analysis", f"analyses exist ({self.folder.analysis})")
-            return True
-        self._say(3, "analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
+            self._say("analysis", f"analyses exist ({self.folder.analysis})")
+            return poses, True  # read back from poses.csv, which holds the analysed poses
+        self._say("analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
         run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
                      detector_model=self.job.path(gp.detector) if gp.detector else None)
-        self._write_analysis_poses(poses, set(ids))
+        poses = self._write_analysis_poses(poses, set(ids))
         self.folder.mark_stage("analysis", {"frames": ids})
-        return True
+        return poses, True
 
-    def _write_analysis_poses(self, poses, ids: set[str]) -> None:
+    def _write_analysis_poses(self, poses, ids: set[str]) -> list:
         """poses.csv/.tum hold what plans and renders use: the analysed frames' camera over
         the ground plane (ego motion for video), the fixed pose for the others."""
         from blendgen.analysis.stage import read_analysis
@@ -173,6 +174,7 @@ class Runner:
             quality.append({"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0,
                             "flags": ["ground_plane"] + (["analysis"] if a is not None else [])})
         write_poses(self.folder.root, SyncResult(out, np.zeros((len(out), 6)), quality))
+        return out
 
     def plan(self, rec, poses, analysed: bool = False) -> list[str]:
         from blendgen.farm.seeds import frame_seed
@@ -183,17 +185,15 @@ class Runner:
         ids = [fid for fid, _, _ in sel]
         if self.folder.stage_done("plan"):
             self.skipped.append("plan")
-            self._say(3, "plan", f"plan exists ({self.folder.plan})")
+            self._say("plan", f"plan exists ({self.folder.plan})")
             self.warnings = self.folder.stage_info("plan").get("warnings", [])
             return ids
         w, h = job.render.resolution or (rec.camera.width, rec.camera.height)
         camera = rec.camera.scaled(w, h)
         real = None
-        if analysed:  # the camera over the real road, and the real frame's constraints
-            from blendgen.analysis.stage import read_analysis
+        if analysed:  # the real frames' constraints: road users, road, hood
             from blendgen.scene.real_scene import load_real_scene
 
-            sel = [(fid, t, np.asarray(read_analysis(self.folder.analysis, fid).T_world_cam)) for fid, t, _ in sel]
             real = load_real_scene(self.folder.analysis, ids, camera)
         # the layout's stream starts from (seed, first frame id): a job starting at another frame
         # gets its own layout, not the same one shifted (README: seed + frame id)
@@ -201,7 +201,7 @@ class Runner:
                               assets=self.assets(), real=real)
         n_obj = sum(len(p.objects) for p in plans)
         self.warnings = unplaced_warnings(plans, job.inject)
-        self._say(3, "plan", f"{len(plans)} frames, {n_obj} objects")
+        self._say("plan", f"{len(plans)} frames, {n_obj} objects")
         for w in self.warnings:
             print(f"  WARNING: {w}", flush=True)
         atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))
@@ -216,7 +216,7 @@ class Runner:
         if not self.job.inject.assets:
             return None
         refs = {result_path(self.folder.state, r).stem: r for r in discover(self.job.asset_paths)}
-        self._say(3, "plan", f"inspecting {len(refs)} library asset(s) in Blender")
+        self._say("plan", f"inspecting {len(refs)} library asset(s) in Blender")
         summary = self._farm("assets", list(refs), "blendgen.render.assets:AssetInspector",
                              {"refs": [r.to_dict() for r in refs.values()], "out_dir": str(self.folder.state)})
         if summary.failed:
@@ -232,7 +232,7 @@ class Runner:
 
     def frames(self, ids: list[str]):
         left = [i for i in ids if not self.folder.frame_done(i, self.job.export.save_exr)]
-        self._say(4, "frames", f"{len(ids) - len(left)} of {len(ids)} done; rendering {len(left)} "
+        self._say("frames", f"{len(ids) - len(left)} of {len(ids)} done; rendering {len(left)} "
                                f"on {self.farm['workers']} {self.farm['engine']} worker(s)")
         if not left:
             self.skipped.append("frames")
@@ -250,9 +250,9 @@ class Runner:
                "yolo_val_fraction": ex.yolo_val_fraction}
         if self.folder.stage_done("export") and self.folder.stage_info("export").get("key") == key:
             self.skipped.append("export")
-            self._say(5, "export", f"labels up to date ({self.folder.labels})")
+            self._say("export", f"labels up to date ({self.folder.labels})")
             return self.folder.stage_info("export").get("result", {})
-        self._say(5, "export", f"{len(done)} frames -> {', '.join(self.job.export.formats)}")
+        self._say("export", f"{len(done)} frames -> {', '.join(self.job.export.formats)}")
         result = export_labels(self.folder.root, done, ex.formats, kitti_types=ex.kitti_types,
                                yolo_val_fraction=ex.yolo_val_fraction, seed=self.job.seed)
         self.folder.mark_stage("export", {"key": key, "result": result})
@@ -264,9 +264,9 @@ class Runner:
         marker = self.folder.root / "report" / "index.md"
         if "export" in self.skipped and marker.exists():
             self.skipped.append("report")
-            self._say(6, "report", f"up to date ({marker})")
+            self._say("report", f"up to date ({marker})")
             return marker
-        self._say(6, "report", f"-> {self.folder.root / 'report'}")
+        self._say("report", f"-> {self.folder.root / 'report'}")
         return build_report(self.folder.root)
 
     def _farm(self, stage: str, items: list[str], processor: str, args: dict):
@@ -312,7 +312,7 @@ class Runner:
         timed("record", self.record)
         rec = getattr(self, "_rec", None) or read_recording(self.job.recording_dir, require_frames=True)
         poses = timed("sync", self.sync, rec)
-        analysed = timed("analysis", self.analysis, rec, poses)
+        poses, analysed = timed("analysis", self.analysis, rec, poses)
         ids = timed("plan", self.plan, rec, poses, analysed)
         farm_summary = timed("frames", self.frames, ids)
         export = timed("export", self.export, ids)

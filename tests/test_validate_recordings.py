@@ -169,8 +169,10 @@ def test_validate_checks_the_recording(tmp_path, capsys, case, mutate, names, ex
     capsys.readouterr()
     mutate(rec)
     rc = main(["validate", str(job)])
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert rc == 2, err
+    assert "valid job" not in out, out  # never called valid before its recording's errors
+    assert (out + err).count("img/4.png") <= 2, out + err  # listed once with the findings, once in the error
     assert expected in err, err
     assert "Traceback" not in err
     named = str(rec if names == "rec" else rec / names)

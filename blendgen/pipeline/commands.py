@@ -56,6 +56,17 @@ def cmd_run(args) -> int:
 
 def cmd_validate(args) -> int:
     job = load_job(args.job)
+    findings = []
+    if job.recording is not None:
+        # the recording is checked before the job is called valid: its errors decide the verdict
+        from blendgen.recording.importers import check_recording, format_findings
+
+        findings = check_recording(job.recording_dir)
+        errors = [str(f.message) for f in findings if f.level == "error"]
+        if errors:
+            print(format_findings(findings))
+            raise UserError(f"the recording {job.recording_dir} has {len(errors)} problem(s):\n  "
+                            + "\n  ".join(errors), where=str(args.job))
     src = f"recording {job.recording_dir}" if job.recording is not None else \
         f"synthetic {job.synthetic.duration_s:g} s at {job.synthetic.fps:g} fps"
     scene = f"twin {job.twin_path}" if job.twin_path else "ground-plane twin"
@@ -70,16 +81,8 @@ def cmd_validate(args) -> int:
         n = Counter(r.sidecar["class"] for r in discover(job.asset_paths))
         print(f"  assets: {sum(n.values())} ({', '.join(f'{c} {k}' for c, k in sorted(n.items()))}); "
               f"headers and sidecars checked, Blender measures them when the job runs")
-    if job.recording is None:
-        return 0
-    from blendgen.recording.importers import check_recording, format_findings
-
-    findings = check_recording(job.recording_dir)
-    print(format_findings(findings))
-    errors = [str(f.message) for f in findings if f.level == "error"]
-    if errors:
-        raise UserError(f"the recording {job.recording_dir} has {len(errors)} problem(s):\n  "
-                        + "\n  ".join(errors), where=str(args.job))
+    if findings:
+        print(format_findings(findings))
     return 0
 
 

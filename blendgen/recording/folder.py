@@ -26,6 +26,7 @@ GT_COLUMNS = ["t", "x", "y", "z", "qw", "qx", "qy", "qz"]
 GNSS_REQUIRED = ["t", "lat", "lon", "alt"]
 GNSS_OPTIONAL = ["heading_deg", "h_std_m"]
 IMU_GAP_FACTOR = 5.0  # an IMU interval this many times the median is reported as a gap
+MISSING_IMAGES = "image file(s) missing"  # the reader's issue text; `import --check` lists each image instead
 
 
 # ----------------------------------------------------------------------------- reading
@@ -175,7 +176,7 @@ def _read_frames(rec: Recording) -> None:
                 missing.append(i)
         if missing:  # those frames fail alone (read_frame names each); the others still work
             rows_s = ", ".join(str(i + 2) for i in missing[:5]) + (" ..." if len(missing) > 5 else "")
-            rec.issues.append(f"{path.name}: {len(missing)} image file(s) missing (rows {rows_s}), "
+            rec.issues.append(f"{path.name}: {len(missing)} {MISSING_IMAGES} (rows {rows_s}), "
                               f"first {quote(files[missing[0]])}")
         rec.frames_t, rec.frame_files = ts, files
     elif header[:2] == ["t", "index"]:

@@ -26,7 +26,7 @@ class Finding:
 
 
 def check_recording(root: str | Path) -> list[Finding]:
-    from blendgen.recording.folder import read_recording
+    from blendgen.recording.folder import MISSING_IMAGES, read_recording
 
     root = Path(root)
     try:
@@ -116,7 +116,10 @@ def check_recording(root: str | Path) -> list[Finding]:
         elif "frames" in spans and "IMU" in spans and (spans["IMU"][0] > spans["frames"][0] + 0.5
                                                         or spans["IMU"][1] < spans["frames"][1] - 0.5):
             out.append(Finding("warn", f"IMU does not cover all frames: {_fmt_spans(spans)}"))
+    images_checked = rec.n_frames and not rec.video and rec.camera is not None
     for issue in rec.issues:
+        if images_checked and MISSING_IMAGES in issue:
+            continue  # already an error per image above
         out.append(Finding("warn", issue))
     for note in meta.get("notes", []) or []:
         out.append(Finding("info", str(note)))

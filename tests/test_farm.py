@@ -560,3 +560,19 @@ def test_bench_ledger_throughput_and_overhead(monkeypatch):
     startup = bench_farm.bench_run("bench_farm:NoopProcessor", {}, 1, 1, 1)
     wall = bench_farm.bench_run("bench_farm:NoopProcessor", {}, 300, 1, 16)
     assert (wall - startup) / 300 < 0.02  # scheduling overhead per frame well under a render
+
+
+def test_deleted_outputs_are_done_again(tmp_path):
+    """The ledger says done, but the user deleted two outputs: those two run again, only those."""
+    out = tmp_path / "job"
+    ids = items(5)
+    s = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)}, progress=False)
+    assert s.ok and s.processed == 5
+    gone = [ids[1], ids[3]]
+    for it in gone:
+        (out / "items" / f"{it}.bin").unlink()
+    s2 = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)}, progress=False,
+                   redo=gone)
+    assert s2.ok and s2.processed == 2 and s2.already_done == 3
+    for it in ids:
+        assert (out / "items" / f"{it}.bin").read_bytes() == expected_bytes(it)

@@ -89,7 +89,7 @@ def read_manifest_items(path: Path, stage: str) -> set[str]:
 
 class Books:
     def __init__(self, out_dir: Path, stage: str, items: list[str], *, chunk: int, engine: str,
-                 workers: int, seed: int, max_attempts: int, progress: bool):
+                 workers: int, seed: int, max_attempts: int, progress: bool, redo=()):
         if not isinstance(stage, str) or not _STAGE.match(stage):
             raise UserError(f"stage must match [A-Za-z0-9_-]+, got {stage!r}", where="farm")
         seen: set[str] = set()
@@ -112,7 +112,7 @@ class Books:
             self.in_manifest = read_manifest_items(self.manifest, stage)
             self.ledger = Ledger(self.out_dir)
             self.run_id, self.task_ids = self.ledger.begin_run(
-                stage, items, chunk, engine, workers, self.in_manifest & seen)
+                stage, items, chunk, engine, workers, (self.in_manifest & seen) - set(redo), redo=set(redo))
         except BaseException:
             self._lock.close()  # let the next attempt in (same process included)
             raise

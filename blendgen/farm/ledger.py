@@ -95,12 +95,13 @@ class Ledger:
 
     # -- runs ------------------------------------------------------------------------------
     def begin_run(self, stage: str, items: list[str], chunk: int, engine: str,
-                  workers: int, manifest_items: set[str]) -> tuple[int, list[int]]:
+                  workers: int, manifest_items: set[str], redo: set[str] = frozenset()) -> tuple[int, list[int]]:
         """Register a run of `stage` over `items` and chunk the unfinished ones into tasks.
 
         Tasks left running or pending by an earlier (crashed or interrupted) run become
         `stale`; their unfinished items are chunked again. Items whose record reached the
-        manifest are done even if the ledger commit after it was lost in a crash.
+        manifest are done even if the ledger commit after it was lost in a crash; items in
+        `redo` (done, but their outputs were deleted) are done again.
         """
         now = time.time()
         c = self.conn
@@ -113,6 +114,9 @@ class Ledger:
         if manifest_items:
             c.executemany("UPDATE items SET state='done', in_manifest=1 WHERE stage=? AND "
                           "item=? AND state!='done'", ((stage, it) for it in manifest_items))
+        if redo:
+            c.executemany("UPDATE items SET state='pending', in_manifest=0 WHERE stage=? AND item=?",
+                          ((stage, it) for it in redo))
         cur = c.execute("INSERT INTO runs(stage, engine, workers, host, pid, started, heartbeat,"
                         " state, n_items) VALUES(?,?,?,?,?,?,?,'running',?)",
                         (stage, engine, workers, socket.gethostname(), os.getpid(), now, now,

@@ -16,11 +16,13 @@ ENGINES = ("local", "ray")
 def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
               processor_args: dict, *, engine: str = "local", workers: int = 1, chunk: int = 4,
               max_attempts: int = 3, recycle_after: int = 200, max_rss_mb: int = 6000,
-              address: str | None = None, progress: bool = True, seed: int = 0) -> FarmSummary:
+              address: str | None = None, progress: bool = True, seed: int = 0,
+              redo=()) -> FarmSummary:
     """Run `processor` over `items` (frame ids) in chunks of `chunk`, resuming from the ledger.
 
     Items already done in `OUT/.blendgen/ledger.sqlite` (or recorded in `OUT/manifest.jsonl`)
-    are not dispatched; workers also skip items whose `is_done(item)` is true. Returns a
+    are not dispatched, except those in `redo` (their outputs are gone); workers also skip
+    items whose `is_done(item)` is true. Returns a
     `FarmSummary`; failed tasks (after `max_attempts`) are listed in `summary.failed` with
     their error and log, and `summary.ok` is False. Ctrl-C kills the workers, gives their
     tasks back, and re-raises KeyboardInterrupt: running again resumes.
@@ -40,7 +42,7 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
     except TypeError as e:
         raise UserError(f"processor_args must be JSON-able ({e})", where="farm") from e
     books = Books(Path(out_dir), stage, list(items), chunk=chunk, engine=engine,
-                  workers=workers, seed=seed, max_attempts=max_attempts, progress=progress)
+                  workers=workers, seed=seed, max_attempts=max_attempts, progress=progress, redo=redo)
     # Workers' temp files (Blender's, the render session's) go under OUT, not /tmp, so that
     # what a killed worker leaves is removed here: before (a killed earlier run) and after.
     tmp = books.tmp_dir

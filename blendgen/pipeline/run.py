@@ -237,8 +237,9 @@ class Runner:
         if not left:
             self.skipped.append("frames")
             return None
+        # frames whose files were deleted are rendered again, whatever the ledger says
         return self._farm("frames", ids, "blendgen.pipeline.frame:FrameProcessor",
-                          {"job": self.job.resolved(), "out_dir": str(self.folder.root)})
+                          {"job": self.job.resolved(), "out_dir": str(self.folder.root)}, redo=left)
 
     def export(self, ids: list[str]) -> dict:
         from blendgen.labels.export import export_labels
@@ -269,11 +270,11 @@ class Runner:
         self._say("report", f"-> {self.folder.root / 'report'}")
         return build_report(self.folder.root)
 
-    def _farm(self, stage: str, items: list[str], processor: str, args: dict):
+    def _farm(self, stage: str, items: list[str], processor: str, args: dict, redo=()):
         from blendgen.farm import run_tasks
 
         return run_tasks(self.folder.root, stage, items, processor, args, progress=self.progress,
-                         seed=self.job.seed, **self.farm)
+                         seed=self.job.seed, redo=redo, **self.farm)
 
     # ------------------------------------------------------------------ run
     def run(self) -> dict:

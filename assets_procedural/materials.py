@@ -138,8 +138,10 @@ def hair(color):
 
 
 def lamp(color, strength):
-    """A light: emission in `color` (signal lamps)."""
-    return principled(_key(f"lamp{strength:g}", color), [c * 0.3 for c in color], roughness=0.1,
+    """A light: emission in `color` (signal lamps). An unlit lens is dark glass with a tint:
+    a diffuse colour of 0.3 read as a lit lamp in daylight on real photos."""
+    base = 0.3 if strength >= 1.0 else 0.04
+    return principled(_key(f"lamp{strength:g}", color), [c * base for c in color], roughness=0.1,
                       emission=color, emission_strength=strength, coat=1.0)
 
 

@@ -4,7 +4,9 @@
 (fitted to `obj.dims`, the tight box), assigns PBR materials and returns a single mesh
 object: origin at the centre of the bottom face, placed at `obj.position` turned by `obj.yaw`,
 `pass_index = obj.id`. A traffic light is the signal head only (labels box the head, as
-COCO does); it is mounted on the signal pole the twin builds at each intersection slot.
+COCO does); it is mounted on the signal pole the twin builds at each intersection slot, or,
+in a ground-plane scene (`variant["pole"]`), on a pole of its own: a child object marked
+`blendgen_scenery`, which the render driver gives the id SCENERY_ID + id.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import numpy as np
 import bpy
 
 from assets_procedural import materials as M
-from assets_procedural.shapes import LAMP_COLORS, build_shape
+from assets_procedural.shapes import LAMP_COLORS, build_shape, traffic_light_pole
 from blendgen.scene.catalog import sample_variant
 from blendgen.scene.plan import PlacedObject
 
@@ -98,6 +100,13 @@ def build_object(obj: PlacedObject, collection=None):
     root["blendgen_id"] = int(obj.id)
     root["blendgen_cls"] = obj.cls
     _link(root, collection)
+    if obj.cls == "traffic light" and obj.variant.get("pole"):  # ground-plane scenes bring their own pole
+        L, _, H = obj.variant.get("shape_dims", obj.dims)
+        pm = traffic_light_pole(obj.variant, L, H)
+        pole = bpy.data.objects.new(f"{name}_pole", pm.to_mesh(f"{name}_pole", _materials(obj, pm.slots)))
+        pole.parent = root
+        pole["blendgen_scenery"] = True  # rendered with id SCENERY_ID + id: composited, never labelled
+        _link(pole, collection)
     return root
 
 

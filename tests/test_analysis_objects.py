@@ -118,6 +118,38 @@ def test_bdd_parked_cars_get_no_overlapping_placement(detector):
     assert placed >= 8
 
 
+def test_ground_plane_traffic_light_stands_on_its_own_pole_off_the_road(detector):
+    """BDD day: a traffic light goes on a pole beyond the estimated road edge, facing the
+    ego traffic, never behind a real object or on the hood; the pole is not a plan object."""
+    if not BDD_DAY.is_file():
+        pytest.skip(f"needs {BDD_DAY}")
+    from blendgen.analysis.hood import hood_in_still
+    from blendgen.analysis.road import ROAD
+    from blendgen.render.effects import base_z, object_points
+
+    img = cv2.imread(str(BDD_DAY))
+    cam = Camera.from_hfov(1280, 720, 60.0)
+    hood, _ = hood_in_still(img)
+    fa, mask = stage.analyse_frame(img, "f000000", cam, EST, detector, hood=hood)
+    real = RealScene([RealFrame(fa, mask, stage.hood_mask(fa.hood, 1280, 720))], cam)
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-5.0, analysis=True))
+    inject = Inject(objects_per_frame=(2, 2), classes={"traffic light": 1}, distance_m=(6, 35), sequences=False)
+    lights = []
+    for seed in range(5):  # a street lined with parked cars: some seeds find no free kerb spot
+        plans = plan_sequence(twin, cam, [("f000000", 0.0, np.asarray(fa.T_world_cam))], inject, seed, real=real)
+        lights += [(plans[0], o) for o in plans[0].objects]
+    assert len(lights) >= 3 and all(o.cls == "traffic light" and o.variant["pole"] for _, o in lights)
+    for plan, o in lights:
+        T = np.asarray(plan.T_world_cam)
+        assert abs(base_z(o)) < 1e-6  # the pole's foot is on the ground plane
+        foot, _ = cam.project_world(T, object_points(o, None)[0][8:])
+        u, v = np.round(foot.mean(0)).astype(int)
+        if 0 <= u < 1280 and 0 <= v < 720:
+            assert mask[v * mask.shape[0] // 720, u * mask.shape[1] // 1280] != ROAD, "pole on the road"
+        ego_yaw = np.arctan2(T[1, 2], T[0, 2])  # the camera's optical axis on the ground
+        assert np.cos(o.yaw - ego_yaw) < -0.95  # the lamps face the ego traffic
+
+
 def test_traffic_lights_that_cannot_be_placed_warn():
     twin = GroundPlaneTwin()
     cam = Camera.from_hfov(480, 270, 70.0)

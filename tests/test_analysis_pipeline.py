@@ -10,8 +10,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import pytest
 import yaml
+
+from blendgen.scene.plan import SCENERY_ID
 
 pytestmark = [pytest.mark.bpy, pytest.mark.data]
 DATA = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
@@ -36,7 +39,7 @@ def test_dashcam_photos_job_analyses_plans_and_resumes(tmp_path):
         "export": {"formats": ["coco"], "min_visible_px": 4}, "output": "out"}))
     r = cli("run", str(job))
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert "[3/7] analysis" in r.stdout and "WARNING: class 'traffic light'" in r.stdout
+    assert "[3/7] analysis" in r.stdout and "WARNING: class 'traffic light'" not in r.stdout
     out = tmp_path / "out"
     ids = sorted(p.stem for p in (out / "analysis").glob("f*.json"))
     assert ids == ["f000000", "f000001", "f000002"]
@@ -49,8 +52,11 @@ def test_dashcam_photos_job_analyses_plans_and_resumes(tmp_path):
     labels = [json.loads((out / "frames" / f / "labels.json").read_text()) for f in ids]
     inst = [i for lab in labels for i in lab["instances"]]
     assert inst and all("covers_real" in i for i in inst)
-    summary = json.loads((out / "run_summary.json").read_text())
-    assert any("traffic light" in w for w in summary["warnings"])
+    # traffic lights stand on poles of their own beside the road: the pole is drawn, never labelled
+    plans = [json.loads(x) for x in (out / "plan.jsonl").read_text().splitlines() if x]
+    assert any(o["cls"] == "traffic light" and o["variant"]["pole"] for p in plans for o in p["objects"])
+    for fid in ids:
+        assert cv2.imread(str(out / "frames" / fid / "instances.png"), cv2.IMREAD_UNCHANGED).max() < SCENERY_ID
 
     r2 = cli("run", str(job))
     assert r2.returncode == 0, r2.stderr[-2000:]

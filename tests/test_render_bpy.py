@@ -280,3 +280,31 @@ def test_real_twin_and_objects(tmp_path):
         assert (tmp_path / "town.png").stat().st_size > 1000 and bg["samples"] == 2
     finally:
         s.close()
+
+
+def test_signal_pole_is_composited_but_not_labelled(tmp_path):
+    """A ground-plane traffic light brings its pole: the pole renders with id SCENERY_ID + id
+    (composited), the labels box the head only, and the amodal count is the head's."""
+    pytest.importorskip("assets_procedural.objects")
+    from blendgen.labels.instances import extract_instances
+    from blendgen.render.session import RenderSession
+    from blendgen.scene.catalog import sample_variant
+    from blendgen.scene.plan import SCENERY_ID
+
+    variant, dims = sample_variant("traffic light", np.random.default_rng(3))
+    variant["pole"] = True
+    head = PlacedObject(5, "traffic light", (12.0, 2.0, variant["mount_height_m"]), np.pi, dims, variant, state="red")
+    cam = Camera.from_hfov(160, 90, 60)
+    s = RenderSession(None, None, Render(samples=4, denoise=False), cam)
+    try:
+        info = s.render_frame(FramePlan("t", 0.0, T.tolist(), [head], SUN), tmp_path / "t.exr", {"rgba", "index"})
+    finally:
+        s.close()
+    idx = read_passes(tmp_path / "t.exr")["index"]
+    assert set(np.unique(idx)) == {0, 5, SCENERY_ID + 5}
+    ys_pole, _ = np.nonzero(idx == SCENERY_ID + 5)
+    ys_head, _ = np.nonzero(idx == 5)
+    assert ys_pole.max() > ys_head.max() + 10  # the pole reaches down toward the ground
+    inst = extract_instances(idx, FramePlan("t", 0.0, T.tolist(), [head]), cam, min_visible_px=1)
+    assert [i["id"] for i in inst] == [5] and inst[0]["area"] == int((idx == 5).sum())
+    assert abs(info["amodal_px"][5] - inst[0]["area"]) <= max(2, 0.05 * inst[0]["area"])

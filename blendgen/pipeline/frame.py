@@ -21,7 +21,7 @@ from blendgen.farm.seeds import frame_seed
 from blendgen.job.schema import parse_job
 from blendgen.pipeline.outputs import JobFolder
 from blendgen.recording.folder import read_frame, read_recording
-from blendgen.scene.plan import FramePlan
+from blendgen.scene.plan import SCENERY_ID, FramePlan
 
 
 def render_outputs(job) -> set[str]:
@@ -119,7 +119,9 @@ class FrameProcessor:
         instances = extract_instances(index, plan, self.camera, amodal_px=info.get("amodal_px"),
                                       min_visible_px=job.export.min_visible_px,
                                       small_objects=job.export.small_objects, real_boxes=real_boxes)
-        atomic.write_image(fdir / "instances.png", np.clip(index, 0, 65535).astype(np.uint16))
+        # the instance image holds labelled objects only (scenery such as a signal pole is not one)
+        atomic.write_image(fdir / "instances.png", np.where(index >= SCENERY_ID, 0, np.clip(index, 0, None))
+                           .astype(np.uint16))
         atomic.write_image(fdir / "composite.png", composite)
         # labels.json last: its presence (with the others) marks the frame finished.
         write_frame_labels(fdir / "labels.json", frame_id, f"frames/{frame_id}/composite.png",

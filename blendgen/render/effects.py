@@ -89,10 +89,21 @@ def shadow_points(corners: np.ndarray, sun_dir: np.ndarray | None, ground_z: flo
     return pts
 
 
+def base_z(obj: PlacedObject) -> float:
+    """The ground height under an object: a traffic light's head hangs mount_height_m above it."""
+    hang = obj.variant.get("mount_height_m", 0.0) if obj.cls == "traffic light" else 0.0
+    return float(obj.position[2]) - float(hang)
+
+
 def object_points(obj: PlacedObject, sun_dir: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """(box corners 8x3, shadow points Nx3) in the world frame."""
+    """(box corners Nx3, shadow points Nx3) in the world frame."""
     corners = obj.box_corners_world()
-    return corners, shadow_points(corners, sun_dir, float(obj.position[2]))
+    base = base_z(obj)
+    if obj.variant.get("pole"):  # a signal head on its own pole: the drawn pole reaches the ground
+        foot = corners[::2].copy()
+        foot[:, 2] = base
+        corners = np.vstack([corners, foot])
+    return corners, shadow_points(corners, sun_dir, base)
 
 
 def _to_cam(T_world_cam, X) -> np.ndarray:
@@ -223,7 +234,7 @@ def catcher_patches(objects, sun_dir: np.ndarray | None, margin_m: float = 0.4) 
             area = 0.5 * np.sum(hull[:, 0] * np.roll(hull[:, 1], -1) - np.roll(hull[:, 0], -1) * hull[:, 1])
             if area < 0:
                 hull = hull[::-1]
-            out.append(np.c_[hull, np.full(len(hull), float(obj.position[2]))])
+            out.append(np.c_[hull, np.full(len(hull), base_z(obj))])
     return out
 
 

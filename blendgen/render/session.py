@@ -27,7 +27,7 @@ from blendgen.render import effects as fx
 from blendgen.render.exr import empty_passes, read_passes, write_passes
 from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
 from blendgen.render.raster import rasterize_mask
-from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.scene.plan import SCENERY_ID, FramePlan, PlacedObject
 
 GROUND_ROLES = {"road", "sidewalk", "marking"}
 HOLDOUT_ROLES = {"structure", "vegetation"}
@@ -334,7 +334,7 @@ class RenderSession:
         for ob in [root, *root.children_recursive]:
             if ob.name not in self.scene.objects:
                 self.scene.collection.objects.link(ob)
-            ob.pass_index = int(obj.id)
+            ob.pass_index = int(obj.id) + (SCENERY_ID if ob.get("blendgen_scenery") else 0)
         return root, blocks
 
     def _remove(self, placed: _Placed):
@@ -462,7 +462,7 @@ class RenderSession:
         inv_root = np.array(p.root.matrix_world.inverted())
         verts, tris, n = [], [], 0
         for ob in p.hierarchy():
-            if ob.type not in MESHLIKE:
+            if ob.type not in MESHLIKE or ob.get("blendgen_scenery"):
                 continue
             ev = ob.evaluated_get(depsgraph)
             me = ev.to_mesh()

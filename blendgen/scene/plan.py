@@ -3,7 +3,9 @@
 Object local frame: x forward, y left, z up, origin at the centre of the bottom face.
 `yaw` turns local x toward world +y. `id` is the track id: it is the object's identity
 across frames, its Blender `pass_index` and its value in the instance-id image (0 is
-background), so it must be 1..65535.
+background), so it must be 1..SCENERY_ID-1. Scenery an object brings with it (the pole of a
+traffic light in a ground-plane scene) is rendered with id SCENERY_ID + id: composited like
+the object, never labelled (labels list plan objects only).
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from typing import Any
 import numpy as np
 
 from blendgen import CLASSES
+
+SCENERY_ID = 16384  # Blender's pass_index stops at 32767: objects 1..16383, their scenery 16384 + id
 
 
 @dataclass
@@ -31,8 +35,8 @@ class PlacedObject:
     def __post_init__(self):
         if self.cls not in CLASSES:
             raise ValueError(f"unknown class {self.cls!r}; expected one of {sorted(CLASSES)}")
-        if not 1 <= int(self.id) <= 65535:
-            raise ValueError(f"object id {self.id} outside 1..65535")
+        if not 1 <= int(self.id) < SCENERY_ID:
+            raise ValueError(f"object id {self.id} outside 1..{SCENERY_ID - 1}")
 
     def box_corners_world(self) -> np.ndarray:
         """The 8 corners of the object's 3D box in world coordinates (8x3)."""

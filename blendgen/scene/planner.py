@@ -24,7 +24,7 @@ import numpy as np
 from blendgen.geometry import Camera, yaw_of_camera
 from blendgen.scene.catalog import SPEED, sample_variant
 from blendgen.scene.geom2d import convex_overlap, point_in_convex, wrap_angle
-from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.scene.plan import SCENERY_ID, FramePlan, PlacedObject
 from blendgen.scene.riders import split_rider
 from blendgen.scene.real_scene import BAND, ROAD, ROAD_EDGE
 from blendgen.scene.twin import Twin
@@ -41,6 +41,7 @@ SCENARIO_PERIOD_S = 8.0   # a scenario whose actors are gone is re-staged after 
 SCENARIO_RETRY_S = 1.0
 SIGNAL_CYCLE = (("green", 12.0), ("amber", 3.0), ("red", 15.0))
 VEHICLES = ("car", "bus", "truck", "motorcycle")
+POLE_OFF_ROAD_M = (0.8, 2.0)  # a ground-plane signal pole stands this far beyond the road edge
 
 
 @dataclass
@@ -204,8 +205,10 @@ class Planner:
         if self.real is not None:
             crossing = tr.scenario in ("jaywalker", "occluded_pedestrian")
             for i, k in enumerate(range(tr.k0, tr.k1)):
-                why = self.real.reject(k, self.ego.T[k], tr.cls, tr.corners[i], tr.z[i], tr.dims[2],
-                                       crossing=crossing)
+                z, h = tr.z[i], tr.dims[2]
+                if tr.variant.get("pole"):  # its pole is drawn: checked from the ground up
+                    z, h = z - tr.variant["mount_height_m"], h + tr.variant["mount_height_m"]
+                why = self.real.reject(k, self.ego.T[k], tr.cls, tr.corners[i], z, h, crossing=crossing)
                 if why:
                     self.reason = why
                     return True
@@ -294,10 +297,10 @@ class Planner:
 
     def accept(self, tr: Track) -> Track:
         tr.id = self.next_id
-        self.next_id = self.next_id % 65535 + 1
+        self.next_id = self.next_id % (SCENERY_ID - 1) + 1
         if "rider" in tr.variant:
             tr.rider_id = self.next_id
-            self.next_id = self.next_id % 65535 + 1
+            self.next_id = self.next_id % (SCENERY_ID - 1) + 1
         self.tracks.append(tr)
         return tr
 
@@ -425,7 +428,7 @@ class Planner:
     def _spawn_signal(self, variant, dims, k):
         slots = self.twin.signal_slots
         if not slots:
-            return None
+            return self._spawn_signal_on_pole(variant, dims, k) if self.real is not None else None
         sl = slots[int(self.rng.integers(len(slots)))]
         z = self.twin.ground_height(sl.x, sl.y) + variant["mount_height_m"]
         # the head hangs in front of the slot's signal pole (radius 0.07 m), facing the traffic
@@ -435,6 +438,29 @@ class Planner:
         offset = float(self.rng.uniform(0, sum(d for _, d in SIGNAL_CYCLE)))
         states = [signal_state(t + offset) for t in tt]
         return self.static_track(k, "traffic light", variant, dims, xy, sl.yaw, z, states=states)
+
+    def _spawn_signal_on_pole(self, variant, dims, k):
+        """Ground-plane scenes: the head on a pole of its own just beyond the road edge, facing
+        the ego traffic. The pole is rendered and composited but never labelled (COCO boxes the
+        head), so it may not stand behind a real object or on the road (RealScene.reject)."""
+        T = self.ego.T[k]
+        p = self.real.sample_ground(k, ROAD_EDGE, T, self.rng, max(self.d0, 8.0), self.d1)
+        if p is None:
+            self.reason = f"no road edge between {max(self.d0, 8.0):g} and {self.d1:g} m to stand a signal pole at"
+            return None
+        fwd = np.array([math.cos(self.ego.yaw[k]), math.sin(self.ego.yaw[k])])
+        side = 1.0 if fwd[0] * (p[1] - T[1, 3]) - fwd[1] * (p[0] - T[0, 3]) > 0 else -1.0
+        out = side * np.array([-fwd[1], fwd[0]])  # away from the road, on the edge's side
+        pole = p + out * self.rng.uniform(*POLE_OFF_ROAD_M)
+        variant = {**variant, "pole": True}
+        # the head hangs in front of its pole (radius 0.06 m), facing against the ego heading
+        yaw = float(self.ego.yaw[k] + math.pi)
+        xy = pole + (dims[0] / 2 + 0.07) * np.array([math.cos(yaw), math.sin(yaw)])
+        z = self.twin.ground_height(*xy) + variant["mount_height_m"]
+        tt = self.times[k:] if self.inject.sequences else self.times[k:k + 1]
+        offset = float(self.rng.uniform(0, sum(d for _, d in SIGNAL_CYCLE)))
+        return self.static_track(k, "traffic light", variant, dims, xy, yaw, z,
+                                 states=[signal_state(t + offset) for t in tt])
 
     # ------------------------------------------------------------ scenarios
     def stage_scenario(self, name: str, k: int) -> list[Track]:
@@ -660,7 +686,7 @@ class Planner:
         return plans
 
 
-NO_PLACE = {"traffic light": "no signal pole or intersection slot in the scene to mount a traffic light on",
+NO_PLACE = {"traffic light": "no signal pole, intersection slot or estimated road edge to mount a traffic light at",
             "person": "no sidewalk, band or crosswalk near the sampled point",
             None: "no lane near the sampled point"}
 

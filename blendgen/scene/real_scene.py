@@ -5,7 +5,8 @@ bands and hood, read from the analysis stage's files.
 None: inside a real road user's footprint; behind a real one in the image (there is no
 pixel-exact mask of the real object to put in front of it); touching the hood; a
 vehicle's wheel off the estimated road; a pedestrian outside the bands beside the road
-(unless crossing). A virtual object in front of a real one is allowed: it covers it.
+(unless crossing); a traffic light's pole on the road. A virtual object in front of a real
+one is allowed: it covers it.
 """
 
 from __future__ import annotations
@@ -70,8 +71,6 @@ class RealScene:
             iy = max(0.0, min(hi[1], y + h) - max(lo[1], y))
             if ix * iy > MIN_IMAGE_OVERLAP * area and (o.distance_m is None or near >= o.distance_m):
                 return f"behind a real {o.cls} (it would be drawn over it)"
-        if cls == "traffic light":
-            return None  # mounted on a pole: no ground contact to check
         contact, cin = self._pixels(rf, T, np.column_stack([_inset(corners), np.full(4, z)]))
         ci = np.clip(np.round(contact).astype(int), 0, [rf.fa.width - 1, rf.fa.height - 1])
         if rf.hood is not None and (rf.hood[ci[cin, 1], ci[cin, 0]]).any():
@@ -79,6 +78,8 @@ class RealScene:
         if rf.road is None:
             return None
         vals = rf.road[ci[cin, 1], ci[cin, 0]]
+        if cls == "traffic light" and (vals == ROAD).any():
+            return "its pole would stand on the estimated road"
         if cls in WHEELED and (vals != ROAD).any():
             return "a wheel off the estimated road"
         if cls == "person" and not crossing and (vals != BAND).all():

@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import atomic  # noqa: E402
-from blendgen.analysis.road import ROAD  # noqa: E402
+from blendgen.analysis.road import BAND, ROAD  # noqa: E402
 from blendgen.analysis.stage import hood_mask, read_analysis, read_road_mask  # noqa: E402
 from blendgen.job.schema import parse_job  # noqa: E402
 from blendgen.labels.frame_labels import read_frame_labels  # noqa: E402
@@ -51,7 +51,7 @@ from blendgen.scene.real_scene import WHEELED, _inset  # noqa: E402
 # ../shared/data beside the project (BLENDGEN_SHARED_DATA overrides, e.g. from a git worktree)
 REAL = Path(os.environ.get("BLENDGEN_SHARED_DATA", ROOT.parent / "shared" / "data")) / "real"
 TMP = ROOT / "benchmarks" / "results" / "tmp" / "placement"
-CLASSES = {"car": 3, "truck": 1, "bus": 1, "person": 2, "motorcycle": 1, "bicycle": 1}
+CLASSES = {"car": 3, "truck": 1, "bus": 1, "person": 2, "motorcycle": 1, "bicycle": 1, "traffic light": 1}
 # name: (importer, source, hfov, ground_plane values a careful user would set by eye, frames, sequences)
 DATASETS = {
     "udacity_highway_images": ("images", "udacity_highway_images", 55, {"camera_height_m": 1.4, "pitch_deg": -1.0},
@@ -95,7 +95,8 @@ def score(out: Path, ref: Path, det, rec) -> dict:
     from blendgen.eval.realism import score_output
 
     plans = load_plans(out / "plan.jsonl")
-    n = {"objects": 0, "inside_or_behind": 0, "in_front": 0, "vehicles": 0, "off_road": 0, "on_hood": 0}
+    n = {"objects": 0, "inside_or_behind": 0, "in_front": 0, "vehicles": 0, "off_road": 0, "on_hood": 0,
+         "persons": 0, "off_walkable": 0, "traffic_lights": 0}
     for lp in sorted((out / "frames").glob("*/labels.json")):
         fr = read_frame_labels(lp)
         fa = read_analysis(ref, fr["frame_id"])
@@ -135,6 +136,10 @@ def score(out: Path, ref: Path, det, rec) -> dict:
             px = uv[inside]
             if hood is not None and o.cls != "traffic light" and hood[px[:, 1], px[:, 0]].any():
                 n["on_hood"] += 1
+            n["traffic_lights"] += o.cls == "traffic light"
+            if o.cls == "person" and o.scenario is None:  # crossing pedestrians stand on the road
+                n["persons"] += 1
+                n["off_walkable"] += road is None or bool(len(px)) and (road[px[:, 1], px[:, 0]] != BAND).all()
             if o.cls in WHEELED:
                 n["vehicles"] += 1
                 # farther than the road estimate reaches is unknown, not off road (the far
@@ -309,8 +314,9 @@ def main() -> None:
 
 def make_table(results: dict) -> str:
     lines = ["| data set | path | objects | inside/behind real | in front of real | vehicles | wheel off road "
-             "| on hood | YOLOX recall@0.5 [95 % CI] | analysis CPU s/frame (median, max) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| on hood | persons | off walkable band | traffic lights | YOLOX recall@0.5 [95 % CI] "
+             "| analysis CPU s/frame (median, max) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
         if name == "camera_accuracy":
             continue
@@ -319,7 +325,8 @@ def make_table(results: dict) -> str:
             m = r[path]
             t = f"{np.median(cpu):.3f}, {np.max(cpu):.3f}" if path == "new" and cpu else "-"
             lines.append(f"| {name} | {path.upper()} | {m['objects']} | {m['inside_or_behind']} | {m['in_front']} | "
-                         f"{m['vehicles']} | {m['off_road']} | {m['on_hood']} | {m['recall']:.2f} "
+                         f"{m['vehicles']} | {m['off_road']} | {m['on_hood']} | {m.get('persons', '-')} | "
+                         f"{m.get('off_walkable', '-')} | {m.get('traffic_lights', '-')} | {m['recall']:.2f} "
                          f"[{m['recall_ci'][0]:.2f}, {m['recall_ci'][1]:.2f}] (n {m['recall_n']}) | {t} |")
     return "\n".join(lines)
 

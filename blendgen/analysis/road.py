@@ -6,8 +6,11 @@ horizon, above the hood, outside the detected road users; the connected part tha
 the seed, closed over lane markings and filled between its edges row by row. A user mask
 `masks/road/<frame_id>.png` in the recording (non-zero = road) replaces the estimate.
 
-Bands: the ground beside the road up to `BAND_M` metres on either side (sidewalks,
-verges, parking lanes): where pedestrians may stand and traffic-light poles go.
+Walkable bands: within `BAND_M` metres beside the road, the ground that looks like a pavement
+(sidewalk, plaza, snow-covered verge): the road's chroma (lit by the same light, so night
+tints cancel), smooth, and clearly lighter or darker than the asphalt. That last test keeps
+pedestrians off a highway's asphalt shoulder; grass, dry verges, gravel and barriers fail the
+chroma or texture test. A user mask `masks/sidewalk/<frame_id>.png` replaces the estimate.
 
 Direction: the vanishing point of the road's long lines (lane markings, edges) on the
 horizon, back-projected to a yaw relative to the camera's heading; the road's centreline
@@ -35,18 +38,21 @@ MIN_STD_LAB = (5.0, 2.5, 2.5)   # floor on the seed's spread: flat seeds would r
 MIN_SEED_PX = 60
 MIN_SEED_L = 8.0        # OpenCV Lab lightness 0..255; the BDD night street's asphalt is ~30
 MAX_ROAD_YAW_DEG = 35.0
+WALK_MAX_CHROMA = 7.0   # Lab a*b* distance to the road's median chroma (OpenCV units)
+WALK_MIN_DL = 25.0      # lightness step to the asphalt: concrete vs asphalt by day, not shoulder vs lane
+WALK_MIN_AREA = 0.001   # of the frame: smaller walkable specks are noise
 
 
-def user_road_mask(recording_dir: Path, frame_id: str, size: tuple[int, int]) -> np.ndarray | None:
-    """The user's road mask for a frame (bool HxW), or None when there is none."""
-    p = Path(recording_dir) / "masks" / "road" / f"{frame_id}.png"
+def user_mask(recording_dir: Path, kind: str, frame_id: str, size: tuple[int, int]) -> np.ndarray | None:
+    """The user's `masks/<kind>/<frame_id>.png` (road, sidewalk) as bool HxW, or None."""
+    p = Path(recording_dir) / "masks" / kind / f"{frame_id}.png"
     if not p.is_file():
         return None
     m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
     if m is None:
         from blendgen.errors import UserError
 
-        raise UserError("not a readable PNG road mask", where=str(p))
+        raise UserError(f"not a readable PNG {kind} mask", where=str(p))
     if m.shape[::-1] != tuple(size):
         m = cv2.resize(m, tuple(size), interpolation=cv2.INTER_NEAREST)
     return m > 0
@@ -90,8 +96,7 @@ def estimate_road(image: np.ndarray, horizon, hood_mask: np.ndarray | None, boxe
     cov = np.cov((px - mu).T) + np.diag(np.square(MIN_STD_LAB))
     d = lab.reshape(-1, 3) - mu
     mahal = np.sqrt(np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d)).reshape(h, w)
-    L = lab[..., 0]
-    texture = np.sqrt(np.maximum(cv2.blur(L * L, (5, 5)) - cv2.blur(L, (5, 5)) ** 2, 0))
+    texture = _texture(lab[..., 0])
     tex_max = max(3.0, 2.0 * float(np.percentile(texture[seed], 90)))
     # painted markings (thin bright or yellow stripes) are road too: they must not cut the
     # oncoming lane off the seed's lane
@@ -136,6 +141,45 @@ def bands(road: np.ndarray, camera: Camera, T_world_cam: np.ndarray, blocked: np
         out[r, max(0, a - bw):a] = True
         out[r, b + 1:min(W, b + 1 + bw)] = True
     return out & ~road & ~blocked
+
+
+def _texture(L: np.ndarray) -> np.ndarray:
+    """Local standard deviation of lightness in a 5x5 window."""
+    return np.sqrt(np.maximum(cv2.blur(L * L, (5, 5)) - cv2.blur(L, (5, 5)) ** 2, 0))
+
+
+def walkable(image: np.ndarray, band: np.ndarray, road: np.ndarray) -> tuple[np.ndarray, str]:
+    """(the band pixels that look like a pavement, bool HxW; how many)."""
+    H, W = image.shape[:2]
+    if not band.any() or not road.any():
+        return np.zeros((H, W), bool), "no band beside the road"
+    s = WORK_W / W
+    h = int(round(H * s))
+    small = cv2.resize(image, (WORK_W, h), interpolation=cv2.INTER_AREA)
+    lab = cv2.cvtColor(cv2.GaussianBlur(small, (5, 5), 0), cv2.COLOR_BGR2LAB).astype(np.float32)
+    b = cv2.resize(band.astype(np.uint8), (WORK_W, h), interpolation=cv2.INTER_NEAREST) > 0
+    r = cv2.resize(road.astype(np.uint8), (WORK_W, h), interpolation=cv2.INTER_NEAREST) > 0
+    if not r.any():
+        return np.zeros((H, W), bool), "the road is too small to compare the band with"
+    L = lab[..., 0]
+    tex = _texture(L)
+    l_road = L[r]
+    l0 = float(np.median(l_road))
+    # the asphalt's own lightness spread (robust: headlight glare at night is in it)
+    step = max(WALK_MIN_DL, 1.5 * 1.4826 * float(np.median(np.abs(l_road - l0))))
+    chroma = np.linalg.norm(lab[..., 1:] - np.median(lab[r][:, 1:], axis=0), axis=-1)
+    smooth = tex < max(6.0, 2.0 * float(np.percentile(tex[r], 75)))
+    walk = b & (chroma < WALK_MAX_CHROMA) & smooth & (np.abs(L - l0) > step)
+    walk = cv2.morphologyEx(walk.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    n, cc, st, _ = cv2.connectedComponentsWithStats(walk, connectivity=4)
+    keep = np.zeros(n, bool)
+    keep[1:] = st[1:, cv2.CC_STAT_AREA] >= WALK_MIN_AREA * WORK_W * h
+    walk = keep[cc]
+    frac = float(walk.mean()) / max(float(b.mean()), 1e-9)
+    how = (f"{frac:.0%} of the band looks like a pavement (road chroma, smooth, lightness step > {step:.0f})"
+           if walk.any() else "nothing beside the road looks like a pavement (grass, gravel, barrier or "
+                              "asphalt shoulder): no pedestrians beside this road")
+    return cv2.resize(walk.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST) > 0, how
 
 
 def road_direction(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_world_cam: np.ndarray,

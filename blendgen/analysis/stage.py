@@ -47,11 +47,12 @@ def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
 
 
 def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraEstimate, detector, *,
-                  horizon=None, hood=None, user_road: np.ndarray | None = None,
+                  horizon=None, hood=None, user_road: np.ndarray | None = None, user_walk: np.ndarray | None = None,
                   T_world_cam: np.ndarray | None = None, users: list | None = None,
                   ) -> tuple[FrameAnalysis, np.ndarray | None]:
-    """One frame's analysis and its road/band mask (uint8, or None without a road).
-    `users`: the frame's detections when already run (`objects.road_users`)."""
+    """One frame's analysis and its road/walkable-band mask (uint8, or None without a road).
+    `users`: the frame's detections when already run (`objects.road_users`); `user_road`,
+    `user_walk`: the user's masks (bool HxW) that replace the estimates."""
     H, W = image.shape[:2]
     decisions: list[dict] = []
 
@@ -93,8 +94,12 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
         blocked = np.zeros((H, W), bool) if hmask is None else hmask.copy()
         for x, y, w, h in (o.box for o in kept):
             blocked[int(y):int(y + h) + 1, int(x):int(x + w) + 1] = True
-        mask = np.where(road_px, road.ROAD, np.where(road.bands(road_px, camera, T, blocked), road.BAND, 0))
-        mask = mask.astype(np.uint8)
+        if user_walk is not None:
+            walk, how = user_walk & ~road_px, "user mask masks/sidewalk"
+        else:
+            walk, how = road.walkable(image, road.bands(road_px, camera, T, blocked), road_px)
+        decide("walkable", round(float(walk.mean()), 4), how)
+        mask = np.where(road_px, road.ROAD, np.where(walk, road.BAND, 0)).astype(np.uint8)
     fa = FrameAnalysis(frame_id=frame_id, width=W, height=H, camera=est, T_world_cam=T.tolist(),
                        horizon=horizon, hood=[list(map(float, p)) for p in hood] if hood else None,
                        road_mask=f"{frame_id}_road.png" if mask is not None else None,
@@ -154,9 +159,10 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
             # the recording's focal length, also when est.fx re-estimated it: the planner and
             # the renderer project with the recording's camera, and placement must match them
             camera = rec.camera.scaled(image.shape[1], image.shape[0])
-            user = road.user_road_mask(rec.root, fid, (image.shape[1], image.shape[0]))
+            size = (image.shape[1], image.shape[0])
             fa, mask = analyse_frame(image, fid, camera, est, detector, horizon=horizon, hood=hoods.get(fid),
-                                     user_road=user, users=users[fid])
+                                     user_road=road.user_mask(rec.root, "road", fid, size),
+                                     user_walk=road.user_mask(rec.root, "sidewalk", fid, size), users=users[fid])
             fa.decisions.append({"what": "cpu_s", "value": round(time.process_time() - t1 + shared, 3),
                                  "reason": "analysis CPU seconds (hood, detector and camera shared per frame)"})
             write_analysis(folder, fa, mask)

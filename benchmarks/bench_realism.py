@@ -49,6 +49,7 @@ sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
 from blendgen.eval.metrics import evaluate  # noqa: E402
+from blendgen.job.schema import Post  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 MODEL = ROOT.parent / "shared" / "data" / "models" / "yolox_nano.onnx"
@@ -60,6 +61,7 @@ SCORE_THR, IOU_THR, BG_SCORE = 0.3, 0.5, 0.05
 HEIGHT_BINS = [(0, 20, "< 20 px"), (20, 40, "20-40 px"), (40, 80, "40-80 px"), (80, 160, "80-160 px"),
                (160, 1e9, ">= 160 px")]
 TRANSFERS = ("none", "reinhard", "mkl", "histogram")
+DEFAULT_VARIANT = f"ct={Post().color_transfer}"  # the pipeline's default post
 BDD_NIGHT = "9aa94005-ff1d4c9a"
 # Ground planes: Udacity as jobs/udacity_photos.yaml (lane lines' horizon); BDD's horizon is
 # near row 300 of 720 at ~60 deg FOV: pitch -3 deg, a car's roof camera 1.3 m up.
@@ -129,7 +131,7 @@ def job_yaml(name: str, rec: str, rec_dir: Path, out_dir: Path, *, illumination:
     return {"name": f"realism_{name}_{rec}", "seed": 13, "recording": str(rec_dir),
             "ground_plane": RECORDINGS[rec]["ground_plane"], "inject": inject,
             "render": {"samples": 16, "denoise": True, "region": True},
-            "post": {"illumination": illumination, "color_transfer": "reinhard", "shadows": True},
+            "post": {"illumination": illumination, "color_transfer": Post().color_transfer, "shadows": True},
             "export": {"formats": ["coco"], "min_visible_px": 64, "save_exr": True},
             "output": str(out_dir)}
 
@@ -179,7 +181,6 @@ def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
     """Detector results per object, for every post variant of the set's renders."""
     from blendgen.eval.detector import YoloxDetector
     from blendgen.farm.seeds import frame_seed
-    from blendgen.job.schema import Post
     from blendgen.labels.export import find_frame_labels
     from blendgen.labels.frame_labels import read_frame_labels
     from blendgen.post.composite import composite_frame
@@ -194,7 +195,7 @@ def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
     illum_on = args.set != "procedural_illum_off"
     variants = {f"ct={m}": Post(color_transfer=m, illumination="auto" if illum_on else "off") for m in TRANSFERS}
     if illum_on:  # light matching in post off (no relight; colour transfer at its no-match strength)
-        variants["ct=reinhard, post light match off"] = Post(color_transfer="reinhard", illumination="off")
+        variants[f"{DEFAULT_VARIANT}, post light match off"] = Post(illumination="off")
     objects = []  # one row per injected object: class, height, frame, source, {variant: score}
     bg_cache: dict[str, list] = {}
     for rec, out_dir in outs.items():
@@ -222,7 +223,7 @@ def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
                 comp, _ = composite_frame(real, passes, settings=post,
                                           illumination=illum if post.illumination == "auto" else None,
                                           seed=frame_seed(13, fid))
-                if vname == "ct=reinhard" and (i < 2 * len(set(recs[rec]["names"])) or BDD_NIGHT in src):
+                if vname == DEFAULT_VARIANT and (i < 2 * len(set(recs[rec]["names"])) or BDD_NIGHT in src):
                     cv2.imwrite(str(look / f"{rec}_{fid}_{src}.png"), _draw(comp, gts))
                 dts = [{**d, "image_id": fid} for d in det(comp)]
                 res = evaluate(gts + bg, dts, list(CLASSES.values()), iou_thr=IOU_THR, score_thr=SCORE_THR,
@@ -296,14 +297,11 @@ def build_table(sets: dict[str, list], cmdline: str) -> tuple[str, dict]:
              f"{SCORE_THR}); conf = mean matched score (0 if none). [95 % bootstrap interval over frames.]",
              "", "Sets: " + ", ".join(f"`{k}` {len(v)} objects on {len({r['frame'] for r in v})} frames"
                                       for k, v in sets.items()) +
-             ". The issue asks for >= 300 objects per set; on the shared 2-core machine a 1280x720 frame took "
-             "~1 min to render (16 samples + denoise, region on), so these runs are smaller: set-to-set "
-             "differences have wide intervals, paired post-variant differences are resolved to a few points. "
-             "`--copies-udacity 5 --copies-bdd 14 --video-frames 15` (the defaults) give ~400 objects per set.",
-             ""]
+             ". Set-to-set differences are unpaired (different objects), post variants of one set are "
+             "paired (same renders, same objects).", ""]
     summary = {}
-    main_v = "ct=reinhard"  # the pipeline's default post
-    lines += ["## Targets (objects >= 40 px tall, default post: light matching + Reinhard)", "",
+    main_v = DEFAULT_VARIANT
+    lines += [f"## Targets (objects >= 40 px tall, default post: light matching + {main_v})", "",
               "| object set | objects >= 40 px | recall@0.5 overall (target >= 0.6) | night frame objects | recall@0.5 night (target >= 0.4) |",
               "|---|---:|---:|---:|---:|"]
     for s, rows in sets.items():
@@ -363,7 +361,7 @@ def plot(sets: dict[str, list]) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.5))
     labels = [b[2] for b in HEIGHT_BINS]
     for s, rows in sets.items():
-        ys = [found([r for r in rows if lo <= r["h"] < hi], "ct=reinhard").mean()
+        ys = [found([r for r in rows if lo <= r["h"] < hi], DEFAULT_VARIANT).mean()
               if any(lo <= r["h"] < hi for r in rows) else np.nan for lo, hi, _ in HEIGHT_BINS]
         axes[0].plot(labels, ys, marker="o", label=s)
     axes[0].set_ylabel("recall@0.5 (default post)")
@@ -373,7 +371,7 @@ def plot(sets: dict[str, list]) -> None:
     x = np.arange(len(CLASSES))
     w = 0.8 / max(1, len(sets))
     for k, (s, rows) in enumerate(sets.items()):
-        ys = [found([r for r in rows if r["cls"] == c], "ct=reinhard").mean() if any(r["cls"] == c for r in rows)
+        ys = [found([r for r in rows if r["cls"] == c], DEFAULT_VARIANT).mean() if any(r["cls"] == c for r in rows)
               else 0 for c in CLASSES]
         axes[1].bar(x + k * w, ys, w, label=s)
     axes[1].set_xticks(x + 0.4 - w / 2, list(CLASSES), rotation=20)

@@ -78,10 +78,10 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
         sc = sc.reshape(m.shape + (-1,))
         # Shadows only darken: the catcher's >1 values (bounce light, noise) are not added.
         mult = np.clip(sc[m][:, ::-1] / baseline, 0.0, 1.0)
-        if illumination is not None and not illumination.sun_visible:
-            # soft contact shadows (sky, street light) still block light at the catcher patch's
-            # edge: fade them out toward it, or the patch's outline shows on the road
-            mult = 1.0 - _edge_fade(finite(shadow[sb].astype(np.float32), 1.0))[m][:, None] * (1.0 - mult)
+        # the sky shadow under an object still blocks light at the catcher patch's edge: fade
+        # it out toward the edge, or the patch's outline shows on the road (sun shadows end
+        # a margin inside their patch, so the fade leaves them whole)
+        mult = 1.0 - _edge_fade(finite(shadow[sb].astype(np.float32), 1.0))[m][:, None] * (1.0 - mult)
         region = out[sb]
         region[m] = linear_to_srgb_u8(srgb_u8_to_linear(region[m]) * mult)
         info.update(shadows=True, shadow_px=int(m.sum()), shadow_baseline=round(baseline, 4))

@@ -195,13 +195,14 @@ def _night_street(h=240, w=320, seed=1):
 
 
 def test_dark_frame_is_night_without_sun_shadow():
-    from blendgen.render.effects import decide_shadow_catcher
+    from blendgen.render.effects import decide_shadow_catcher, sun_direction
 
     est = estimate_illumination(_night_street())
     light = est.to_lighting()
     assert est.condition == "night" and not est.sun_visible and est.visibility_cue == "night"
     assert light["lights_on"] and light["sun_strength"] == 0.0 and not light["sun_visible"]
-    assert decide_shadow_catcher(light, {"rgba", "shadow_catcher"}).value is False  # no sun shadow caught
+    catcher = decide_shadow_catcher(light, {"rgba", "shadow_catcher"})  # contact shadows only, no sun shadow
+    assert catcher.value is True and "street light" in catcher.reason and sun_direction(light) is None
     street = light["street_light"]
     assert street["strength"] > 0 and street["direction"][2] > 0.9  # overhead key replaces the sun
     r, g, b = street["color"]

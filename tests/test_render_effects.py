@@ -68,12 +68,19 @@ def test_motion_blur_only_above_half_a_pixel():
     assert fx.decide_motion_blur([car(3, 20, 0)], CAM, T, r.shutter_s, "on")[0].value is False
 
 
-def test_shadow_catcher_only_with_a_visible_sun():
+def test_shadow_catcher_sun_shadows_or_soft_contact_shadows():
     out = {"rgba", "shadow_catcher"}
-    assert fx.decide_shadow_catcher(SUN, out).value is True
-    assert fx.decide_shadow_catcher(OVERCAST, out).value is False
-    assert fx.decide_shadow_catcher({**SUN, "sun_direction": [1, 0, -0.1]}, out).value is False
+    d = fx.decide_shadow_catcher(SUN, out)
+    assert d.value is True and "sun is visible" in d.reason
+    for light in (OVERCAST, {**SUN, "sun_direction": [1, 0, -0.1]}):  # overcast; sun below the horizon
+        d = fx.decide_shadow_catcher(light, out)
+        assert d.value is True and "soft shadow of the sky" in d.reason and fx.sun_direction(light) is None
+    assert fx.decide_shadow_catcher({**OVERCAST, "sky_strength": 0.0}, out).value is False  # no light at all
     assert fx.decide_shadow_catcher(SUN, {"rgba"}).value is False
+    # without a sun the catcher patch is the footprint grown by the margin, no cast shadow
+    (patch,) = fx.catcher_patches([car(1, 15, 0)], fx.sun_direction(OVERCAST))
+    m = fx.SOFT_MARGIN_M * 1.15 * 1.01
+    assert np.ptp(patch[:, 0]) < 4.5 + 2 * m and np.ptp(patch[:, 1]) < 1.8 + 2 * m
 
 
 def test_region_covers_object_and_its_shadow():

@@ -36,6 +36,7 @@ STRENGTH_WITHOUT_ENV_LIGHT = 0.3
 RING_PX = 0.35  # background ring width, as a fraction of the object's box size
 MIN_RING_PX = 6
 SHADOW_EPS = 0.03  # (smoothed) shadow-catcher values below 1 - eps darken the background
+CONTACT_FADE = 0.3  # soft shadows reach full strength this far into the patch (of its inradius)
 HDR_MAX = 1e4  # clamp for +inf / absurd values in the EXR
 LIGHT_PASSES = ("diffuse_direct", "diffuse_indirect", "diffuse_color", "glossy_direct", "glossy_indirect",
                 "glossy_color")
@@ -77,6 +78,10 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
         sc = sc.reshape(m.shape + (-1,))
         # Shadows only darken: the catcher's >1 values (bounce light, noise) are not added.
         mult = np.clip(sc[m][:, ::-1] / baseline, 0.0, 1.0)
+        # the sky shadow under an object still blocks light at the catcher patch's edge: fade
+        # it out toward the edge, or the patch's outline shows on the road (sun shadows end
+        # a margin inside their patch, so the fade leaves them whole)
+        mult = 1.0 - _edge_fade(finite(shadow[sb].astype(np.float32), 1.0))[m][:, None] * (1.0 - mult)
         region = out[sb]
         region[m] = linear_to_srgb_u8(srgb_u8_to_linear(region[m]) * mult)
         info.update(shadows=True, shadow_px=int(m.sum()), shadow_baseline=round(baseline, 4))
@@ -230,6 +235,20 @@ def _shadow_mask(passes: dict, hw: tuple[int, int]):
     # the threshold keeps real shadows and drops the noise.
     grey = cv2.blur(grey, (3, 3))
     return grey < baseline * (1.0 - SHADOW_EPS), shadow, baseline
+
+
+def _edge_fade(catcher: np.ndarray) -> np.ndarray:
+    """0 at the edge of each catcher patch (pixels != 1.0) rising to 1 at CONTACT_FADE of its
+    inradius: a contact shadow's weight, so it fades into the road instead of stopping."""
+    from scipy import ndimage
+
+    covered = (catcher.reshape(catcher.shape[:2] + (-1,)) != 1.0).any(axis=2).astype(np.uint8)
+    dist = cv2.distanceTransform(covered, cv2.DIST_L2, 3)
+    n, labels = cv2.connectedComponents(covered, connectivity=8)
+    inradius = np.zeros(n, np.float32)
+    if n > 1:
+        inradius[1:] = ndimage.maximum(dist, labels, np.arange(1, n))
+    return np.clip(dist / np.maximum(CONTACT_FADE * inradius[labels], 1.0), 0.0, 1.0)
 
 
 def _bbox(mask: np.ndarray, pad: int, H: int, W: int) -> tuple[slice, slice]:

@@ -20,6 +20,8 @@ LIGHTING_PASSES = ("diffuse_direct", "diffuse_indirect", "diffuse_color",
 NEAR_M = 0.05
 MAX_SHADOW_M = 60.0       # a sun near the horizon casts shadows longer than any useful region
 MIN_SUN_ELEVATION = 0.02  # sin(elevation): below this the sun casts no shadow we render
+SUN_MARGIN_M = 0.4        # catcher patch beyond footprint and sun shadow (penumbra, contact)
+SOFT_MARGIN_M = 1.0       # without a sun: the sky/street-light shadow fades over about this
 BLUR_PX = 0.5
 REGION_MARGIN_PX = 4      # pixel filter (1.5 px) and rounding
 FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth the border logic
@@ -207,20 +209,25 @@ def decide_shadow_catcher(lighting: dict | None, outputs: set[str]) -> Decision:
         return Decision(False, "shadow_catcher not among the outputs")
     if not lighting:
         return Decision(False, "no lighting estimate for this frame: no sun, no cast shadows")
-    if not lighting.get("sun_visible", False) or float(lighting.get("sun_strength", 0)) <= 0:
-        return Decision(False, "the sun is not visible (overcast or shade): no cast shadows to catch")
-    if sun_direction(lighting) is None:
-        return Decision(False, "the sun is at or below the horizon")
-    return Decision(True, "the sun is visible: ground catches the objects' shadows")
+    if sun_direction(lighting) is not None:
+        return Decision(True, "the sun is visible: ground catches the objects' shadows")
+    # Without a sun an object still darkens the ground under it (the sky or the street light it
+    # hides): without that contact shadow vehicles float on overcast and night photos.
+    soft = "the street light and the sky" if lighting.get("street_light") else "the sky"
+    if float(lighting.get("sky_strength", 0)) > 0 or lighting.get("street_light"):
+        return Decision(True, f"no sun shadow: the ground under each object catches the soft shadow of {soft}")
+    return Decision(False, "no light source to cast a shadow")
 
 
-def catcher_patches(objects, sun_dir: np.ndarray | None, margin_m: float = 0.4) -> list[np.ndarray]:
+def catcher_patches(objects, sun_dir: np.ndarray | None, margin_m: float | None = None) -> list[np.ndarray]:
     """Ground polygons (each Kx3, counter-clockwise, at the object's base height) that can
     receive an object's shadow: the convex hull of its footprint and its shadow, grown by
-    `margin_m` (contact shadows, soft penumbra). Catching shadows only there keeps the
+    `margin_m` (contact shadows, soft penumbra; default SUN_MARGIN_M, or SOFT_MARGIN_M without
+    a sun, where the sky shadow fades out slowly). Catching shadows only there keeps the
     expensive shadow-catcher pixels to the few that can hold a shadow."""
     import cv2
 
+    margin_m = margin_m if margin_m is not None else SUN_MARGIN_M if sun_dir is not None else SOFT_MARGIN_M
     out = []
     ring = margin_m * np.stack([np.cos(np.linspace(0, 2 * np.pi, 8, endpoint=False)),
                                 np.sin(np.linspace(0, 2 * np.pi, 8, endpoint=False))], axis=1)

@@ -26,8 +26,9 @@ confidence = mean over objects of the matched detection's score (0 when none).
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_realism.py [--quick] [--set procedural]
         [--name before --objects-rev main] [--copies-udacity 5 --copies-bdd 14 --video-frames 15]
 
-Renders and results are cached under benchmarks/results/tmp/realism/ (re-running resumes);
-the table combines every cached set: docs/benchmarks/realism.md, plot
+Renders and results are cached under benchmarks/results/tmp/realism/ (re-running resumes), or
+under `--cache DIR` / $BLENDGEN_REALISM_CACHE (e.g. another checkout's cache, so that a set
+rendered there, such as `before`, is scored and tabled with this one's); the table combines every cached set: docs/benchmarks/realism.md, plot
 benchmarks/results/realism.png, composites for looking at in benchmarks/results/tmp/realism/<set>/look/.
 """
 
@@ -52,7 +53,7 @@ from blendgen.eval.metrics import evaluate  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 MODEL = ROOT.parent / "shared" / "data" / "models" / "yolox_nano.onnx"
-TMP = ROOT / "benchmarks" / "results" / "tmp" / "realism"
+TMP = Path(os.environ.get("BLENDGEN_REALISM_CACHE") or ROOT / "benchmarks" / "results" / "tmp" / "realism")
 DOC = ROOT / "docs" / "benchmarks" / "realism.md"
 PLOT = ROOT / "benchmarks" / "results" / "realism.png"
 NAMES = {cid: n for n, cid in CLASSES.items()}
@@ -393,11 +394,15 @@ def main() -> None:
     ap.add_argument("--video-frames", type=int, default=15)
     ap.add_argument("--per-frame", type=int, nargs=2, default=(4, 6), metavar=("MIN", "MAX"),
                     help="objects per frame")
+    ap.add_argument("--cache", type=Path, default=TMP,
+                    help="folder of the cached recordings, renders and scores (default %(default)s; "
+                         "env BLENDGEN_REALISM_CACHE)")
     ap.add_argument("--quick", action="store_true", help="1 copy of each still, 2 video frames (smoke run)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from cached sets")
     ap.add_argument("--rescore", action="store_true", help="score the set's existing renders again (no rendering)")
     args = ap.parse_args()
     global TMP
+    TMP = args.cache.resolve()
     if args.quick:
         args.copies_udacity, args.copies_bdd, args.video_frames = 1, 1, 2
         TMP = TMP.parent / "realism_quick"

@@ -394,15 +394,15 @@ def main() -> None:
     ap.add_argument("--video-frames", type=int, default=15)
     ap.add_argument("--per-frame", type=int, nargs=2, default=(4, 6), metavar=("MIN", "MAX"),
                     help="objects per frame")
-    ap.add_argument("--cache", type=Path, default=TMP,
-                    help="folder of the cached recordings, renders and scores (default %(default)s; "
-                         "env BLENDGEN_REALISM_CACHE)")
+    ap.add_argument("--cache", type=Path,
+                    help="folder of the cached recordings, renders and scores (default "
+                         "benchmarks/results/tmp/realism or env BLENDGEN_REALISM_CACHE)")
     ap.add_argument("--quick", action="store_true", help="1 copy of each still, 2 video frames (smoke run)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from cached sets")
     ap.add_argument("--rescore", action="store_true", help="score the set's existing renders again (no rendering)")
     args = ap.parse_args()
     global TMP
-    TMP = args.cache.resolve()
+    TMP = (args.cache or TMP).resolve()
     if args.quick:
         args.copies_udacity, args.copies_bdd, args.video_frames = 1, 1, 2
         TMP = TMP.parent / "realism_quick"

@@ -6,10 +6,11 @@ What is measured, and how:
 - exposure: median and log-average linear luminance of the non-sky pixels;
 - sky colour and brightness: the bright, smooth region connected to the top border;
 - sun direction: solar azimuth/elevation (pvlib's SPA) from position + UTC time, turned
-  into the world ENU frame (x east, y north, z up);
+  into the world ENU frame (x east, y north, z up); without them, in sunlight, the azimuth
+  from the shadows that the real road users cast (shadow_direction.py), else a default;
 - sun visibility: lit vs shadowed road (two-class Otsu split of the road's log luminance,
   lane markings removed by a top-hat), with a clear-blue-sky cue when the road shows no
-  shadow; never at night or dusk (street lights and headlights make bimodal roads too);
+  shadow; never under a grey-white sky (snow banks make two-tone roads), at night or dusk (street lights and headlights make bimodal roads too);
 - condition day / dusk / night: the sun's elevation when the ephemeris gives it (civil
   twilight, -6..6 deg, is dusk), else the frame's log-average luminance and sky brightness.
   At night and dusk vehicle lights are on and an overhead street-light key replaces the sun.
@@ -51,6 +52,7 @@ STREET_LIGHT_SHARE = {"night": 0.7, "dusk": 0.4}  # overhead key's share of the 
 STREET_LIGHT_ELEVATION_DEG = 70.0  # lamps stand high beside the road: light mostly from above
 SHADES_OF_GREY_P = 6.0
 CLEAR_SKY_SUN_FRACTION = 0.8  # asymptotic sun share of the ground irradiance under a clear sky
+OVERCAST_SKY_BR = 1.2  # blue/red of a sky below which it is cloud, not clear
 MIN_SHADOW_RATIO = 1.8  # lit/shadow road luminance ratio above which the sun is called visible
 DEFAULT_SUN_ELEVATION_DEG = 45.0
 WORK_WIDTH = 192  # statistics run on a downsampled copy: they are global, this keeps them ~2 ms
@@ -71,11 +73,11 @@ class Illumination:
     sun_direction: tuple[float, float, float]  # world frame, toward the sun
     sun_elevation_deg: float
     sun_azimuth_deg: float  # clockwise from north
-    sun_direction_source: str  # "ephemeris" | "given" | "default"
+    sun_direction_source: str  # "ephemeris" | "given" | "shadows" | "default"
     sun_visible: bool
     sun_fraction: float  # share of the ground irradiance that comes from the sun
     shadow_ratio: float  # lit / shadowed road luminance (1: no shadow measured)
-    visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "below_horizon" | "night" | "dusk"
+    visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "overcast_sky" | "below_horizon" | "night" | "dusk"
     horizon_row: float  # sky line (bottom of the sky region, or from the pitch), in input pixels
     condition: str = "day"  # "day" | "dusk" | "night"
     road_albedo: float = 0.12  # implied by the road's median against the scene's log-average
@@ -124,12 +126,16 @@ class Illumination:
 
 def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: datetime | None = None,
                           latlon: tuple[float, float] | None = None,
-                          sun_az_el: tuple[float, float] | None = None) -> Illumination:
+                          sun_az_el: tuple[float, float] | None = None, real_objects=None,
+                          camera=None) -> Illumination:
     """Estimate the light of a real 8-bit BGR frame (see the module docstring).
 
     The sun's position comes from ``when_utc`` + ``latlon`` (pvlib), or directly from
     ``sun_az_el`` = (azimuth clockwise from north, elevation), degrees, when it is known
-    otherwise (a synthetic scene); without either it is a default.
+    otherwise (a synthetic scene); without either, in sunlight, the azimuth is read off the
+    shadows of ``real_objects`` (the frame analysis's road users, boxes in ``real_bgr`` pixels)
+    through ``camera`` and ``T_world_cam`` (blendgen/post/shadow_direction.py), else a default
+    (the note says why).
     """
     if not isinstance(real_bgr, np.ndarray) or real_bgr.ndim != 3 or real_bgr.shape[2] != 3 \
             or real_bgr.dtype != np.uint8 or min(real_bgr.shape[:2]) < 2:
@@ -219,12 +225,33 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         visible, f, cue = False, 0.0, "below_horizon"
     elif condition != "day":
         visible, f, cue = False, 0.0, condition
+    elif sky_bgr is not None and _overcast_sky(sky_bgr, sky_sat):
+        # A grey-white sky is cloud: a two-tone road under it is snow banks, wet or white
+        # patches (the BDD snow street: ratio 4.5), not sun shadows.
+        visible, f, cue = False, 0.0, "overcast_sky"
+        if ratio >= MIN_SHADOW_RATIO:
+            notes.append(f"two-tone road (ratio {ratio:.1f}) under a grey-white sky: read as snow or "
+                         "light surfaces, not sun shadows")
     elif ratio >= MIN_SHADOW_RATIO:
         visible, f, cue = True, float(np.clip(1.0 - 1.0 / ratio, 0.0, 0.95)), "shadows"
     elif sky_bgr is not None and _clear_blue(sky_bgr, sky_lum, ground_lum):
         visible, f, cue = True, clear_sky_sun_fraction(el), "clear_sky"
     else:
         visible, f, cue = False, 0.0, "overcast"
+
+    if visible and source == "default":
+        # The sun's azimuth from the shadows of the real road users, when they show them.
+        shadow_az, why = None, "no real road users or camera given"
+        if real_objects and camera is not None and T_world_cam is not None:
+            from blendgen.post.shadow_direction import sun_azimuth_from_shadows
+
+            shadow_az, why, _ = sun_azimuth_from_shadows(real_bgr, real_objects, camera, T_world_cam)
+        if shadow_az is not None:
+            az, source = shadow_az, "shadows"
+            sun_dir = enu_from_az_el(az, el)
+            notes.append(f"sun azimuth {az:.0f} deg from the {why}; elevation a default {el:.0f} deg")
+        else:
+            notes.append(f"sun azimuth stays the default: {why}")
 
     return Illumination(
         illuminant_rgb=tuple(float(v) for v in ill_bgr[::-1]),
@@ -352,6 +379,13 @@ def _clear_blue(sky_bgr: np.ndarray, sky_lum: float, ground_lum: float) -> bool:
     """A blue sky that is not darker than the road: a clear sky, so the sun is out."""
     b, g, r = (float(v) for v in sky_bgr)
     return b > 1.15 * r and sky_lum > 0.8 * max(ground_lum, 1e-4)
+
+
+def _overcast_sky(sky_bgr: np.ndarray, sky_saturated: float) -> bool:
+    """A grey-white sky (cloud), seen and mostly unclipped: a clear sky is blue (b/r 2.2-3.2 on
+    the Udacity photos, the BDD snow street's grey sky 1.05); a sky clipped white says nothing."""
+    b, _, r = (float(v) for v in sky_bgr)
+    return b < OVERCAST_SKY_BR * r and sky_saturated < 0.6
 
 
 def _unit_luma_bgr(c_bgr: np.ndarray) -> np.ndarray:

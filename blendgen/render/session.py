@@ -541,7 +541,7 @@ class RenderSession:
         set_vehicle_lamps(info["lamps_on"])
         self._set_twin_mode("composite", catcher=bool(eff.shadow_catcher.value))
         by_id = {int(o.id): o for o in plan.objects}
-        patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.sun_direction(lighting))
+        patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.shadow_light_direction(lighting))
                    if eff.shadow_catcher.value and self.catch_shadows_on == "patches" else None)
         self._set_catcher(patches)
         if patches is not None:

@@ -201,7 +201,9 @@ def test_dark_frame_is_night_without_sun_shadow():
     light = est.to_lighting()
     assert est.condition == "night" and not est.sun_visible and est.visibility_cue == "night"
     assert light["lights_on"] and light["sun_strength"] == 0.0 and not light["sun_visible"]
-    assert decide_shadow_catcher(light, {"rgba", "shadow_catcher"}).value is False  # no sun shadow caught
+    # no sun shadow: the ground catches only the overhead street-light key's soft contact shadow
+    catcher = decide_shadow_catcher(light, {"rgba", "shadow_catcher"})
+    assert catcher.value is True and "street-light" in catcher.reason and "no sun shadow" in catcher.reason
     street = light["street_light"]
     assert street["strength"] > 0 and street["direction"][2] > 0.9  # overhead key replaces the sun
     r, g, b = street["color"]

@@ -48,10 +48,12 @@ def sun_azimuth_from_shadows(real_bgr: np.ndarray, objects, camera, T_world_cam)
         if x1 - x0 < 8 or y1 - y0 < 4:
             continue
         win = Y[y0:y1, x0:x1]
-        inside = np.zeros(win.shape, bool)  # every detected object's body (dark paint is no shadow)
+        # Every detected object's box, a little past its bottom: dark paint, tyres and the dark
+        # under-body (lit from all sides, any sun) say nothing about the sun's direction.
+        inside = np.zeros(win.shape, bool)
         for bx, by, bw, bh in boxes:
-            inside[max(0, int(by) - y0):max(0, int(by + bh * 0.97) - y0),
-                   max(0, int(bx) - x0):max(0, int(bx + bw) - x0)] = True
+            inside[max(0, int(by) - y0):max(0, int(by + bh * 1.05) + 1 - y0),
+                   max(0, int(bx) - x0):max(0, int(bx + bw) + 1 - x0)] = True
         ground = win[~inside]
         if ground.size < 32:
             continue
@@ -69,10 +71,15 @@ def sun_azimuth_from_shadows(real_bgr: np.ndarray, objects, camera, T_world_cam)
         if area < MIN_BLOB_SHARE * w * h:
             continue
         vv, uu = np.nonzero(blob)
-        g = to_ground(camera, T_world_cam, [[x + w / 2, bottom], [uu.mean() + x0, vv.mean() + y0]])
-        if not np.isfinite(g).all():
+        g = to_ground(camera, T_world_cam, np.c_[uu + x0, vv + y0])
+        g = g[np.isfinite(g).all(axis=1)]
+        if not len(g):
             continue
-        v = g[1] - g[0]
+        # Ground centroid of the shadow, each pixel weighted by the ground area it covers
+        # (~ range^3 at grazing view: unweighted, the near pixels pull it toward the camera),
+        # seen from the footprint's centre.
+        wgt = np.linalg.norm(g - np.asarray(T_world_cam)[:2, 3], axis=1) ** 3
+        v = (g * wgt[:, None]).sum(axis=0) / wgt.sum() - np.mean(np.asarray(o.footprint, float), axis=0)
         if np.linalg.norm(v) < 1e-3:
             continue
         det["shadow_azimuth_deg"] = round(math.degrees(math.atan2(v[0], v[1])) % 360, 1)

@@ -156,7 +156,7 @@ def test_illumination_estimates_colour_cast_and_overcast():
 
 def test_illumination_detects_sun_from_road_shadows():
     img = _scene(240, 320)
-    img[: 120] = (200, 200, 200)  # grey sky: only the shadows can tell
+    img[: 120] = (255, 255, 255)  # sky clipped white (a grey-white one is cloud): only the shadows can tell
     img[150:200, 40:200] = (35, 36, 38)  # a large cast shadow on the road, 1/3 brightness
     est = estimate_illumination(img)
     assert est.sun_visible and est.visibility_cue == "shadows"

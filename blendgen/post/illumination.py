@@ -20,7 +20,9 @@ docs/architecture.md, in units that make a Cycles render (Standard view transfor
 exposure 0) land at the real camera's exposure. The light is read off the whole non-sky
 scene (log-average luminance = SCENE_ALBEDO x irradiance/pi, as a camera's auto-exposure
 meters it), not off the road alone: a light concrete road would otherwise brighten objects
-by its albedo ratio (1.4-1.7x measured). The road's albedo that this implies is reported.
+by its albedo ratio (1.4-1.7x measured). The road's albedo that this implies must lie in the
+range of real roads (fresh asphalt 0.05 .. light concrete 0.40); outside it the road at that
+bound sets the light (`exposure_source`, and a note says which and why).
 (Cycles: a uniform world of strength L gives a white diffuse surface radiance L; a sun of
 strength S gives S*cos/pi.)
 """
@@ -82,13 +84,15 @@ class Illumination:
     condition: str = "day"  # "day" | "dusk" | "night"
     road_albedo: float = 0.12  # implied by the road's median against the scene's log-average
     notes: list[str] = field(default_factory=list)
+    light_level: float | None = None  # irradiance / pi in pixel units (None: scene meter alone)
+    exposure_source: str = "scene"  # "scene" | "road_albedo_max" | "road_albedo_min": what metered it
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def to_lighting(self) -> dict:
         """The lighting dict (architecture.md) for the render driver."""
-        total = max(self.log_average_luminance, 1e-4) / SCENE_ALBEDO  # irradiance / pi, in pixel units
+        total = self.light_level or max(self.log_average_luminance, 1e-4) / SCENE_ALBEDO  # irradiance / pi
         f = self.sun_fraction if self.sun_visible else 0.0
         ill = np.asarray(self.illuminant_rgb, dtype=float)
         sky_c = _unit_luma(np.asarray(self.sky_rgb, float)) if self.sky_rgb is not None else ill
@@ -201,7 +205,25 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     ground_lum = float(np.median(Y[ground])) if ground.any() else exposure
 
     ratio, shadow_share = _shadow_ratio(small, Y, ground)
-    road_albedo = float(np.clip(SCENE_ALBEDO * ground_lum / max(log_avg, 1e-4), *ROAD_ALBEDO_RANGE))
+    # The light: metered on the whole scene, then held to what the road can be. A road that the
+    # scene meter makes brighter than light concrete (a dark, shaded or foliage-framed scene
+    # around a lit road) or darker than fresh asphalt (snow, white walls) means the scene's
+    # mean albedo is not SCENE_ALBEDO; the road's albedo range then sets the light.
+    light = max(log_avg, 1e-4) / SCENE_ALBEDO
+    implied = ground_lum / light
+    lo_a, hi_a = ROAD_ALBEDO_RANGE
+    exposure_source = "scene"
+    if implied > hi_a or implied < lo_a:
+        bound = hi_a if implied > hi_a else lo_a
+        exposure_source = "road_albedo_max" if implied > hi_a else "road_albedo_min"
+        notes.append(f"exposure: the scene meter would make the road's albedo {implied:.2f}, outside "
+                     f"{lo_a}-{hi_a}: light set from the road at albedo {bound} ({light:.3f} -> "
+                     f"{ground_lum / bound:.3f})")
+        light = ground_lum / bound
+    else:
+        notes.append(f"exposure: scene log-average {log_avg:.3f} at mean albedo {SCENE_ALBEDO} "
+                     f"(road albedo {implied:.2f}, within {lo_a}-{hi_a})")
+    road_albedo = float(np.clip(implied, *ROAD_ALBEDO_RANGE))
 
     # Sun direction.
     if sun_az_el is not None:
@@ -260,7 +282,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         sun_direction=tuple(float(v) for v in sun_dir), sun_elevation_deg=float(el), sun_azimuth_deg=float(az),
         sun_direction_source=source, sun_visible=visible, sun_fraction=f, shadow_ratio=float(ratio),
         visibility_cue=cue, horizon_row=float(horizon / scale if scale < 1 else horizon), notes=notes,
-        condition=condition, road_albedo=road_albedo)
+        condition=condition, road_albedo=road_albedo, light_level=float(light), exposure_source=exposure_source)
 
 
 def _condition(sun_el: float | None, log_avg: float, sky_lum: float | None) -> str:

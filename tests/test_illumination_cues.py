@@ -1,4 +1,5 @@
-"""Sun azimuth from the shadows of real road users; snow is not sun; night catches contact shadows."""
+"""Illumination cues: sun azimuth from real road users' shadows, snow is not sun, exposure bounded
+by the road's albedo range, night catches contact shadows and casts no sun shadow."""
 
 from pathlib import Path
 
@@ -112,3 +113,16 @@ def test_real_night_street_catches_contact_shadows_not_sun():
     assert d.value is True and "street-light" in d.reason
     key = fx.shadow_light_direction(light)
     assert key[2] > np.sin(np.radians(60))  # overhead: a short contact shadow, never a long one
+
+
+def test_exposure_held_to_the_road_albedo_range():
+    img, _ = _street([], 0.0)
+    img[150:200] = (12, 14, 12)  # dark foliage and walls around a lit road: the scene meter reads low
+    img[:150, :400] = (20, 30, 20)
+    est = estimate_illumination(img)
+    assert est.exposure_source == "road_albedo_max"
+    assert est.light_level == pytest.approx(est.ground_luminance / 0.40)
+    assert est.light_level > est.log_average_luminance / 0.14  # raised over the scene meter
+    assert any("outside 0.05-0.4" in n for n in est.notes)
+    plain = estimate_illumination(_street([], 0.0)[0])
+    assert plain.exposure_source == "scene" and any(n.startswith("exposure: scene log-average") for n in plain.notes)

@@ -126,3 +126,49 @@ def test_exposure_held_to_the_road_albedo_range():
     assert any("outside 0.05-0.4" in n for n in est.notes)
     plain = estimate_illumination(_street([], 0.0)[0])
     assert plain.exposure_source == "scene" and any(n.startswith("exposure: scene log-average") for n in plain.notes)
+
+
+def _night_pool_frame():
+    """A dark street (night by its light) with one lamp pool on the road at the right."""
+    img = np.full((240, 320, 3), 5, np.uint8)
+    img[120:] = (16, 17, 19)
+    img[150:240, 200:320] = (80, 100, 120)  # warm pool of lamp light on the road
+    return img
+
+
+def _grey_object(x, y=100, w=30, h=60):
+    """Passes of one grey diffuse box object (id 1): lit by a uniform render light."""
+    H, W = 240, 320
+    p = {k: np.zeros((H, W, 3), np.float32) for k in ("diffuse_direct", "diffuse_indirect", "diffuse_color")}
+    rgba = np.zeros((H, W, 4), np.float32)
+    idx = np.zeros((H, W), np.int32)
+    sl = (slice(y, y + h), slice(x, x + w))
+    p["diffuse_color"][sl] = 0.5
+    p["diffuse_direct"][sl] = 0.1
+    rgba[sl] = (0.05, 0.05, 0.05, 1.0)
+    idx[sl] = 1
+    return {**p, "rgba": rgba, "index": idx}
+
+
+def test_night_objects_take_the_light_where_they_stand():
+    from blendgen.job.schema import Post
+    from blendgen.post.colorspace import LUMA_BGR, srgb_u8_to_linear
+    from blendgen.post.composite import composite_frame
+    from blendgen.post.relight import local_light_gain
+
+    real = _night_pool_frame()
+    est = estimate_illumination(real)
+    assert est.condition == "night"
+    Y = srgb_u8_to_linear(real) @ LUMA_BGR
+    in_pool, in_dark = local_light_gain(Y, (240, 100, 270, 160), est), local_light_gain(Y, (40, 100, 70, 160), est)
+    assert in_dark == pytest.approx(1.0, abs=0.1) and in_pool > 1.5  # the road median is the unlit road
+    day = estimate_illumination(_street([], 0.0)[0])
+    assert local_light_gain(srgb_u8_to_linear(_street([], 0.0)[0]) @ LUMA_BGR, (40, 100, 70, 160), day) is None
+
+    post = Post(color_transfer="none", sensor_match=False)
+    lit = {}
+    for name, x in (("pool", 240), ("dark", 40)):
+        comp, info = composite_frame(real, _grey_object(x), settings=post, illumination=est)
+        lit[name] = float(comp[110:150, x + 5:x + 25].mean())
+        assert info["relight"]["local_light_gain"] == pytest.approx(in_pool if name == "pool" else in_dark, rel=0.05)
+    assert lit["pool"] > 1.3 * lit["dark"]  # same object, same render: brighter in the lamp's pool

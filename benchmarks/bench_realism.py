@@ -26,6 +26,12 @@ confidence = mean over objects of the matched detection's score (0 when none).
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_realism.py [--quick] [--set procedural]
         [--name before --objects-rev main] [--copies-udacity 5 --copies-bdd 14 --video-frames 15]
 
+The `before` set renders the objects of `--objects-rev` with the post-processing and lighting
+(illumination estimate, night contact shadows, light matching) of the checkout that runs it,
+and is scored with that checkout's post. To score a cached set's renders with another
+checkout's post (e.g. after merging), run `--name before --rescore` there: the render-time
+lighting (sun, street-light key, shadow catcher) stays the one it was rendered with.
+
 Renders and results are cached under benchmarks/results/tmp/realism/ (re-running resumes), or
 under `--cache DIR` / $BLENDGEN_REALISM_CACHE (e.g. another checkout's cache, so that a set
 rendered there, such as `before`, is scored and tabled with this one's); the table combines every cached set: docs/benchmarks/realism.md, plot
@@ -50,6 +56,7 @@ sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
 from blendgen.eval.metrics import evaluate  # noqa: E402
+from blendgen.scene.planner import NO_PLACE  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 MODEL = ROOT.parent / "shared" / "data" / "models" / "yolox_nano.onnx"
@@ -348,6 +355,11 @@ def build_table(sets: dict[str, list], cmdline: str) -> tuple[str, dict]:
                 cells.append(f"{found(rb, main_v).mean():.2f} (n={len(rb)})" if rb else "–")
             lines.append(f"| {c} | " + " | ".join(cells) + f" | {fmt(boot_ci(rc, recall_stat(main_v)))} (n={len(rc)}) | "
                          f"{fmt(boot_ci(rc, conf_stat(main_v)))} |")
+        for c in [c for c in CLASSES if not any(r["cls"] == c for r in rows)]:
+            lines.append(f"\n{c}: no object in this set; the planner's reason when a class cannot be placed: "
+                         f"\"{NO_PLACE.get(c, NO_PLACE[None])}\" (ground-plane frames have no signal pole or "
+                         "intersection slot)." if c == "traffic light" else
+                         f"\n{c}: no object in this set (\"{NO_PLACE.get(c, NO_PLACE[None])}\").")
         srcs = sorted({r["source"].split("_video_")[0] for r in rows})
         lines += ["", "| background | objects >= 40 px | recall@0.5 |", "|---|---:|---:|"]
         for src in srcs:

@@ -431,9 +431,11 @@ def main() -> None:
             (TMP / name / "scores.json").unlink(missing_ok=True)
         else:
             outs = render_set(name, recs, args)
-            meta = {"set": args.set, "objects_rev": args.objects_rev,
+            top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=ROOT, capture_output=True,
+                                 text=True).stdout.strip()
+            meta = {"set": args.set, "objects_rev": args.objects_rev,  # a snapshot inside a checkout is not its HEAD
                     "rev": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                                          text=True).stdout.strip()}
+                                          text=True).stdout.strip() if top and Path(top) == ROOT else "unknown"}
             atomic.write_json(TMP / name / "meta.json", meta)
         score_set(name, recs, outs, args)
     sets = {p.parent.name: json.loads(p.read_text()) for p in sorted(TMP.glob("*/scores.json"))}

@@ -12,7 +12,7 @@ with each checkout, then score:
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_night.py --before out/night/before_21 out/night/before_22 \
         --after out/night/after_21 out/night/after_22
 
-Writes docs/benchmarks/night.md (table + command); the job files are in that doc.
+Writes docs/benchmarks/night.md (table + command; `--doc`, `--title` for other photos).
 """
 
 from __future__ import annotations
@@ -73,6 +73,8 @@ def main() -> None:
     ap.add_argument("--before", type=Path, nargs="+", required=True, help="job outputs rendered before")
     ap.add_argument("--after", type=Path, nargs="+", required=True, help="the same jobs rendered after")
     ap.add_argument("--min-h", type=float, default=40.0)
+    ap.add_argument("--doc", type=Path, default=DOC, help="where the table goes (default %(default)s)")
+    ap.add_argument("--title", default="Night recall (BDD night street, YOLOX-Nano)")
     args = ap.parse_args()
     from blendgen.eval.detector import YoloxDetector
 
@@ -83,7 +85,7 @@ def main() -> None:
     big = [i for i, r in enumerate(b) if r["h"] >= args.min_h]
     bb = [b[i] for i in big]
     ab = [a[i] for i in big] if paired else [r for r in a if r["h"] >= args.min_h]
-    lines = ["# Night recall (BDD night street, YOLOX-Nano)", "",
+    lines = [f"# {args.title}", "",
              "Made by `PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_night.py " + " ".join(sys.argv[1:]) + "`",
              f"(benchmarks/bench_night.py). Objects >= {args.min_h:g} px tall; recall@0.5 at score >= {SCORE_THR}; "
              "real objects the detector finds in the untouched photo are ignore regions. [95 % bootstrap over frames]", "",
@@ -104,7 +106,7 @@ def main() -> None:
                          f"{fmt(boot_ci(ra, recall_stat('v')))} (n={len(ra)}) |")
     text = "\n".join(lines) + "\n"
     print(text)
-    atomic.write_text(DOC, text)
+    atomic.write_text(args.doc, text)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,8 @@ What is measured, and how:
   from the shadows that the real road users cast (shadow_direction.py), else a default;
 - sun visibility: lit vs shadowed road (two-class Otsu split of the road's log luminance,
   lane markings removed by a top-hat), with a clear-blue-sky cue when the road shows no
-  shadow; never under a grey-white sky (snow banks make two-tone roads), at night or dusk (street lights and headlights make bimodal roads too);
+  shadow; never under a grey-white sky (snow banks make two-tone roads), at night or dusk
+  (street lights and headlights make bimodal roads too);
 - condition day / dusk / night: the sun's elevation when the ephemeris gives it (civil
   twilight, -6..6 deg, is dusk), else the frame's log-average luminance and sky brightness.
   At night and dusk vehicle lights are on and an overhead street-light key replaces the sun.

@@ -156,7 +156,7 @@ def test_illumination_estimates_colour_cast_and_overcast():
 
 def test_illumination_detects_sun_from_road_shadows():
     img = _scene(240, 320)
-    img[: 120] = (200, 200, 200)  # grey sky: only the shadows can tell
+    img[: 120] = (255, 255, 255)  # sky clipped white (a grey-white one is cloud): only the shadows can tell
     img[150:200, 40:200] = (35, 36, 38)  # a large cast shadow on the road, 1/3 brightness
     est = estimate_illumination(img)
     assert est.sun_visible and est.visibility_cue == "shadows"
@@ -201,8 +201,10 @@ def test_dark_frame_is_night_without_sun_shadow():
     light = est.to_lighting()
     assert est.condition == "night" and not est.sun_visible and est.visibility_cue == "night"
     assert light["lights_on"] and light["sun_strength"] == 0.0 and not light["sun_visible"]
-    catcher = decide_shadow_catcher(light, {"rgba", "shadow_catcher"})  # contact shadows only, no sun shadow
-    assert catcher.value is True and "street light" in catcher.reason and sun_direction(light) is None
+    # no sun shadow: the ground catches only the soft contact shadows of the street light and sky
+    catcher = decide_shadow_catcher(light, {"rgba", "shadow_catcher"})
+    assert catcher.value is True and "street-light" in catcher.reason and "no sun shadow" in catcher.reason
+    assert sun_direction(light) is None
     street = light["street_light"]
     assert street["strength"] > 0 and street["direction"][2] > 0.9  # overhead key replaces the sun
     r, g, b = street["color"]

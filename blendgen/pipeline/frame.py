@@ -81,11 +81,18 @@ class FrameProcessor:
             real = cv2.resize(real, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
         seed = frame_seed(job.seed, frame_id)
 
+        fa, real_boxes = self._analysis(frame_id)
         illum = None
         if job.post.illumination == "auto":
+            from blendgen.analysis.model import RealObject
+
+            # the real road users' shadows give the sun's azimuth when time/position do not
+            users = [RealObject(b["cls"], 0.0, b["box"], o.footprint)
+                     for b, o in zip(real_boxes or [], fa.real_objects if fa else [])]
             illum = estimate_illumination(real, T_world_cam=np.asarray(plan.T_world_cam),
                                           when_utc=self.rec.utc(plan.t),
-                                          latlon=self.georef[:2] if self.georef else None)
+                                          latlon=self.georef[:2] if self.georef else None,
+                                          real_objects=users, camera=self.camera)
             plan.lighting = illum.to_lighting()
         timings["illumination"] = time.perf_counter() - t0
 
@@ -103,7 +110,6 @@ class FrameProcessor:
         timings["render"] = time.perf_counter() - t1
 
         t2 = time.perf_counter()
-        fa, real_boxes = self._analysis(frame_id)
         if fa is not None and fa.hood:  # the real hood hides whatever is behind it
             from blendgen.analysis.stage import hood_mask
             from blendgen.post.composite import apply_occluder
@@ -144,6 +150,9 @@ class FrameProcessor:
                 "camera": fa.camera.__dict__, "road_direction_deg": fa.road_direction_deg,
                 "real_objects": len(fa.real_objects), "hood": fa.hood is not None, "decisions": fa.decisions},
             "plan_decisions": plan.decisions,
+            "illumination": None if illum is None else {  # what the light was read from, and fallbacks
+                k: getattr(illum, k) for k in ("condition", "visibility_cue", "sun_visible", "sun_azimuth_deg",
+                                               "sun_direction_source", "road_albedo", "notes")},
         }
 
     def _analysis(self, frame_id: str):

@@ -22,10 +22,10 @@ from blendgen.errors import UserError
 from blendgen.job.schema import Post
 from blendgen.post import sensor
 from blendgen.post.color_transfer import transfer_pixels
-from blendgen.post.colorspace import (finite, linear_to_srgb, linear_to_srgb_u8, srgb_to_linear,
+from blendgen.post.colorspace import (LUMA_BGR, finite, linear_to_srgb, linear_to_srgb_u8, srgb_to_linear,
                                       srgb_u8_to_linear)
 from blendgen.post.illumination import Illumination
-from blendgen.post.relight import relight
+from blendgen.post.relight import local_light_gain, relight
 
 # Full-strength transfer makes an object take the background's colours (a red car on grey
 # asphalt turns grey). Default strengths (Post.color_strength = None), measured in
@@ -116,6 +116,8 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, obj_any, shadowed, sett
     if profile is not None:
         info["sensor"] = {"measured": {k: (round(v, 4) if isinstance(v, float) else v)
                                        for k, v in profile.to_dict().items()}, "applied": {}}
+    real_y = None  # the real frame's linear luminance, for night local light (computed once)
+    not_road = obj_any if shadowed is None else obj_any | shadowed
     tm = dict.fromkeys(("relight", "color_transfer", "sensor", "blend"), 0.0)
     tm["objects_prepare"] = time.perf_counter() - t0
     for oid in np.flatnonzero(np.bincount(ids_u16.ravel(), minlength=1)[1:]) + 1:  # ids present, O(N)
@@ -147,7 +149,15 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, obj_any, shadowed, sett
         if settings.relight and env_lit:
             sub = {k: _take(passes[k], flat) for k in LIGHT_PASSES
                    if k in passes and np.shape(passes[k])[:2] == (H, W)}
-            rgb_px, rec["relight"] = relight(rgb_px, sub, (alpha[cov] > 0.5) & o_c[cov], illumination)
+            local = None
+            if illumination.condition != "day":  # night light pools: the light where it stands
+                if real_y is None:
+                    real_y = srgb_u8_to_linear(real_bgr) @ LUMA_BGR
+                bx, by = ob[1].start, ob[0].start  # own's box, in frame pixels
+                local = local_light_gain(real_y, (bx + int(cols[0]), by + int(rows[0]), bx + int(cols[-1]) + 1,
+                                                  by + int(rows[-1]) + 1), illumination, exclude=not_road)
+            rgb_px, rec["relight"] = relight(rgb_px, sub, (alpha[cov] > 0.5) & o_c[cov], illumination,
+                                             local_gain=local)
         # Un-premultiply, then display-encode (HDR clips here, like the real camera's sensor).
         obj = np.zeros(alpha.shape + (3,), np.float32)
         obj[cov] = linear_to_srgb(rgb_px[:, ::-1] / alpha[cov][:, None])  # BGR, [0, 1]

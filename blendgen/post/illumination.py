@@ -6,10 +6,12 @@ What is measured, and how:
 - exposure: median and log-average linear luminance of the non-sky pixels;
 - sky colour and brightness: the bright, smooth region connected to the top border;
 - sun direction: solar azimuth/elevation (pvlib's SPA) from position + UTC time, turned
-  into the world ENU frame (x east, y north, z up);
+  into the world ENU frame (x east, y north, z up); without them, in sunlight, the azimuth
+  from the shadows that the real road users cast (shadow_direction.py), else a default;
 - sun visibility: lit vs shadowed road (two-class Otsu split of the road's log luminance,
   lane markings removed by a top-hat), with a clear-blue-sky cue when the road shows no
-  shadow; never at night or dusk (street lights and headlights make bimodal roads too);
+  shadow; never under a grey-white sky (snow banks make two-tone roads), at night or dusk
+  (street lights and headlights make bimodal roads too);
 - condition day / dusk / night: the sun's elevation when the ephemeris gives it (civil
   twilight, -6..6 deg, is dusk), else the frame's log-average luminance and sky brightness.
   At night and dusk vehicle lights are on and an overhead street-light key replaces the sun.
@@ -19,7 +21,9 @@ docs/architecture.md, in units that make a Cycles render (Standard view transfor
 exposure 0) land at the real camera's exposure. The light is read off the whole non-sky
 scene (log-average luminance = SCENE_ALBEDO x irradiance/pi, as a camera's auto-exposure
 meters it), not off the road alone: a light concrete road would otherwise brighten objects
-by its albedo ratio (1.4-1.7x measured). The road's albedo that this implies is reported.
+by its albedo ratio (1.4-1.7x measured). The road's albedo that this implies must lie in the
+range of real roads (fresh asphalt 0.05 .. light concrete 0.40); outside it the road at that
+bound sets the light (`exposure_source`, and a note says which and why).
 (Cycles: a uniform world of strength L gives a white diffuse surface radiance L; a sun of
 strength S gives S*cos/pi.)
 """
@@ -51,6 +55,7 @@ STREET_LIGHT_SHARE = {"night": 0.7, "dusk": 0.4}  # overhead key's share of the 
 STREET_LIGHT_ELEVATION_DEG = 70.0  # lamps stand high beside the road: light mostly from above
 SHADES_OF_GREY_P = 6.0
 CLEAR_SKY_SUN_FRACTION = 0.8  # asymptotic sun share of the ground irradiance under a clear sky
+OVERCAST_SKY_BR = 1.2  # blue/red of a sky below which it is cloud, not clear
 MIN_SHADOW_RATIO = 1.8  # lit/shadow road luminance ratio above which the sun is called visible
 DEFAULT_SUN_ELEVATION_DEG = 45.0
 WORK_WIDTH = 192  # statistics run on a downsampled copy: they are global, this keeps them ~2 ms
@@ -71,22 +76,24 @@ class Illumination:
     sun_direction: tuple[float, float, float]  # world frame, toward the sun
     sun_elevation_deg: float
     sun_azimuth_deg: float  # clockwise from north
-    sun_direction_source: str  # "ephemeris" | "given" | "default"
+    sun_direction_source: str  # "ephemeris" | "given" | "shadows" | "default"
     sun_visible: bool
     sun_fraction: float  # share of the ground irradiance that comes from the sun
     shadow_ratio: float  # lit / shadowed road luminance (1: no shadow measured)
-    visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "below_horizon" | "night" | "dusk"
+    visibility_cue: str  # "shadows" | "clear_sky" | "overcast" | "overcast_sky" | "below_horizon" | "night" | "dusk"
     horizon_row: float  # sky line (bottom of the sky region, or from the pitch), in input pixels
     condition: str = "day"  # "day" | "dusk" | "night"
     road_albedo: float = 0.12  # implied by the road's median against the scene's log-average
     notes: list[str] = field(default_factory=list)
+    light_level: float | None = None  # irradiance / pi in pixel units (None: scene meter alone)
+    exposure_source: str = "scene"  # "scene" | "road_albedo_max" | "road_albedo_min": what metered it
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def to_lighting(self) -> dict:
         """The lighting dict (architecture.md) for the render driver."""
-        total = max(self.log_average_luminance, 1e-4) / SCENE_ALBEDO  # irradiance / pi, in pixel units
+        total = self.light_level or max(self.log_average_luminance, 1e-4) / SCENE_ALBEDO  # irradiance / pi
         f = self.sun_fraction if self.sun_visible else 0.0
         ill = np.asarray(self.illuminant_rgb, dtype=float)
         sky_c = _unit_luma(np.asarray(self.sky_rgb, float)) if self.sky_rgb is not None else ill
@@ -124,12 +131,16 @@ class Illumination:
 
 def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: datetime | None = None,
                           latlon: tuple[float, float] | None = None,
-                          sun_az_el: tuple[float, float] | None = None) -> Illumination:
+                          sun_az_el: tuple[float, float] | None = None, real_objects=None,
+                          camera=None) -> Illumination:
     """Estimate the light of a real 8-bit BGR frame (see the module docstring).
 
     The sun's position comes from ``when_utc`` + ``latlon`` (pvlib), or directly from
     ``sun_az_el`` = (azimuth clockwise from north, elevation), degrees, when it is known
-    otherwise (a synthetic scene); without either it is a default.
+    otherwise (a synthetic scene); without either, in sunlight, the azimuth is read off the
+    shadows of ``real_objects`` (the frame analysis's road users, boxes in ``real_bgr`` pixels)
+    through ``camera`` and ``T_world_cam`` (blendgen/post/shadow_direction.py), else a default
+    (the note says why).
     """
     if not isinstance(real_bgr, np.ndarray) or real_bgr.ndim != 3 or real_bgr.shape[2] != 3 \
             or real_bgr.dtype != np.uint8 or min(real_bgr.shape[:2]) < 2:
@@ -195,7 +206,25 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     ground_lum = float(np.median(Y[ground])) if ground.any() else exposure
 
     ratio, shadow_share = _shadow_ratio(small, Y, ground)
-    road_albedo = float(np.clip(SCENE_ALBEDO * ground_lum / max(log_avg, 1e-4), *ROAD_ALBEDO_RANGE))
+    # The light: metered on the whole scene, then held to what the road can be. A road that the
+    # scene meter makes brighter than light concrete (a dark, shaded or foliage-framed scene
+    # around a lit road) or darker than fresh asphalt (snow, white walls) means the scene's
+    # mean albedo is not SCENE_ALBEDO; the road's albedo range then sets the light.
+    light = max(log_avg, 1e-4) / SCENE_ALBEDO
+    implied = ground_lum / light
+    lo_a, hi_a = ROAD_ALBEDO_RANGE
+    exposure_source = "scene"
+    if implied > hi_a or implied < lo_a:
+        bound = hi_a if implied > hi_a else lo_a
+        exposure_source = "road_albedo_max" if implied > hi_a else "road_albedo_min"
+        notes.append(f"exposure: the scene meter would make the road's albedo {implied:.2f}, outside "
+                     f"{lo_a}-{hi_a}: light set from the road at albedo {bound} ({light:.3f} -> "
+                     f"{ground_lum / bound:.3f})")
+        light = ground_lum / bound
+    else:
+        notes.append(f"exposure: scene log-average {log_avg:.3f} at mean albedo {SCENE_ALBEDO} "
+                     f"(road albedo {implied:.2f}, within {lo_a}-{hi_a})")
+    road_albedo = float(np.clip(implied, *ROAD_ALBEDO_RANGE))
 
     # Sun direction.
     if sun_az_el is not None:
@@ -219,12 +248,33 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         visible, f, cue = False, 0.0, "below_horizon"
     elif condition != "day":
         visible, f, cue = False, 0.0, condition
+    elif sky_bgr is not None and _overcast_sky(sky_bgr, sky_sat):
+        # A grey-white sky is cloud: a two-tone road under it is snow banks, wet or white
+        # patches (the BDD snow street: ratio 4.5), not sun shadows.
+        visible, f, cue = False, 0.0, "overcast_sky"
+        if ratio >= MIN_SHADOW_RATIO:
+            notes.append(f"two-tone road (ratio {ratio:.1f}) under a grey-white sky: read as snow or "
+                         "light surfaces, not sun shadows")
     elif ratio >= MIN_SHADOW_RATIO:
         visible, f, cue = True, float(np.clip(1.0 - 1.0 / ratio, 0.0, 0.95)), "shadows"
     elif sky_bgr is not None and _clear_blue(sky_bgr, sky_lum, ground_lum):
         visible, f, cue = True, clear_sky_sun_fraction(el), "clear_sky"
     else:
         visible, f, cue = False, 0.0, "overcast"
+
+    if visible and source == "default":
+        # The sun's azimuth from the shadows of the real road users, when they show them.
+        shadow_az, why = None, "no real road users or camera given"
+        if real_objects and camera is not None and T_world_cam is not None:
+            from blendgen.post.shadow_direction import sun_azimuth_from_shadows
+
+            shadow_az, why, _ = sun_azimuth_from_shadows(real_bgr, real_objects, camera, T_world_cam)
+        if shadow_az is not None:
+            az, source = shadow_az, "shadows"
+            sun_dir = enu_from_az_el(az, el)
+            notes.append(f"sun azimuth {az:.0f} deg from the {why}; elevation a default {el:.0f} deg")
+        else:
+            notes.append(f"sun azimuth stays the default: {why}")
 
     return Illumination(
         illuminant_rgb=tuple(float(v) for v in ill_bgr[::-1]),
@@ -233,7 +283,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         sun_direction=tuple(float(v) for v in sun_dir), sun_elevation_deg=float(el), sun_azimuth_deg=float(az),
         sun_direction_source=source, sun_visible=visible, sun_fraction=f, shadow_ratio=float(ratio),
         visibility_cue=cue, horizon_row=float(horizon / scale if scale < 1 else horizon), notes=notes,
-        condition=condition, road_albedo=road_albedo)
+        condition=condition, road_albedo=road_albedo, light_level=float(light), exposure_source=exposure_source)
 
 
 def _condition(sun_el: float | None, log_avg: float, sky_lum: float | None) -> str:
@@ -352,6 +402,13 @@ def _clear_blue(sky_bgr: np.ndarray, sky_lum: float, ground_lum: float) -> bool:
     """A blue sky that is not darker than the road: a clear sky, so the sun is out."""
     b, g, r = (float(v) for v in sky_bgr)
     return b > 1.15 * r and sky_lum > 0.8 * max(ground_lum, 1e-4)
+
+
+def _overcast_sky(sky_bgr: np.ndarray, sky_saturated: float) -> bool:
+    """A grey-white sky (cloud), seen and mostly unclipped: a clear sky is blue (b/r 2.2-3.2 on
+    the Udacity photos, the BDD snow street's grey sky 1.05); a sky clipped white says nothing."""
+    b, _, r = (float(v) for v in sky_bgr)
+    return b < OVERCAST_SKY_BR * r and sky_saturated < 0.6
 
 
 def _unit_luma_bgr(c_bgr: np.ndarray) -> np.ndarray:

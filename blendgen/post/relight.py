@@ -8,6 +8,12 @@ rendering, from the same estimate, through the lighting dict. After rendering we
 what the render cannot know exactly: per-channel gains bring the chroma of the object's
 light (direct + indirect, diffuse and glossy) to the illuminant measured in the real frame
 (shades of grey), at unchanged luminance. Emission and transmission stay as rendered.
+
+At night and dusk the light is local: street lamps and headlights make pools, and an object
+on an unlit pavement is dark while one in a lamp's pool is bright. A uniform key lights every
+object alike. `local_light_gain` reads the light where the object stands off the real road at
+its foot (median luminance of a band under its contact line) against the frame's road median,
+and `relight` scales the object's reflected light (not its lamps' emission) by it.
 """
 
 from __future__ import annotations
@@ -19,10 +25,35 @@ from blendgen.post.illumination import Illumination
 
 LUMA_RGB = np.array([0.2126, 0.7152, 0.0722])
 MAX_GAIN = 4.0
+LOCAL_GAIN_RANGE = (0.35, 2.5)  # night light pools: the road under a lamp vs unlit pavement
+LOCAL_GAIN_POWER = 0.5  # the road is lit from above, an object's sides less: half the road's contrast
 NEEDED = ("diffuse_direct", "diffuse_indirect", "diffuse_color")
 
 
-def relight(rgb: np.ndarray, passes: dict, mask: np.ndarray, illumination: Illumination) -> tuple[np.ndarray, dict]:
+def local_light_gain(real_lin_y: np.ndarray, box: tuple[int, int, int, int], illumination: Illumination,
+                     exclude: np.ndarray | None = None) -> float | None:
+    """Night/dusk: light at the object's foot relative to the frame's road, or None (daylight,
+    or no road visible under the object). ``real_lin_y``: the real frame's linear luminance;
+    ``box`` = (x0, y0, x1, y1) of the object's pixels; ``exclude``: pixels that are not road
+    (objects, shadows), same shape as ``real_lin_y``."""
+    if illumination.condition == "day" or illumination.ground_luminance <= 1e-5:
+        return None
+    H, W = real_lin_y.shape
+    x0, y0, x1, y1 = box
+    w, h = x1 - x0, y1 - y0
+    band = (slice(max(0, y1), min(H, y1 + max(4, int(0.15 * h)))),
+            slice(max(0, int(x0 - 0.5 * w)), min(W, int(x1 + 0.5 * w))))
+    y = real_lin_y[band]
+    if exclude is not None:
+        y = y[~exclude[band]]
+    if y.size < 16:
+        return None
+    g = (float(np.median(y)) / illumination.ground_luminance) ** LOCAL_GAIN_POWER
+    return float(np.clip(g, *LOCAL_GAIN_RANGE))
+
+
+def relight(rgb: np.ndarray, passes: dict, mask: np.ndarray, illumination: Illumination,
+            local_gain: float | None = None) -> tuple[np.ndarray, dict]:
     """Return the re-weighted linear RGB (HxWx3, RGB order as in the EXR) and what was done.
 
     ``rgb`` is the render's (premultiplied) Combined colour, ``mask`` the object pixels.
@@ -44,13 +75,18 @@ def relight(rgb: np.ndarray, passes: dict, mask: np.ndarray, illumination: Illum
         return rgb, {"relight": "skipped", "reason": "object receives no light in the render"}
     target = np.asarray(illumination.illuminant_rgb, dtype=float)
     g = _gains(D + I, target).astype(np.float32)  # float32: a float64 gain would promote every pixel
+    if local_gain is not None:
+        g = g * np.float32(local_gain)
     gm1 = g - np.float32(1.0)
     delta = dc * (gm1 * (dd + di))
     if gd is not None and gi is not None and gc is not None:
         delta += gc * (gm1 * (gd + gi))
     out = rgb.copy()
     out[mask] = np.maximum(rgb[mask] + delta, 0.0)
-    return out, {"relight": "applied", "light_gain_rgb": [round(float(v), 4) for v in g]}
+    rec = {"relight": "applied", "light_gain_rgb": [round(float(v), 4) for v in g]}
+    if local_gain is not None:
+        rec["local_light_gain"] = round(float(local_gain), 4)
+    return out, rec
 
 
 def _gains(rendered: np.ndarray, target_chroma: np.ndarray) -> np.ndarray:

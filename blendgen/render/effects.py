@@ -80,6 +80,19 @@ def sun_direction(lighting: dict | None) -> np.ndarray | None:
     return d if d[2] > MIN_SUN_ELEVATION else None
 
 
+def shadow_light_direction(lighting: dict | None) -> np.ndarray | None:
+    """Unit vector toward the light whose shadows the ground catches: the visible sun, else
+    (night, dusk) the overhead street-light key, whose wide, high source gives the soft
+    contact shadow under an object that real street lighting gives, never a long sun shadow."""
+    sun = sun_direction(lighting)
+    street = (lighting or {}).get("street_light")
+    if sun is not None or not street or float(street.get("strength", 0)) <= 0:
+        return sun
+    d = np.asarray(street.get("direction", (0, 0, 1)), dtype=float)
+    n = np.linalg.norm(d)
+    return d / n if np.isfinite(n) and n > 1e-9 and d[2] / n > MIN_SUN_ELEVATION else None
+
+
 def shadow_points(corners: np.ndarray, sun_dir: np.ndarray | None, ground_z: float) -> np.ndarray:
     """Where the box corners' shadows fall on the ground plane z = ground_z (along -sun_dir)."""
     if sun_dir is None:
@@ -213,9 +226,11 @@ def decide_shadow_catcher(lighting: dict | None, outputs: set[str]) -> Decision:
         return Decision(True, "the sun is visible: ground catches the objects' shadows")
     # Without a sun an object still darkens the ground under it (the sky or the street light it
     # hides): without that contact shadow vehicles float on overcast and night photos.
-    soft = "the street light and the sky" if lighting.get("street_light") else "the sky"
-    if float(lighting.get("sky_strength", 0)) > 0 or lighting.get("street_light"):
-        return Decision(True, f"no sun shadow: the ground under each object catches the soft shadow of {soft}")
+    if shadow_light_direction(lighting) is not None:
+        return Decision(True, f"{lighting.get('condition', 'night')}: the ground catches the soft contact "
+                              "shadows of the overhead street-light key and the sky (no sun shadow)")
+    if float(lighting.get("sky_strength", 0)) > 0:
+        return Decision(True, "no sun shadow: the ground under each object catches the soft shadow of the sky")
     return Decision(False, "no light source to cast a shadow")
 
 
@@ -354,7 +369,7 @@ def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str]) -> F
     passes = decide_passes(set(outputs))
     catcher = decide_shadow_catcher(plan.lighting, set(outputs))
     # Shadows matter for culling/region only when they are rendered.
-    sun = sun_direction(plan.lighting) if catcher.value or "rgba" in outputs else None
+    sun = shadow_light_direction(plan.lighting) if catcher.value or "rgba" in outputs else None
     kept, culled = cull_objects(plan, cam, sun)
     reason = f"{len(kept)} of {len(plan.objects)} objects may be seen"
     if culled:

@@ -541,7 +541,8 @@ class RenderSession:
         set_vehicle_lamps(info["lamps_on"])
         self._set_twin_mode("composite", catcher=bool(eff.shadow_catcher.value))
         by_id = {int(o.id): o for o in plan.objects}
-        patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.sun_direction(lighting))
+        margin = fx.SUN_MARGIN_M if fx.sun_direction(lighting) is not None else fx.SOFT_MARGIN_M
+        patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.shadow_light_direction(lighting), margin)
                    if eff.shadow_catcher.value and self.catch_shadows_on == "patches" else None)
         self._set_catcher(patches)
         if patches is not None:

@@ -35,7 +35,9 @@ def place_file(src: Path, dst: Path) -> None:
     with atomic.atomic_path(dst) as tmp:
         tmp.unlink()
         try:
-            os.link(src, tmp)
+            # resolve first: Linux link() hard-links a symlink itself, and a recording's frames
+            # may not be symlinks out of its folder
+            os.link(Path(src).resolve(), tmp)
         except OSError:
             shutil.copyfile(src, tmp)
 

@@ -237,3 +237,20 @@ def test_bad_plans_are_rejected_with_the_field_named():
     assert eff.region.value is None or all(np.isfinite(eff.region.value))
     patches = fx.catcher_patches([car(4, 1.0, 0)], np.array([0.0, 0.0, 1.0]))
     assert len(patches) == 1 and np.all(np.isfinite(patches[0]))
+
+
+def test_rider_shadow_is_caught_on_the_road_not_at_the_pegs():
+    # A rider's box starts at the pegs (~0.2 m up): a catcher patch there cut the bike's
+    # wheels out of the render (the patch hid everything below it) and lifted its shadow.
+    from blendgen.scene.catalog import sample_variant
+    from blendgen.scene.riders import split_rider
+
+    rng = np.random.default_rng(3)
+    v, d = next((v, d) for v, d in iter(lambda: sample_variant("motorcycle", rng), None) if "rider" in v)
+    bike, rider = split_rider(PlacedObject(1, "motorcycle", (12.0, 0.0, 0.4), 0.0, d, v), 2)
+    assert rider.position[2] > 0.4 + 0.1 and rider.variant["above_ground_m"] > 0.1
+    assert fx.base_z(rider) == pytest.approx(0.4, abs=1e-3) and fx.base_z(bike) == pytest.approx(0.4)
+    for patch in fx.catcher_patches([bike, rider], fx.sun_direction(SUN)):
+        assert np.allclose(patch[:, 2], 0.4, atol=1e-3)
+    _, shadow = fx.object_points(rider, fx.sun_direction(SUN))
+    assert np.allclose(shadow[:, 2], 0.4, atol=1e-3)

@@ -105,8 +105,10 @@ def shadow_points(corners: np.ndarray, sun_dir: np.ndarray | None, ground_z: flo
 
 
 def base_z(obj: PlacedObject) -> float:
-    """The ground height under an object: a traffic light's head hangs mount_height_m above it."""
-    hang = obj.variant.get("mount_height_m", 0.0) if obj.cls == "traffic light" else 0.0
+    """The ground height under an object: a traffic light's head hangs mount_height_m above it,
+    a rider's box starts above_ground_m up (at the pegs or pedals)."""
+    hang = obj.variant.get("mount_height_m", 0.0) if obj.cls == "traffic light" else \
+        obj.variant.get("above_ground_m", 0.0)
     return float(obj.position[2]) - float(hang)
 
 

@@ -37,6 +37,8 @@ def split_rider(obj: PlacedObject, rider_id: int) -> list[PlacedObject]:
         base = np.array([(plo[0] + phi[0]) / 2, (plo[1] + phi[1]) / 2, plo[2]])
         pos = np.asarray(obj.position, float) + R @ ((base - origin) * scale)
         dims = tuple(round(float(x), 4) for x in (phi - plo) * scale)
+        if part == "rider":  # the rider's box starts at the pegs: say where the road is under it
+            variant["above_ground_m"] = round(float((plo[2] - lo[2]) * scale[2]), 4)
         out.append(PlacedObject(id=oid, cls=cls, position=tuple(float(x) for x in pos), yaw=obj.yaw, dims=dims,
                                 variant=variant, velocity=obj.velocity, state=None, scenario=obj.scenario))
     return out

@@ -418,8 +418,8 @@ def main() -> None:
                          "benchmarks/results/tmp/realism or env BLENDGEN_REALISM_CACHE)")
     ap.add_argument("--classes", nargs="+", choices=list(CLASSES), default=list(CLASSES), metavar="CLASS",
                     help="inject only these classes (a probe of a few classes; default all seven)")
-    ap.add_argument("--doc", type=Path, default=DOC, help=f"markdown table to write (default {DOC.relative_to(ROOT)}); "
-                    "the plot is written beside benchmarks/results/ under the doc's name")
+    ap.add_argument("--doc", type=Path, default=DOC, help=f"markdown table to write (default {DOC.relative_to(ROOT)}, plot "
+                    f"{PLOT.relative_to(ROOT)}; another doc gets its plot beside it)")
     ap.add_argument("--quick", action="store_true", help="1 copy of each still, 2 video frames (smoke run)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from cached sets")
     ap.add_argument("--rescore", action="store_true", help="score the set's existing renders again (no rendering)")
@@ -452,7 +452,7 @@ def main() -> None:
     print(table)
     if not args.quick:
         atomic.write_text(args.doc, table)
-        plot(sets, PLOT.with_name(args.doc.stem + ".png"))
+        plot(sets, PLOT if args.doc == DOC else args.doc.with_suffix(".png"))
     atomic.write_json(TMP / "summary.json", summary)
 
 

@@ -5,6 +5,7 @@ list the real boxes they cover, and a second run redoes nothing."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -57,6 +58,14 @@ def test_dashcam_photos_job_analyses_plans_and_resumes(tmp_path):
     assert any(o["cls"] == "traffic light" and o["variant"]["pole"] for p in plans for o in p["objects"])
     for fid in ids:
         assert cv2.imread(str(out / "frames" / fid / "instances.png"), cv2.IMREAD_UNCHANGED).max() < SCENERY_ID
+    # the day street (f000000) has a double yellow centre line: cars beyond it come towards
+    # the camera, the others go with it
+    fa0 = json.loads((out / "analysis" / "f000000.json").read_text())
+    assert fa0["centre_line_m"] is not None and 1.0 < fa0["centre_line_m"] < 3.5, fa0["decisions"]
+    cars = [(o, fa0["T_world_cam"][1][3]) for p in plans if p["frame_id"] == "f000000"
+            for o in p["objects"] if o["cls"] == "car"]
+    for o, cam_y in cars:
+        assert (math.cos(o["yaw"]) < -0.99) == (o["position"][1] - cam_y > fa0["centre_line_m"]), o
 
     r2 = cli("run", str(job))
     assert r2.returncode == 0, r2.stderr[-2000:]

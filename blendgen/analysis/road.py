@@ -242,3 +242,87 @@ def road_direction(image: np.ndarray, road: np.ndarray | None, camera: Camera, T
     if abs(yaw) > MAX_ROAD_YAW_DEG:
         return None, f"{how}: {yaw:.1f} deg is beyond +-{MAX_ROAD_YAW_DEG:g} deg, not trusted"
     return yaw, how
+
+
+CL_WORK_W = 640         # the centre-line search runs at this width (yellow stripes are a few px wide)
+CL_RANGE_M = (4.0, 40.0)
+CL_MIN_B = 4.0          # OpenCV Lab b* above the asphalt's and above the row around it: yellow paint
+CL_MIN_PX = 40
+CL_MIN_SPAN_M = 8.0     # along the road: a line, not a yellow car or sign
+CL_MAX_SPREAD_M = 0.35  # robust lateral spread of the stripe's pixels
+CL_MIN_BEYOND_M = {"double": 1.5, "single": 2.2}  # road beyond it: oncoming lane, not a highway's left shoulder
+CL_DOUBLE_SHARE = 0.3
+
+
+def centre_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_world_cam: np.ndarray,
+                horizon) -> tuple[float | None, str]:
+    """(lateral offset in metres, left of the camera > 0, of a yellow line that divides the
+    traffic directions, or None; how it was decided).
+
+    North American roads paint the line between opposing directions yellow; a divided
+    highway paints its left edge yellow too, with no lane beyond it. So the line counts only
+    with at least a lane's width of road beyond it. White centre lines (most of Europe) are
+    not told apart from lane lines: the directions are then left to the user."""
+    if road is None or not road.any():
+        return None, "no road region"
+    H, W = image.shape[:2]
+    s = CL_WORK_W / W
+    h, w = int(round(H * s)), CL_WORK_W
+    small = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+    lab = cv2.cvtColor(small, cv2.COLOR_BGR2LAB).astype(np.float32)
+    r = cv2.resize(road.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    b = lab[..., 2]
+    b_road = float(np.median(b[r]))
+    # thin yellow stripes: b* above the asphalt and above its own neighbourhood across the row
+    tophat = cv2.morphologyEx(b, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (25, 1)))
+    yellow = r & (b - b_road > CL_MIN_B) & (tophat > CL_MIN_B) & (lab[..., 1] < 128 + 25) & (lab[..., 0] < 245)
+    v, u = np.nonzero(yellow)
+    if len(u) < CL_MIN_PX:
+        return None, f"no yellow road line ({len(u)} px)"
+    g = to_ground(camera, T_world_cam, np.column_stack([u, v]) / s)
+    cam = np.asarray(T_world_cam)[:2, 3]
+    x, y = g[:, 0] - cam[0], g[:, 1] - cam[1]
+    ok = np.isfinite(x) & (x > CL_RANGE_M[0]) & (x < CL_RANGE_M[1])
+    if ok.sum() < CL_MIN_PX:
+        return None, f"no yellow road line between {CL_RANGE_M[0]:g} and {CL_RANGE_M[1]:g} m ({int(ok.sum())} px)"
+    x, y, u, v = x[ok], y[ok], u[ok], v[ok]
+    # the densest 0.5 m of lateral offsets: the stripe (or the pair of a double line)
+    ys = np.sort(y)
+    k = np.searchsorted(ys, ys + 0.5, side="right") - np.arange(len(ys))
+    y0 = float(np.median(ys[int(np.argmax(k)):int(np.argmax(k)) + int(k.max())]))
+    on = np.abs(y - y0) < 0.5
+    spread = 1.4826 * float(np.median(np.abs(y[on] - y0)))
+    span = float(np.ptp(x[on])) if on.any() else 0.0
+    if on.sum() < CL_MIN_PX or span < CL_MIN_SPAN_M or spread > CL_MAX_SPREAD_M:
+        return None, (f"yellow pixels at y = {y0:+.1f} m do not form a line along the road "
+                      f"({int(on.sum())} px over {span:.0f} m, spread {spread:.2f} m)")
+    if y0 <= 0.5:
+        return None, f"the yellow line is at y = {y0:+.1f} m, not left of the ego lane"
+    double = _double_rows(yellow, u[on], v[on], y[on])
+    # road beyond the line: the road mask's left edge in the line's rows, on the ground
+    rows = np.unique(v[on])
+    left_u = r[rows].argmax(axis=1)
+    edge = to_ground(camera, T_world_cam, np.column_stack([left_u, rows]) / s)[:, 1] - cam[1]
+    # parked cars and the image border cut the far side in many rows: its widest part counts
+    beyond = float(np.nanpercentile(edge, 90)) - y0 if np.isfinite(edge).any() else float("nan")
+    kind = "double" if double >= CL_DOUBLE_SHARE else "single"
+    need = CL_MIN_BEYOND_M[kind]
+    if not np.isfinite(beyond) or beyond < need:
+        return None, (f"{kind} yellow line at y = {y0:+.1f} m with {beyond:.1f} m of road beyond it "
+                      f"(< {need:g} m; {double:.0%} of rows double): the road's left edge (one-way or divided), not a centre line")
+    return y0, (f"{kind} yellow centre line at {y0:+.1f} m left ({int(on.sum())} px over {span:.0f} m, "
+                         f"{double:.0%} of its rows double), {beyond:.1f} m of road beyond it: traffic there "
+                         f"comes towards the camera")
+
+
+def _double_rows(yellow: np.ndarray, u: np.ndarray, v: np.ndarray, y: np.ndarray) -> float:
+    """Share of the line's rows (near the camera, where a pair is resolved) that hold two
+    yellow runs: a double line, which only ever divides the two directions."""
+    rows = np.unique(v)
+    rows = rows[rows >= np.percentile(rows, 50)]   # the nearer half
+    n2 = 0
+    for r in rows:
+        cols = np.sort(u[v == r])
+        runs = 1 + int(np.sum(np.diff(cols) > 1)) if len(cols) else 0
+        n2 += runs == 2
+    return n2 / max(len(rows), 1)

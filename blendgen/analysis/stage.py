@@ -49,10 +49,12 @@ def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
 def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraEstimate, detector, *,
                   horizon=None, hood=None, user_road: np.ndarray | None = None, user_walk: np.ndarray | None = None,
                   T_world_cam: np.ndarray | None = None, users: list | None = None,
+                  oncoming: str = "auto", lane_width_m: float = 3.5,
                   ) -> tuple[FrameAnalysis, np.ndarray | None]:
     """One frame's analysis and its road/walkable-band mask (uint8, or None without a road).
     `users`: the frame's detections when already run (`objects.road_users`); `user_road`,
-    `user_walk`: the user's masks (bool HxW) that replace the estimates."""
+    `user_walk`: the user's masks (bool HxW) that replace the estimates. `oncoming`: the job's
+    `ground_plane.oncoming` (where traffic comes towards the camera)."""
     H, W = image.shape[:2]
     decisions: list[dict] = []
 
@@ -100,10 +102,19 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
             walk, how = road.walkable(image, road.bands(road_px, camera, T, blocked), road_px)
         decide("walkable", round(float(walk.mean()), 4), how)
         mask = np.where(road_px, road.ROAD, np.where(walk, road.BAND, 0)).astype(np.uint8)
+    centre = None
+    if oncoming == "left":
+        centre, how = lane_width_m / 2, "ground_plane.oncoming: left (beyond the ego lane's left edge)"
+    elif oncoming == "auto":
+        centre, how = road.centre_line(image, road_px, camera, T, horizon)
+    else:
+        how = "ground_plane.oncoming: none"
+    decisions.append({"what": "centre_line_m", "value": None if centre is None else round(centre, 2), "reason": how})
     fa = FrameAnalysis(frame_id=frame_id, width=W, height=H, camera=est, T_world_cam=T.tolist(),
                        horizon=horizon, hood=[list(map(float, p)) for p in hood] if hood else None,
                        road_mask=f"{frame_id}_road.png" if mask is not None else None,
-                       road_direction_deg=None if yaw is None else round(yaw, 2), real_objects=kept,
+                       road_direction_deg=None if yaw is None else round(yaw, 2),
+                       centre_line_m=None if centre is None else round(centre, 2), real_objects=kept,
                        decisions=decisions)
     return fa, mask
 
@@ -162,7 +173,9 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
             size = (image.shape[1], image.shape[0])
             fa, mask = analyse_frame(image, fid, camera, est, detector, horizon=horizon, hood=hoods.get(fid),
                                      user_road=road.user_mask(rec.root, "road", fid, size),
-                                     user_walk=road.user_mask(rec.root, "sidewalk", fid, size), users=users[fid])
+                                     user_walk=road.user_mask(rec.root, "sidewalk", fid, size), users=users[fid],
+                                     oncoming=getattr(gp, "oncoming", "auto"),
+                                     lane_width_m=getattr(gp, "lane_width_m", 3.5))
             fa.decisions.append({"what": "cpu_s", "value": round(time.process_time() - t1 + shared, 3),
                                  "reason": "analysis CPU seconds (hood, detector and camera shared per frame)"})
             write_analysis(folder, fa, mask)

@@ -181,6 +181,10 @@ class GroundPlane(Section):
     # them; false: the fixed pose with no analysis (the behaviour before issue 12).
     analysis: bool = True
     detector: Path | None = None  # a YOLOX-format COCO ONNX model; default: the bundled YOLOX-Nano
+    # Where traffic comes towards the camera: "auto" beyond a yellow centre line found in the
+    # frame (North American markings), "left" beyond the ego lane's left edge (two-way roads
+    # with white centre lines), "none" nowhere (one-way streets, divided highways).
+    oncoming: Literal["auto", "left", "none"] = "auto"
 
     @field_validator("camera_height_m", "pitch_deg", "roll_deg", mode="before")
     @classmethod

@@ -227,12 +227,15 @@ class Planner:
         return self.times[k0:] - self.times[k0] if self.inject.sequences else np.zeros(1)
 
     def lane_track(self, k0, cls, variant, dims, road, index, direction, s0, speed, lat=0.0,
-                   lat_profile=None, scenario=None) -> Track | None:
+                   lat_profile=None, scenario=None, reverse=False) -> Track | None:
+        """A vehicle along lane (road, index, direction) from s0; `reverse`: against the lane's
+        direction (a real frame's oncoming traffic on the ground-plane twin's one-way lanes)."""
         rg = self.twin.roads[road]
         cd = next(c for i, dr, c in rg.lanes if i == index and dr == direction)
         tt = self._frames_from(k0)
-        chain = None if lat_profile is not None or speed <= 0 else self.twin.lane_chain(
+        chain = None if lat_profile is not None or speed <= 0 or reverse else self.twin.lane_chain(
             road, index, direction, s0, speed * tt[-1] + dims[0], self.rng)
+        direction = -direction if reverse else direction
         if chain is not None:  # a map's lane goes on through a junction: follow its connecting road
             return self._chain_track(k0, cls, variant, dims, chain, speed * tt, lat * direction, scenario)
         s = s0 + direction * speed * tt
@@ -349,9 +352,16 @@ class Planner:
             lat = float(self.rng.uniform(-0.6, 0.6))
         moving = rider if cls in ("bicycle", "motorcycle") else self.rng.random() < 0.8
         speed = float(self.rng.uniform(*SPEED[cls])) if moving else 0.0
+        # a real frame's far side of its centre line: the ground-plane twin's lanes all run with
+        # the ego, so the vehicle keeps the lane and travels against it (and is parked facing so)
+        towards = False
+        if self.real is not None:  # decided where the vehicle will be, not where it was sampled
+            cd = next(c for i, dr, c in rg.lanes if i == lane.index and dr == lane.direction)
+            xy = rg.line.offset_point(lane.s, cd + lat * lane.direction)[0]
+            towards = self.real.oncoming(k, self.ego.T[k], xy)
         # `lat` is relative to the travel direction (left > 0); lane_track wants road-frame d
         return self.lane_track(k, cls, variant, dims, lane.road, lane.index, lane.direction, lane.s,
-                               speed, lat=lat * lane.direction)
+                               speed, lat=lat * lane.direction, reverse=towards)
 
     def _spawn_person(self, variant, dims, k, p):
         tw = self.twin

@@ -86,6 +86,16 @@ class RealScene:
             return "not on the walkable band beside the road"
         return None
 
+    def oncoming(self, k: int, T, xy) -> bool:
+        """Whether traffic at ground point `xy` comes towards the camera in frame k: beyond the
+        frame's centre line (the analysis' `centre_line_m`, left of the camera at pose T)."""
+        rf = self.frames[k] if k < len(self.frames) else None
+        if rf is None or rf.fa.centre_line_m is None:
+            return False
+        T = np.asarray(T, float)
+        # the ground-plane twin's road runs along +x: lateral offset = world y from the camera
+        return float(xy[1]) - float(T[1, 3]) > rf.fa.centre_line_m
+
     def has(self, k: int, value: int) -> bool:
         """Whether frame k has road (ROAD) or band (BAND) pixels."""
         rf = self.frames[k] if k < len(self.frames) else None

@@ -210,10 +210,26 @@ class OdrRoad:
         return x, y, th
 
     def point(self, s, t) -> np.ndarray:
-        """Inertial (x, y) of road coordinates (s, t); t > 0 to the left."""
+        """Inertial (x, y) of road coordinates (s, t); t > 0 to the left. With
+        superelevation the cross-section is rolled: t runs along the tilted surface, so its
+        plan-view offset is t cos(theta) (OpenDRIVE 1.6, 10.5.1)."""
         x, y, th = self.ref(s)
-        t = np.asarray(t, dtype=float)
+        t = np.asarray(t, dtype=float) * np.cos(self.theta(s))
         return np.stack([x - t * np.sin(th), y + t * np.cos(th)], axis=-1)
+
+    def z(self, s, t=0.0) -> np.ndarray:
+        """Surface height at (s, t): the elevation profile plus t sin(superelevation)."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        return _poly(self.elevation, s) + np.asarray(t, dtype=float) * np.sin(self.theta(s))
+
+    def theta(self, s) -> np.ndarray:
+        """Superelevation (roll of the cross-section about the reference line, rad; > 0
+        falls to the right) at s."""
+        return _poly(self.superelevation, np.atleast_1d(np.asarray(s, dtype=float)))
+
+    @property
+    def relief(self) -> bool:
+        return any(any(r[1:]) for r in self.elevation + self.superelevation)
 
     def lane_center_t(self, sec: LaneSection, lane_id: int, s) -> np.ndarray:
         """Lateral offset t of a lane's centre at s within its section."""
@@ -470,10 +486,15 @@ def twin_data(odr: OdrMap) -> dict:
             if nf + nb == 0 or sec.s1 - sec.s0 < 0.05:
                 continue
             s = np.linspace(sec.s0, sec.s1, max(2, int(math.ceil((sec.s1 - sec.s0) / SAMPLE_M)) + 1))
-            pts = r.point(s, _poly(r.lane_offset, s))
+            loff = _poly(r.lane_offset, s)
+            pts = r.point(s, loff)
             rid = r.id if len(r.sections) == 1 else f"{r.id}.{k}"
             in_junction = r.junction != "-1"
-            roads.append({
+            relief = {}
+            if r.relief:  # the twin's centre-line (reference line + lane offset) carries the relief
+                relief = {"z": np.round(r.z(s, loff), 4).tolist(),
+                          "superelevation_deg": np.round(np.degrees(r.theta(s)), 5).tolist()}
+            roads.append({**relief,
                 "id": rid, "points": [[round(float(x), 4), round(float(y), 4)] for x, y in pts],
                 "lanes_forward": nf, "lanes_backward": nb,
                 "lane_width_m": float(np.clip(np.mean(wf + wb), 2.0, 6.0)),

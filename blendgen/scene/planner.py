@@ -57,10 +57,15 @@ class Track:
     scenario: str | None = None
     states: list | None = None
     rider_id: int = 0   # a ridden two-wheeler's rider is its own instance (blendgen.scene.riders)
+    pitch: np.ndarray | None = None  # (n,) the road's slope under a wheeled object (maps with relief)
+    roll: np.ndarray | None = None
     corners: np.ndarray = field(init=False)  # (n, 4, 2) footprints
     radius: float = field(init=False)
 
     def __post_init__(self):
+        n = len(self.xy)
+        self.pitch = np.zeros(n) if self.pitch is None else np.asarray(self.pitch, float)[:n]
+        self.roll = np.zeros(n) if self.roll is None else np.asarray(self.roll, float)[:n]
         self.corners = footprints(self.xy, self.yaw, self.dims[0], self.dims[1])
         self.radius = 0.5 * math.hypot(self.dims[0], self.dims[1])
 
@@ -229,7 +234,6 @@ class Planner:
     def lane_track(self, k0, cls, variant, dims, road, index, direction, s0, speed, lat=0.0,
                    lat_profile=None, scenario=None) -> Track | None:
         rg = self.twin.roads[road]
-        cd = next(c for i, dr, c in rg.lanes if i == index and dr == direction)
         tt = self._frames_from(k0)
         chain = None if lat_profile is not None or speed <= 0 else self.twin.lane_chain(
             road, index, direction, s0, speed * tt[-1] + dims[0], self.rng)
@@ -241,6 +245,7 @@ class Planner:
         if n == 0:
             return None
         s, tt = s[:n], tt[:n]
+        cd = rg.lane_d(index, direction, s)  # the lane centre follows a map's varying widths
         d = cd + np.full(n, lat) if lat_profile is None else cd + lat_profile(tt)
         xy = rg.line.offset_point(s, d)
         _, tan = rg.line.at(s)
@@ -249,7 +254,17 @@ class Planner:
             left_rate = np.gradient(d, tt) * direction if n > 2 else np.zeros(n)
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         m = self._limit(k0, xy)
-        return self._track(cls, variant, dims, k0, xy[:m], np.zeros(m), wrap_angle(yaw[:m]), scenario)
+        return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
+
+    def _road_track(self, cls, variant, dims, k0, xy, yaw, scenario):
+        """A wheeled track on the road surface: its height, pitch and roll follow the road."""
+        if len(xy) == 0:
+            return None
+        if not self.twin.relief:
+            return self._track(cls, variant, dims, k0, xy, np.zeros(len(xy)), yaw, scenario)
+        z, pitch, roll = self.twin.surface_pose(xy, yaw, dims[0], dims[1])
+        tr = Track(0, cls, variant, dims, k0, xy, z, yaw, scenario, None, pitch=pitch, roll=roll)
+        return tr
 
     def _chain_track(self, k0, cls, variant, dims, chain, dist, lat, scenario):
         """A vehicle along a lane chain (through a junction); `lat` left of travel."""
@@ -259,8 +274,8 @@ class Planner:
         p, tan = chain.at(dist[:n])
         xy = p + lat * np.stack([-tan[:, 1], tan[:, 0]], axis=1)
         m = self._limit(k0, xy)
-        return self._track(cls, variant, dims, k0, xy[:m], np.zeros(m),
-                           wrap_angle(np.arctan2(tan[:m, 1], tan[:m, 0])), scenario)
+        return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(np.arctan2(tan[:m, 1], tan[:m, 0])),
+                                scenario)
 
     def walk_track(self, k0, variant, dims, start, direction_xy, speed, allowed, scenario=None,
                    stop_at=None) -> Track | None:
@@ -365,7 +380,7 @@ class Planner:
             road, s0, s1 = tw.crosswalk_info[j]
             rg = tw.roads[road]
             s = float(self.rng.uniform(s0 + 0.3, s1 - 0.3)) if s1 - s0 > 0.6 else (s0 + s1) / 2
-            start = rg.line.offset_point(s, float(self.rng.uniform(-rg.hw_right + 0.5, rg.hw_left - 0.5)))[0]
+            start = rg.line.offset_point(s, float(self.rng.uniform(-rg.hw_r(s) + 0.5, rg.hw_l(s) - 0.5)))[0]
             _, t = rg.line.at(s)
             across = np.array([-t[0, 1], t[0, 0]]) * (1 if self.rng.random() < 0.5 else -1)
             return self.walk_track(k, variant, dims, start, across, float(self.rng.uniform(*SPEED["person"])),
@@ -387,7 +402,7 @@ class Planner:
                     continue
                 s, d, _ = rg.line.project(p)
                 s, d = float(s[0]), float(d[0])
-                edge = -rg.hw_right if d < 0 else rg.hw_left
+                edge = float(-rg.hw_r(s) if d < 0 else rg.hw_l(s))
                 dd = edge + math.copysign(rg.spec.sidewalk_m * self.rng.uniform(0.25, 0.75), edge)
                 if abs(dd - d) < 12 and (best is None or abs(dd - d) < best[0]):
                     best = (abs(dd - d), rg.line.offset_point(s, dd)[0])
@@ -525,7 +540,7 @@ class Planner:
         s0 = self._ahead(lane, rg, EGO_FRONT_OF_CAM + gap + dims[0] / 2)
         v_e = float(np.median(self.ego.speed[k:k + 10]))
         speed = max(4.0, v_e + self.rng.uniform(0.5, 2.5))
-        cd_from = next(c for i, dr, c in rg.lanes if i == j and dr == lane.direction)
+        cd_from = float(rg.lane_d(j, lane.direction, lane.s))
         delta = lane.center_d - cd_from
         # cosine profile; duration keeps the heading within 8 deg of the lane
         T = max(2.5, math.pi * abs(delta) / (2 * speed * math.tan(math.radians(8.0))))
@@ -556,7 +571,8 @@ class Planner:
         stop = np.searchsorted(tt, window)
         if stop < len(tt):
             tr.xy[stop:] = tr.xy[stop - 1 if stop else 0]
-            tr.yaw[stop:] = tr.yaw[stop - 1 if stop else 0]
+            for arr in (tr.yaw, tr.z, tr.pitch, tr.roll):
+                arr[stop:] = arr[stop - 1 if stop else 0]
             tr.__post_init__()
         # cut the track where the ego would get within g_min/2 of it
         ks = np.arange(tr.k0, tr.k1)
@@ -567,7 +583,7 @@ class Planner:
 
     def _truncate(self, tr: Track, n: int) -> Track:
         return Track(tr.id, tr.cls, tr.variant, tr.dims, tr.k0, tr.xy[:n], tr.z[:n], tr.yaw[:n], tr.scenario,
-                     tr.states[:n] if tr.states else None)
+                     tr.states[:n] if tr.states else None, pitch=tr.pitch[:n], roll=tr.roll[:n])
 
     def _occluded_pedestrian(self, k, lane, rg):
         # parked cars along the curb of the ego's side if the ego is not in the curb lane,
@@ -583,7 +599,8 @@ class Planner:
         curb_side = -1 if direction > 0 else 1  # d sign of this curb
         if rg.spec.sidewalk_m < 1.0:
             return None
-        cd = next(c for i, dr, c in rg.lanes if i == idx and dr == direction)
+        cd = float(rg.lane_d(idx, direction, lane.s))
+        w_idx = float(rg.lane_width(idx, direction, lane.s))
         dist = self.rng.uniform(max(self.d0, 12.0), min(self.d1, 30.0))
         s_gap = self._ahead(lane, rg, dist)
         gap = self.rng.uniform(1.2, 1.8)
@@ -594,16 +611,19 @@ class Planner:
             s_c = s_cursor[sgn] + sgn * dims[0] / 2
             if not dims[0] / 2 <= s_c <= rg.length - dims[0] / 2:
                 return None
-            lat_d = cd + curb_side * (rg.spec.lane_width_m / 2 - dims[1] / 2 - 0.25)
+            lat_d = cd + curb_side * (w_idx / 2 - dims[1] / 2 - 0.25)
             p = rg.line.offset_point(s_c, lat_d)[0]
             _, t = rg.line.at(s_c)
             yaw = math.atan2(t[0, 1], t[0, 0]) + (0 if direction > 0 else math.pi)
-            out.append(self.static_track(k, "car", v, dims, p, yaw, 0.0, "occluded_pedestrian"))
+            n = len(self._frames_from(k))
+            xy = np.repeat(p[None], n, axis=0)
+            m = self._limit(k, xy)
+            out.append(self._road_track("car", v, dims, k, xy[:m], np.full(m, yaw), "occluded_pedestrian"))
         pv, pdims = sample_variant("person", self.rng)
         pv["kind"], pv["stride_rad"] = "walking", max(pv["stride_rad"], 0.3)
-        edge = curb_side * (rg.hw_right if curb_side < 0 else rg.hw_left)
+        edge = curb_side * float(rg.hw_r(s_gap) if curb_side < 0 else rg.hw_l(s_gap))
         start = rg.line.offset_point(s_gap, edge + curb_side * 0.6)[0]
-        end_d = cd - curb_side * (rg.spec.lane_width_m / 2 - 0.35)  # peeks just past the cars
+        end_d = cd - curb_side * (w_idx / 2 - 0.35)  # peeks just past the cars
         _, t = rg.line.at(s_gap)
         normal = np.array([-t[0, 1], t[0, 0]]) * -curb_side
         allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731
@@ -618,7 +638,7 @@ class Planner:
         n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
         dist = self.rng.uniform(max(self.d0, 8.0), min(self.d1, 25.0))
         s0 = self._ahead(lane, rg, dist)
-        lat = -(rg.spec.lane_width_m / 2 - 0.3 - dims[1] / 2)
+        lat = -(float(rg.lane_width(n - 1, lane.direction, s0)) / 2 - 0.3 - dims[1] / 2)
         return [self.lane_track(k, "bicycle", v, dims, rg.id, n - 1, lane.direction, s0,
                                 float(self.rng.uniform(4.0, 6.5)), lat=lat * lane.direction,
                                 scenario="cyclist_overtake")]
@@ -672,7 +692,7 @@ class Planner:
                     id=tr.id, cls=tr.cls, position=(float(tr.xy[i, 0]), float(tr.xy[i, 1]), float(tr.z[i])),
                     yaw=float(tr.yaw[i]), dims=tuple(float(x) for x in tr.dims), variant=dict(tr.variant),
                     velocity=tr.velocity(i, self.times), state=tr.states[i] if tr.states else None,
-                    scenario=tr.scenario), tr.rider_id)
+                    scenario=tr.scenario, pitch=float(tr.pitch[i]), roll=float(tr.roll[i])), tr.rider_id)
             decisions = [{"what": "rejected", "cls": c, "reason": r, "count": n} for (c, r), n in rejected.items()]
             if self.real is not None:
                 for tr in vis:

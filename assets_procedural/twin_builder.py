@@ -55,7 +55,7 @@ def _sweep(mb, rg: RoadGeom, s: np.ndarray, profile, material, z0=0.0):
     for d, z in profile:
         d = np.broadcast_to(np.asarray(d(s) if callable(d) else d, dtype=float), (n,))
         surface = rg.height(s, d) if rg.relief else 0.0
-        rings.append(np.column_stack([rg.line.offset_point(s, d), surface + z + z0]))
+        rings.append(np.column_stack([rg.line.offset_point(s, d), np.broadcast_to(surface + z + z0, (n,))]))
     v = np.stack(rings, axis=1).reshape(-1, 3)  # index = i*m + j
     f = [[i * m + j, (i + 1) * m + j, (i + 1) * m + j + 1, i * m + j + 1] for i in range(n - 1) for j in range(m - 1)]
     mb.add(v, f, material)

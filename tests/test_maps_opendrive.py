@@ -213,6 +213,9 @@ GOOD_GEOM = '<geometry s="0" x="0" y="0" hdg="0" length="50"><line/></geometry>'
      "<laneSection>: road '1': laneSection at s=0.0 has no lanes"),
     (SYNTH.replace("{L}", "50").replace("{GEOM}", GOOD_GEOM).replace("+proj=tmerc", "+proj=nonsense"),
      "<geoReference>: PROJ cannot parse"),
+    (SYNTH.replace("{L}", "50").replace("{GEOM}", GOOD_GEOM).replace(
+        "+proj=tmerc +lat_0=48.1 +lon_0=11.5 +x_0=0 +y_0=0 +datum=WGS84 +units=m", "EPSG:4326"),
+     "<geoReference>: the geoReference 'EPSG:4326' is not a projected CRS"),
     (SYNTH.replace("{L}", "50").replace("{GEOM}", GOOD_GEOM).replace('hdg="0" length="50"', 'hdg="zero" length="50"'),
      "hdg='zero' is not a number"),
 ])

@@ -110,3 +110,130 @@ def test_placed_car_on_slope_has_road_pitch_and_3d_label(relief_twin):
     # the plan (and so the render and labels) carries pitch/roll through JSON
     fp = FramePlan.from_dict(FramePlan("f", 0.0, np.eye(4).tolist(), [obj]).to_dict())
     assert fp.objects[0].pitch == obj.pitch and fp.objects[0].euler_xyz == (obj.roll, -obj.pitch, obj.yaw)
+
+
+# ---------------------------------------------------------------- lane widths along s, <border>
+WIDTHS = """<?xml version="1.0"?>
+<OpenDRIVE><header name="widths"/>
+<road id="7" length="120" junction="-1"><planView><geometry s="0" x="10" y="5" hdg="0.3" length="120"><line/></geometry></planView>
+<lanes><laneOffset s="0" a="0.2" b="0.01" c="0" d="0"/>
+<laneSection s="0"><center><lane id="0" type="none"/></center>
+<left><lane id="1" type="driving"><width sOffset="0" a="3.4" b="0" c="0.0005" d="0"/></lane></left>
+<right><lane id="-1" type="driving"><width sOffset="0" a="3.0" b="0.01" c="0.0002" d="-0.000002"/></lane>
+<lane id="-2" type="driving"><width sOffset="0" a="3.2" b="0" c="0" d="0"/><width sOffset="30" a="3.2" b="0.02" c="0" d="0"/></lane>
+<lane id="-3" type="shoulder"><width sOffset="0" a="0.5" b="0" c="0" d="0"/></lane></right>
+</laneSection>
+<laneSection s="60"><center><lane id="0" type="none"/></center>
+<left><lane id="1" type="driving"><border sOffset="0" a="5.2" b="-0.02" c="0" d="0"/></lane></left>
+<right><lane id="-1" type="driving"><width sOffset="0" a="3.5" b="-0.01" c="0" d="0"/></lane>
+<lane id="-2" type="driving"><border sOffset="0" a="-6.5" b="-0.03" c="0.0004" d="0"/></lane></right>
+</laneSection></lanes></road></OpenDRIVE>"""
+
+
+def _rec(recs, ds):
+    """Piecewise cubic records [(sOffset, a, b, c, d)], evaluated here independently."""
+    r = [x for x in recs if x[0] <= ds + 1e-12][-1]
+    u = ds - r[0]
+    return r[1] + r[2] * u + r[3] * u * u + r[4] * u ** 3
+
+
+def _independent_width_lanes(xml):
+    """{(section, lane id): (N, 2) lane-centre points} from the XML records."""
+    root = ET.fromstring(xml)
+    road = root.find("road")
+    g = road.find("planView/geometry")
+    x0, y0, h, L = (float(g.get(k)) for k in ("x", "y", "hdg", "length"))
+    attrs = ("sOffset", "a", "b", "c", "d")
+    lo = [(float(e.get("s")), *(float(e.get(k)) for k in attrs[1:])) for e in road.findall("lanes/laneOffset")]
+    secs = road.findall("lanes/laneSection")
+    starts = [float(sec.get("s")) for sec in secs] + [L]
+    out = {}
+    for k, sec in enumerate(secs):
+        s0, s1 = starts[k], starts[k + 1]
+        for side, sign in (("left", 1), ("right", -1)):
+            lanes = sorted(sec.findall(f"{side}/lane"), key=lambda e: abs(int(e.get("id"))))
+            for s in np.linspace(s0 + 0.1, s1 - 0.1, 40):
+                ds, inner = s - s0, 0.0
+                for ln in lanes:
+                    wr = [tuple(float(e.get(a)) for a in attrs) for e in ln.findall("width")]
+                    br = [tuple(float(e.get(a)) for a in attrs) for e in ln.findall("border")]
+                    outer = inner + _rec(wr, ds) if wr else abs(_rec(br, ds))
+                    if ln.get("type") == "driving":
+                        t = _rec(lo, s) + sign * (inner + outer) / 2
+                        p = (x0 + s * math.cos(h) - t * math.sin(h), y0 + s * math.sin(h) + t * math.cos(h))
+                        out.setdefault((k, int(ln.get("id"))), []).append(p)
+                    inner = outer
+    return {key: np.array(v) for key, v in out.items()}
+
+
+def test_lane_widths_along_s_and_borders_match_the_records(tmp_path):
+    from blendgen.scene.geom2d import Polyline
+
+    f = tmp_path / "widths.xodr"
+    f.write_text(WIDTHS)
+    tw = load_twin(f)
+    ref = _independent_width_lanes(WIDTHS)
+    assert len(ref) == 6
+    worst = 0.0
+    for (k, lid), pts in ref.items():
+        rg = tw.roads[f"7.{k}"]
+        direction, index = (1, -lid - 1) if lid < 0 else (-1, lid - 1)
+        s0, s1 = (0.0, rg.length) if direction > 0 else (rg.length, 0.0)
+        lane = Polyline(tw.lane_polyline(rg.id, index, direction, s0, s1, step=0.25))
+        s, d, _ = lane.project(pts)
+        assert np.all((s > -0.05) & (s < lane.length + 0.05))
+        worst = max(worst, float(np.abs(d).max()))
+        # lane_at finds the lane, with its local width, at the independent centres
+        for p in pts[::8]:
+            ln = tw.lane_at(*p)
+            assert ln is not None and (ln.road, ln.index, ln.direction) == (rg.id, index, direction)
+    assert worst < 0.02, f"lane centre off by {worst * 100:.2f} cm"
+    # the widths vary along the road (not one mean width): lane -2 of section 0 widens 3.2 -> 3.8 m
+    rg = tw.roads["7.0"]
+    assert abs(rg.lane_width(1, +1, 5.0) - 3.2) < 0.01 and abs(rg.lane_width(1, +1, 59.0) - (3.2 + 0.02 * 29)) < 0.01
+
+
+# ---------------------------------------------------------------- projected geoReferences
+UTM = """<?xml version="1.0"?>
+<OpenDRIVE><header name="utm"><geoReference><![CDATA[{PROJ}]]></geoReference></header>
+<road id="1" length="300" junction="-1"><planView>
+<geometry s="0" x="691000" y="5335000" hdg="0.7" length="150"><line/></geometry>
+<geometry s="150" x="{X1}" y="{Y1}" hdg="0.7" length="150"><arc curvature="0.01"/></geometry></planView>
+<lanes><laneSection s="0"><center><lane id="0" type="none"/></center>
+<left><lane id="1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></left>
+<right><lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right>
+</laneSection></lanes></road></OpenDRIVE>"""
+
+
+@pytest.mark.parametrize("proj", ["+proj=utm +zone=32 +datum=WGS84 +units=m +no_defs", "EPSG:32632"])
+def test_utm_georeference_round_trips_fixes_and_headings(tmp_path, proj):
+    import pyproj
+
+    f = tmp_path / "utm.xodr"
+    x1, y1 = 691000 + 150 * math.cos(0.7), 5335000 + 150 * math.sin(0.7)
+    f.write_text(UTM.replace("{PROJ}", proj).replace("{X1}", f"{x1:.6f}").replace("{Y1}", f"{y1:.6f}"))
+    tw = load_twin(f)
+    g = tw.georef
+    assert g.proj == proj and abs(g.origin[0] - 691000) < 200 and abs(g.origin[1] - 5335000) < 200
+    # the twin frame is the map's x/y less the origin (coordinates near 0 for Blender)
+    assert np.abs(np.asarray(tw.bounds)).max() < 300
+    crs = pyproj.CRS.from_user_input(proj)
+    fwd = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    inv = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    geod = pyproj.Geod(ellps="WGS84")
+    rows = np.array(tw.lut_rows(3.0))
+    lat, lon, hdg, x, y, yaw = rows[:, 0], rows[:, 1], rows[:, 3], rows[:, 4], rows[:, 5], np.radians(rows[:, 7])
+    X, Y = fwd.transform(lon, lat)
+    assert np.hypot(X - g.origin[0] - x, Y - g.origin[1] - y).max() < 0.01  # LUT fixes are the map's x/y
+    e, n, _ = g.to_enu(lat, lon, rows[:, 2])
+    assert np.hypot(e - x, n - y).max() < 0.01  # GNSS fixes map back into the twin
+    # true heading: geodesic azimuth of the lane direction (central difference, +-5 cm)
+    d = 0.05 * np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+    lo1, la1 = inv.transform(x - d[:, 0] + g.origin[0], y - d[:, 1] + g.origin[1])
+    lo2, la2 = inv.transform(x + d[:, 0] + g.origin[0], y + d[:, 1] + g.origin[1])
+    az, _, _ = geod.inv(lo1, la1, lo2, la2)
+    err = np.abs((hdg - az + 180.0) % 360.0 - 180.0)
+    assert err.max() < 0.01, err.max()
+    # grid north is not true north here (zone 32's central meridian is 9 E): ~1.9 deg apart
+    conv = np.degrees(np.pi / 2 - g.north_yaw(0.0, 0.0))
+    assert 1.5 < abs(conv) < 2.5

@@ -227,14 +227,23 @@ def _roads(sc: _Scene, mats_spec):
 
 def _ground(sc: _Scene, mats_spec):
     tw = sc.twin
-    x0, y0, x1, y1 = tw.bounds
-    c = ((x0 + x1) / 2, (y0 + y1) / 2)
-    half = tw.spec.ground_m / 2
+    x0, y0, x1, y1 = tw.ground_rect
     spec = mats_spec.get("ground")
     mb = MeshBuilder()
-    v = np.array([[c[0] - half, c[1] - half, -0.02], [c[0] + half, c[1] - half, -0.02],
-                  [c[0] + half, c[1] + half, -0.02], [c[0] - half, c[1] + half, -0.02]])
-    mb.add(v, [[0, 1, 2, 3]], "ground")
+    if tw.relief:  # a grid whose heights follow the nearest road (a little below its surface)
+        step = max(5.0, max(x1 - x0, y1 - y0) / 250)
+        xs = np.linspace(x0, x1, max(2, int(math.ceil((x1 - x0) / step)) + 1))
+        ys = np.linspace(y0, y1, max(2, int(math.ceil((y1 - y0) / step)) + 1))
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        pts = np.column_stack([gx.ravel(), gy.ravel()])
+        v = np.column_stack([pts, tw.ground_heights(pts) - 0.05])
+        ny = len(ys)
+        f = [[i * ny + j, (i + 1) * ny + j, (i + 1) * ny + j + 1, i * ny + j + 1]
+             for i in range(len(xs) - 1) for j in range(ny - 1)]
+        mb.add(v, f, "ground")
+    else:
+        v = np.array([[x0, y0, -0.02], [x1, y0, -0.02], [x1, y1, -0.02], [x0, y1, -0.02]])
+        mb.add(v, [[0, 1, 2, 3]], "ground")
     sc.emit("terrain", mb, {"ground": M.grass(spec.color if spec and spec.color else (0.10, 0.16, 0.05))}, "road",
             blendgen_kind="terrain")
 

@@ -593,5 +593,6 @@ def twin_data(odr: OdrMap) -> dict:
                 data["signs"].append({"position": p.round(3).tolist(), "yaw_deg": yaw_deg, "kind": sg.kind,
                                       "height_m": float(np.clip(sg.z_offset or 2.4, 0.6, 8.0))})
     allp = np.vstack([np.asarray(rd["points"]) for rd in roads])
-    data["ground_m"] = float(np.clip(2 * np.abs(allp).max() + 80.0, 10.0, 5000.0))
+    # the terrain square is centred on the roads (Twin.ground_rect): their extent + 40 m each side
+    data["ground_m"] = float(np.clip(np.ptp(allp, axis=0).max() + 80.0, 10.0, 20000.0))
     return data

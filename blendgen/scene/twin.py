@@ -681,6 +681,18 @@ class Twin:
         atomic.write_text(path, "\n".join(lines) + "\n")
         return len(rows)
 
+    GROUND_MARGIN_M = 40.0
+
+    @property
+    def ground_rect(self) -> tuple[float, float, float, float]:
+        """(x0, y0, x1, y1) of the terrain: the `ground_m` square about the roads' centre,
+        widened where needed to the roads' extent + 40 m (a long map is not cut off)."""
+        x0, y0, x1, y1 = self.bounds
+        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+        hx = max(self.spec.ground_m / 2, (x1 - x0) / 2 + self.GROUND_MARGIN_M)
+        hy = max(self.spec.ground_m / 2, (y1 - y0) / 2 + self.GROUND_MARGIN_M)
+        return cx - hx, cy - hy, cx + hx, cy + hy
+
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         pts = np.vstack([rg.line.pts for rg in self.roads.values()])

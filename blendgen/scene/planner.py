@@ -480,9 +480,10 @@ class Planner:
     # ------------------------------------------------------------ scenarios
     def stage_scenario(self, name: str, k: int) -> list[Track]:
         lane = self.ego.lane[k]
-        if lane is None or lane.in_junction:
+        near_crosswalk = name == "jaywalker" and self.twin.crosswalks  # needs no ego lane
+        if not near_crosswalk and (lane is None or lane.in_junction):
             return []
-        rg = self.twin.roads[lane.road]
+        rg = self.twin.roads[lane.road] if lane is not None else None
         fn = {"jaywalker": self._jaywalker, "cut_in": self._cut_in, "near_collision": self._near_collision,
               "occluded_pedestrian": self._occluded_pedestrian, "cyclist_overtake": self._cyclist}[name]
         for _ in range(6):
@@ -507,26 +508,68 @@ class Planner:
         return lane.s + lane.direction * dist
 
     def _jaywalker(self, k, lane, rg):
+        """A pedestrian crossing the road off a crosswalk: just beside one of the twin's
+        crosswalks in view when it has them (where people cut across), else mid-block across
+        the ego's road, away from junctions."""
         v, dims = sample_variant("person", self.rng)
         v["kind"] = "walking"
         v["stride_rad"] = v["stride_rad"] or 0.35
+        if self.twin.crosswalks:
+            return self._jaywalk_near_crosswalk(k, v, dims)
         dist = self.rng.uniform(max(self.d0, 12.0), min(self.d1, 35.0))
         s = self._ahead(lane, rg, dist)
         if not 2 < s < rg.length - 2:
             return None
         side = 1 if self.rng.random() < 0.5 else -1
-        d_start = (rg.hw_left + 0.4) if side > 0 else -(rg.hw_right + 0.4)
+        d_start = float(rg.hw_l(s) + 0.4) if side > 0 else -float(rg.hw_r(s) + 0.4)
         start = rg.line.offset_point(s, d_start)[0]
         if self.twin.on_crosswalk(*start):
             return None
+        # mid-block: the crossing and 5 m either side of it keep clear of junctions
+        dd = np.linspace(-float(rg.hw_r(s)), float(rg.hw_l(s)), 7)
+        probe = np.vstack([rg.line.offset_point(np.full(7, s + ds), dd) for ds in (-5.0, 0.0, 5.0)])
+        if self.twin.junction_mask(probe).any():
+            return None
         _, t = rg.line.at(s)
         normal = np.array([-t[0, 1], t[0, 0]]) * -side
-        width = rg.hw_left + rg.hw_right + 1.6
+        width = float(rg.hw_l(s) + rg.hw_r(s)) + 1.6
         speed = float(self.rng.uniform(1.2, 1.9))
         allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731 - jaywalking: anywhere
         return [self.walk_track(k, v, dims, start, normal, speed, allowed, "jaywalker", stop_at=width)]
 
+    def _jaywalk_near_crosswalk(self, k, v, dims):
+        tw, cam = self.twin, self.ego.cam[k, :2]
+        fwd = self.ego.heading[k]
+        cands = []
+        for j, (road, s0, s1) in enumerate(tw.crosswalk_info):
+            c = tw.crosswalks[j].mean(0)
+            rel = c - cam
+            dist = float(np.linalg.norm(rel))
+            if max(self.d0, 8.0) <= dist <= min(self.d1, 45.0) and rel @ fwd > 0.8 * dist:  # ahead, in view
+                cands.append(j)
+        if not cands:
+            return None
+        road, s0, s1 = tw.crosswalk_info[cands[int(self.rng.integers(len(cands)))]]
+        rg = tw.roads[road]
+        off = float(self.rng.uniform(0.6, 4.0))  # beside the zebra, not on it
+        options = [x for x in (s1 + off, s0 - off) if 0.5 < x < rg.length - 0.5]
+        if not options:
+            return None
+        s = options[int(self.rng.integers(len(options)))]
+        side = 1 if self.rng.random() < 0.5 else -1
+        start = rg.line.offset_point(s, side * (float(rg.hw_l(s) if side > 0 else rg.hw_r(s)) + 0.4))[0]
+        _, t = rg.line.at(s)
+        normal = np.array([-t[0, 1], t[0, 0]]) * -side
+        width = float(rg.hw_l(s) + rg.hw_r(s)) + 1.6
+        allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731 - jaywalking: anywhere
+        return [self.walk_track(k, v, dims, start, normal, float(self.rng.uniform(1.2, 1.9)), allowed,
+                                "jaywalker", stop_at=width)]
+
     def _cut_in(self, k, lane, rg):
+        """A vehicle from a neighbouring lane of the ego's direction cuts in ahead: only on a
+        multi-lane road segment, never in a junction (nor on a map's connecting road)."""
+        if rg.spec.junction is not None:
+            return None
         n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
         neighbours = [i for i in (lane.index - 1, lane.index + 1) if 0 <= i < n]
         if not neighbours:
@@ -550,8 +593,11 @@ class Planner:
             x = np.clip((tt - t_start) / T, 0, 1)
             return delta * (1 - np.cos(math.pi * x)) / 2
 
-        return [self.lane_track(k, cls, v, dims, rg.id, j, lane.direction, s0, speed, lat_profile=prof,
-                                scenario="cut_in")]
+        tr = self.lane_track(k, cls, v, dims, rg.id, j, lane.direction, s0, speed, lat_profile=prof,
+                             scenario="cut_in")
+        if tr is None or self.twin.junction_mask(tr.xy).any():
+            return None
+        return [tr]
 
     def _near_collision(self, k, lane, rg):
         cls = str(self.rng.choice(["car", "car", "truck", "bus"]))

@@ -166,15 +166,24 @@ class RoadGeom:
     def _interp(self, s, k):
         return np.interp(np.asarray(s, dtype=float), self._sk, k)
 
+    # constant cross-sections (hand-written twins, most map roads) skip the interpolation:
+    # these run for every road on every placement query
     def hw_r(self, s):
         """Carriageway extent to the right (> 0) at arc length(s) s."""
+        if not self.varying:
+            return np.full(np.shape(s), self.hw_right) if np.ndim(s) else self.hw_right
         return self._interp(s, self._hrk)
 
     def hw_l(self, s):
+        if not self.varying:
+            return np.full(np.shape(s), self.hw_left) if np.ndim(s) else self.hw_left
         return self._interp(s, self._hlk)
 
     def lane_d(self, index: int, direction: int, s):
         """Lateral offset of a lane's centre at s (array)."""
+        if not self.varying:
+            cd = next(c for i, dr, c in self.lanes if i == index and dr == direction)
+            return np.full(np.shape(s), cd, dtype=float)
         e = self._ek[direction]
         c = self._interp(s, e[:, index] + self._wk[direction][:, index] / 2)
         return -c if direction > 0 else c
@@ -184,18 +193,24 @@ class RoadGeom:
         return self._interp(s, self._ek[direction][:, index])
 
     def lane_width(self, index: int, direction: int, s):
+        if not self.varying:
+            return self.spec.lane_width_m if not np.ndim(s) else np.full(np.shape(s), self.spec.lane_width_m)
         return self._interp(s, self._wk[direction][:, index])
 
     def height(self, s, d):
         """Road surface height at (s, d)."""
+        if not self.relief:
+            return np.zeros(np.broadcast(np.asarray(s), np.asarray(d)).shape)
         return self._interp(s, self._zk) + np.asarray(d, float) * self._interp(s, self._tk)
 
     def carriageway(self, s, d):
+        if not self.varying:
+            return (s >= 0) & (s <= self.length) & (d >= -self.hw_right) & (d <= self.hw_left)
         return (s >= 0) & (s <= self.length) & (d >= -self.hw_r(s)) & (d <= self.hw_l(s))
 
     def sidewalk_band(self, s, d):
         sw = self.spec.sidewalk_m
-        hr, hl = self.hw_r(s), self.hw_l(s)
+        hr, hl = (self.hw_right, self.hw_left) if not self.varying else (self.hw_r(s), self.hw_l(s))
         inside = (s >= 0) & (s <= self.length)
         return inside & (((d < -hr) & (d >= -hr - sw)) | ((d > hl) & (d <= hl + sw)))
 
@@ -203,6 +218,15 @@ class RoadGeom:
         """(index, direction, centre d) of the lane containing lateral offset d at s, else None."""
         m = self.spec.median_m
         s = self.length / 2 if s is None else s
+        if not self.varying:
+            w = self.spec.lane_width_m
+            if d < -m / 2 or d > m / 2:
+                direction = +1 if d < 0 else -1
+                i = int((abs(d) - m / 2) // w)
+                n = self.spec.lanes_forward if direction > 0 else self.spec.lanes_backward
+                if i < n:
+                    return i, direction, -direction * (m / 2 + (i + 0.5) * w)
+            return None
         if d < -m / 2 or d > m / 2:
             direction = +1 if d < 0 else -1
             edges = np.array([np.interp(s, self._sk, col) for col in self._ek[direction].T])
@@ -443,6 +467,20 @@ class Twin:
             n += rg.carriageway(s, d)
         return n
 
+    def junction_mask(self, pts) -> np.ndarray:
+        """Which points lie in a junction: on a map's junction (connecting) road, or where
+        two carriageways overlap (a hand-written intersection)."""
+        pts = np.atleast_2d(np.asarray(pts, dtype=float))
+        n = np.zeros(len(pts), dtype=int)
+        jn = np.zeros(len(pts), dtype=bool)
+        for rg in self.roads.values():
+            s, d, _ = rg.line.project(pts)
+            on = rg.carriageway(s, d)
+            n += on
+            if rg.spec.junction is not None:
+                jn |= on
+        return jn | (n > 1)
+
     def sidewalk_mask(self, pts) -> np.ndarray:
         pts = np.atleast_2d(np.asarray(pts, dtype=float))
         band = np.zeros(len(pts), dtype=bool)
@@ -487,7 +525,9 @@ class Twin:
     @property
     def relief(self) -> bool:
         """Whether any road has elevation or superelevation (else the twin is flat)."""
-        return any(rg.relief for rg in self.roads.values())
+        if getattr(self, "_relief", None) is None:
+            self._relief = any(rg.relief for rg in self.roads.values())
+        return self._relief
 
     def surface_pose(self, xy, yaw, length: float, width: float):
         """(z, pitch, roll) arrays of a wheeled object whose footprint (length x width) is

@@ -126,6 +126,15 @@ def _other_carriageway(twin: Twin, rg: RoadGeom):
     return inside
 
 
+def _lift(tw: Twin, mb, k: int, x: float, y: float):
+    """Raise the parts added to `mb` since its k-th onto the ground at (x, y) on a twin with
+    relief (a map's elevation); flat twins keep their furniture at z = 0."""
+    if tw.relief:
+        z0 = tw.ground_height(x, y)
+        for v in mb.verts[k:]:
+            v[:, 2] += z0
+
+
 def _road_z(k: int) -> float:
     """Later roads sit a hair higher: no z-fighting in junctions (at most 1.7 cm with many roads)."""
     return 0.0015 * (k % 12)
@@ -262,7 +271,7 @@ def _buildings(sc: _Scene):
         ob = sc.emit(f"building_{i}", mb, {"facade": M.facade(b.facade, b.height_m / floors),
                                            "roof": M.concrete((0.35, 0.34, 0.33), tiles=False, name="roof")},
                      "structure", blendgen_kind="building")
-        ob.location = (*b.center, 0.0)
+        ob.location = (*b.center, sc.twin.ground_height(*b.center) if sc.twin.relief else 0.0)
         ob.rotation_euler = (0, 0, math.radians(b.yaw_deg))
 
 
@@ -279,6 +288,7 @@ def _street_furniture(sc: _Scene):
     mb = MeshBuilder()
     for p in sp.poles:
         x, y = p.position
+        k0 = len(mb.verts)
         if p.kind == "utility":
             v, f = cylinder(0.13, p.height_m, 12, "z", (x, y, p.height_m / 2), radius2=0.1)
             mb.add(v, f, "wood", smooth=True)
@@ -293,8 +303,10 @@ def _street_furniture(sc: _Scene):
             mb.add(v, f, "metal")
             v, f = box((0.6, 0.25, 0.12), tip - [0, 0, 0.08])
             mb.add(xf(v - tip, rot_z(yaw), tip), f, "lampglass")
+        _lift(sc.twin, mb, k0, x, y)
     for s in sp.signs:
         x, y = s.position
+        k0 = len(mb.verts)
         yaw = math.radians(s.yaw_deg)
         v, f = cylinder(0.035, s.height_m, 8, "z", (x, y, s.height_m / 2))
         mb.add(v, f, "metal")
@@ -315,6 +327,7 @@ def _street_furniture(sc: _Scene):
         else:
             v, f = box((0.03, 1.2, 0.8), (0.05, 0, 0.2))
             mb.add(xf(v, R, c), f, "blue")
+        _lift(sc.twin, mb, k0, x, y)
     for b in sp.barriers:
         a, e = np.asarray(b.start, float), np.asarray(b.end, float)
         length = float(np.linalg.norm(e - a))
@@ -370,6 +383,7 @@ def _trees(sc: _Scene):
     for t in sc.twin.spec.trees:
         x, y = t.position
         h = t.height_m
+        k0 = len(mb.verts)
         v, f = cylinder(0.16, h * 0.55, 8, "z", (x, y, h * 0.275), radius2=0.1)
         mb.add(v, f, "bark", smooth=True)
         for k in range(3):
@@ -377,6 +391,7 @@ def _trees(sc: _Scene):
             r = h * rng.uniform(0.2, 0.28)
             v, f = ellipsoid((r, r, r * 1.1), (x + off[0], y + off[1], h * 0.68 + off[2] + k * 0.35 * r), 10, 7)
             mb.add(v, f, "foliage", smooth=True)
+        _lift(sc.twin, mb, k0, x, y)
     sc.emit("trees", mb, {"bark": M.bark(), "foliage": M.foliage()}, "vegetation")
 
 

@@ -85,7 +85,8 @@ def test_maps() -> str:
     _, pitch, roll = tw.surface_pose([[50.0, -1.75], [160.0, -1.75 * math.cos(0.06)]], [0.0, 0.0], 4.5, 1.8)
     out.append(f"| relief (5 % slope, cubic elevation, superelevation 0.06 rad) | surface height at lane centres "
                f"| {err * 100:.2f} cm |")
-    out.append(f"| relief | car pitch on the 5 % slope vs atan(0.05); roll vs 0.06 rad (level stretch of pitch) "
+    out.append(f"| relief | car pitch on the 5 % slope vs atan(0.05); roll on the superelevated stretch vs "
+               f"atan(tan(0.06) cos(pitch)) "
                f"| {abs(pitch[0] - math.atan(0.05)):.1e} rad; {abs(roll[1] - math.atan(math.tan(0.06) * math.cos(pitch[1]))):.1e} rad |")
     f = tmp / "widths.xodr"
     f.write_text(R.WIDTHS)
@@ -115,7 +116,7 @@ def test_maps() -> str:
     herr = np.abs((rows[:, 3] - az + 180) % 360 - 180).max()
     out.append(f"| UTM zone 32 (x ~ 691 km), {len(rows)} LUT rows | GNSS fix round trip; heading vs geodesic azimuth "
                f"| {np.hypot(e - rows[:, 4], n - rows[:, 5]).max() * 1000:.3f} mm; {herr:.1e} deg "
-               f"(convergence {90 - np.degrees(g.north_yaw(0.0, 0.0)):.2f} deg) |")
+               f"(true north {np.degrees(g.north_yaw(0.0, 0.0)) - 90:.2f} deg CCW of grid north) |")
     return "\n".join(out)
 
 

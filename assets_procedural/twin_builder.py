@@ -45,11 +45,17 @@ class _Scene:
 
 
 def _sweep(mb, rg: RoadGeom, s: np.ndarray, profile, material, z0=0.0):
-    """Sweep an open (d, z) profile along the road centre-line over arc lengths `s`."""
+    """Sweep an open (d, z) profile along the road centre-line over arc lengths `s`; d may
+    be a function of s (a map's lane widths vary along the road), z is above the road
+    surface (a map's elevation and superelevation)."""
     n, m = len(s), len(profile)
     if n < 2:
         return
-    rings = [np.column_stack([rg.line.offset_point(s, np.full(n, d)), np.full(n, z + z0)]) for d, z in profile]
+    rings = []
+    for d, z in profile:
+        d = np.broadcast_to(np.asarray(d(s) if callable(d) else d, dtype=float), (n,))
+        surface = rg.height(s, d) if rg.relief else 0.0
+        rings.append(np.column_stack([rg.line.offset_point(s, d), np.broadcast_to(surface + z + z0, (n,))]))
     v = np.stack(rings, axis=1).reshape(-1, 3)  # index = i*m + j
     f = [[i * m + j, (i + 1) * m + j, (i + 1) * m + j + 1, i * m + j + 1] for i in range(n - 1) for j in range(m - 1)]
     mb.add(v, f, material)
@@ -120,6 +126,15 @@ def _other_carriageway(twin: Twin, rg: RoadGeom):
     return inside
 
 
+def _lift(tw: Twin, mb, k: int, x: float, y: float):
+    """Raise the parts added to `mb` since its k-th onto the ground at (x, y) on a twin with
+    relief (a map's elevation); flat twins keep their furniture at z = 0."""
+    if tw.relief:
+        z0 = tw.ground_height(x, y)
+        for v in mb.verts[k:]:
+            v[:, 2] += z0
+
+
 def _road_z(k: int) -> float:
     """Later roads sit a hair higher: no z-fighting in junctions (at most 1.7 cm with many roads)."""
     return 0.0015 * (k % 12)
@@ -145,7 +160,7 @@ def _roads(sc: _Scene, mats_spec):
     for k, rg in enumerate(tw.roads.values()):
         zr = _road_z(k)
         mb = MeshBuilder()
-        _sweep(mb, rg, _samples(0, rg.length), [(-rg.hw_right, 0.0), (rg.hw_left, 0.0)], "asphalt", zr)
+        _sweep(mb, rg, _samples(0, rg.length), [(lambda s, rg=rg: -rg.hw_r(s), 0.0), (rg.hw_l, 0.0)], "asphalt", zr)
         sc.emit(f"road_{rg.id}", mb, {"asphalt": asphalt}, "road")
         in_other = _other_carriageway(tw, rg)
         sp = rg.spec
@@ -153,13 +168,13 @@ def _roads(sc: _Scene, mats_spec):
         if sp.sidewalk_m > 0:
             mb = MeshBuilder()
             for side in (-1, 1):
-                edge = -rg.hw_right if side < 0 else rg.hw_left
-                mid = edge + side * sp.sidewalk_m / 2
+                hw = rg.hw_r if side < 0 else rg.hw_l
 
-                def ok(s, mid=mid):
-                    return ~in_other(rg.line.offset_point(s, np.full(len(s), mid)))
+                def ok(s, hw=hw, side=side):
+                    return ~in_other(rg.line.offset_point(s, side * (hw(s) + sp.sidewalk_m / 2)))
                 for a, b in _valid_spans(rg, ok):
                     s = _samples(a, b)
+                    edge = side * hw(s)
                     outer = edge + side * sp.sidewalk_m
                     ch = sp.curb_height_m + zr
                     _sweep(mb, rg, s, [(edge, 0.0), (edge, ch)], "curb")
@@ -174,23 +189,27 @@ def _roads(sc: _Scene, mats_spec):
             on = np.zeros(len(s), dtype=bool)
             for s0, s1 in on_cw:
                 on |= (s >= s0 - 0.3) & (s <= s1 + 0.3)
-            return ~on & ~in_other(rg.line.offset_point(s, np.full(len(s), d)))
+            return ~on & ~in_other(rg.line.offset_point(s, d(s)))
 
-        lines = []  # (d, width, dashed)
-        w, m = sp.lane_width_m, sp.median_m
+        def const(v):
+            return lambda s: np.full(np.shape(s), v, dtype=float)
+
+        lines = []  # (d as a function of s: lane widths may vary along a map's road, width, dashed)
+        m = sp.median_m
         if sp.lanes_forward and sp.lanes_backward and m == 0 and sp.center_line != "none":
             if sp.center_line == "double":
-                lines += [(-0.1, 0.12, False), (0.1, 0.12, False)]
+                lines += [(const(-0.1), 0.12, False), (const(0.1), 0.12, False)]
             else:
-                lines.append((0.0, 0.12, sp.center_line == "dashed"))
+                lines.append((const(0.0), 0.12, sp.center_line == "dashed"))
         if m > 0:
-            lines += [(-m / 2 - 0.1, 0.15, False), (m / 2 + 0.1, 0.15, False)]
+            lines += [(const(-m / 2 - 0.1), 0.15, False), (const(m / 2 + 0.1), 0.15, False)]
         for i in range(1, sp.lanes_forward):
-            lines.append((-(m / 2 + i * w), 0.15, True))
+            lines.append((lambda s, i=i: -rg.lane_edge(i, +1, s), 0.15, True))
         for i in range(1, sp.lanes_backward):
-            lines.append((m / 2 + i * w, 0.15, True))
+            lines.append((lambda s, i=i: rg.lane_edge(i, -1, s), 0.15, True))
         if sp.shoulder_m >= 0.2:
-            lines += [(-(rg.hw_right - sp.shoulder_m) - 0.08, 0.15, False), (rg.hw_left - sp.shoulder_m + 0.08, 0.15, False)]
+            lines += [(lambda s: -(rg.hw_r(s) - sp.shoulder_m) - 0.08, 0.15, False),
+                      (lambda s: rg.hw_l(s) - sp.shoulder_m + 0.08, 0.15, False)]
         dash, gap = (6.0, 12.0) if sp.speed_mps > 22 else (3.0, 6.0)
         for d, wd, dashed in lines:
             for a, b in _valid_spans(rg, lambda s, d=d: free(s, d), step=0.5):
@@ -199,7 +218,8 @@ def _roads(sc: _Scene, mats_spec):
                     starts = np.arange(math.ceil(a / (dash + gap)) * (dash + gap), b, dash + gap)
                     pieces = [(x, min(x + dash, b)) for x in starts if min(x + dash, b) - x > 0.3]
                 for x0, x1 in pieces:
-                    _sweep(marks, rg, _samples(x0, x1), [(d - wd / 2, MARK_Z), (d + wd / 2, MARK_Z)], "paint", zr)
+                    _sweep(marks, rg, _samples(x0, x1), [(lambda s, d=d: d(s) - wd / 2, MARK_Z),
+                                                         (lambda s, d=d: d(s) + wd / 2, MARK_Z)], "paint", zr)
     # stop lines and zebra crossings
     for sl in tw.stop_lines:
         rg = tw.roads[sl.road]
@@ -208,21 +228,31 @@ def _roads(sc: _Scene, mats_spec):
     for road, s0, s1 in tw.crosswalk_info:
         rg = tw.roads[road]
         zr = _top_z(tw, rg.line.offset_point((s0 + s1) / 2, 0.0))
-        for d in np.arange(-rg.hw_right + 0.4, rg.hw_left - 0.6, 1.0):
+        sm = (s0 + s1) / 2
+        for d in np.arange(-float(rg.hw_r(sm)) + 0.4, float(rg.hw_l(sm)) - 0.6, 1.0):
             _sweep(marks, rg, _samples(s0 + 0.2, s1 - 0.2, 0.5), [(d, MARK_Z), (d + 0.5, MARK_Z)], "paint", zr)
     sc.emit("markings", marks, {"paint": paint}, "marking")
 
 
 def _ground(sc: _Scene, mats_spec):
     tw = sc.twin
-    x0, y0, x1, y1 = tw.bounds
-    c = ((x0 + x1) / 2, (y0 + y1) / 2)
-    half = tw.spec.ground_m / 2
+    x0, y0, x1, y1 = tw.ground_rect
     spec = mats_spec.get("ground")
     mb = MeshBuilder()
-    v = np.array([[c[0] - half, c[1] - half, -0.02], [c[0] + half, c[1] - half, -0.02],
-                  [c[0] + half, c[1] + half, -0.02], [c[0] - half, c[1] + half, -0.02]])
-    mb.add(v, [[0, 1, 2, 3]], "ground")
+    if tw.relief:  # a grid whose heights follow the nearest road (a little below its surface)
+        step = max(5.0, max(x1 - x0, y1 - y0) / 250)
+        xs = np.linspace(x0, x1, max(2, int(math.ceil((x1 - x0) / step)) + 1))
+        ys = np.linspace(y0, y1, max(2, int(math.ceil((y1 - y0) / step)) + 1))
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        pts = np.column_stack([gx.ravel(), gy.ravel()])
+        v = np.column_stack([pts, tw.ground_heights(pts) - 0.05])
+        ny = len(ys)
+        f = [[i * ny + j, (i + 1) * ny + j, (i + 1) * ny + j + 1, i * ny + j + 1]
+             for i in range(len(xs) - 1) for j in range(ny - 1)]
+        mb.add(v, f, "ground")
+    else:
+        v = np.array([[x0, y0, -0.02], [x1, y0, -0.02], [x1, y1, -0.02], [x0, y1, -0.02]])
+        mb.add(v, [[0, 1, 2, 3]], "ground")
     sc.emit("terrain", mb, {"ground": M.grass(spec.color if spec and spec.color else (0.10, 0.16, 0.05))}, "road",
             blendgen_kind="terrain")
 
@@ -241,7 +271,7 @@ def _buildings(sc: _Scene):
         ob = sc.emit(f"building_{i}", mb, {"facade": M.facade(b.facade, b.height_m / floors),
                                            "roof": M.concrete((0.35, 0.34, 0.33), tiles=False, name="roof")},
                      "structure", blendgen_kind="building")
-        ob.location = (*b.center, 0.0)
+        ob.location = (*b.center, sc.twin.ground_height(*b.center) if sc.twin.relief else 0.0)
         ob.rotation_euler = (0, 0, math.radians(b.yaw_deg))
 
 
@@ -258,6 +288,7 @@ def _street_furniture(sc: _Scene):
     mb = MeshBuilder()
     for p in sp.poles:
         x, y = p.position
+        k0 = len(mb.verts)
         if p.kind == "utility":
             v, f = cylinder(0.13, p.height_m, 12, "z", (x, y, p.height_m / 2), radius2=0.1)
             mb.add(v, f, "wood", smooth=True)
@@ -272,8 +303,10 @@ def _street_furniture(sc: _Scene):
             mb.add(v, f, "metal")
             v, f = box((0.6, 0.25, 0.12), tip - [0, 0, 0.08])
             mb.add(xf(v - tip, rot_z(yaw), tip), f, "lampglass")
+        _lift(sc.twin, mb, k0, x, y)
     for s in sp.signs:
         x, y = s.position
+        k0 = len(mb.verts)
         yaw = math.radians(s.yaw_deg)
         v, f = cylinder(0.035, s.height_m, 8, "z", (x, y, s.height_m / 2))
         mb.add(v, f, "metal")
@@ -294,6 +327,7 @@ def _street_furniture(sc: _Scene):
         else:
             v, f = box((0.03, 1.2, 0.8), (0.05, 0, 0.2))
             mb.add(xf(v, R, c), f, "blue")
+        _lift(sc.twin, mb, k0, x, y)
     for b in sp.barriers:
         a, e = np.asarray(b.start, float), np.asarray(b.end, float)
         length = float(np.linalg.norm(e - a))
@@ -349,6 +383,7 @@ def _trees(sc: _Scene):
     for t in sc.twin.spec.trees:
         x, y = t.position
         h = t.height_m
+        k0 = len(mb.verts)
         v, f = cylinder(0.16, h * 0.55, 8, "z", (x, y, h * 0.275), radius2=0.1)
         mb.add(v, f, "bark", smooth=True)
         for k in range(3):
@@ -356,6 +391,7 @@ def _trees(sc: _Scene):
             r = h * rng.uniform(0.2, 0.28)
             v, f = ellipsoid((r, r, r * 1.1), (x + off[0], y + off[1], h * 0.68 + off[2] + k * 0.35 * r), 10, 7)
             mb.add(v, f, "foliage", smooth=True)
+        _lift(sc.twin, mb, k0, x, y)
     sc.emit("trees", mb, {"bark": M.bark(), "foliage": M.foliage()}, "vegetation")
 
 

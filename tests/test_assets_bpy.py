@@ -195,3 +195,29 @@ def test_vehicle_lamps_switch_on_at_night():
     r, g, b, _ = _bsdf(tail).inputs["Emission Color"].default_value
     assert r > 0.9 and g < 0.1  # red tail lights
     remove_object(root)
+
+
+def test_map_twin_road_meshes_follow_elevation(tmp_path):
+    """An OpenDRIVE road with a 5 % slope and superelevation: the asphalt's vertices lie on
+    the road surface the twin (and so the planner) uses."""
+    from test_maps_relief import RELIEF
+
+    f = tmp_path / "relief.xodr"
+    f.write_text(RELIEF.replace("</lanes></road>", '</lanes><objects><object type="pole" id="9" s="150" t="-9" '
+                                                   'height="6" length="0.3" width="0.3" hdg="0"/></objects></road>'))
+    twin = load_twin(f)
+    (pole,) = twin.spec.poles
+    info = build_twin(twin)
+    coll = bpy.data.collections[info["collection"]]
+    road = next(ob for ob in coll.objects if ob.name.startswith("road_1"))
+    v = np.array([list(road.matrix_world @ x.co) for x in road.data.vertices])
+    want = twin.ground_heights(v[:, :2])
+    assert v[:, 2].max() > 7.0 and np.abs(v[:, 2] - want).max() < 0.02
+    marks = next(ob for ob in coll.objects if ob.name.split(".")[0] == "markings")
+    m = np.array([list(marks.matrix_world @ x.co) for x in marks.data.vertices])
+    assert np.all((m[:, 2] - twin.ground_heights(m[:, :2]) > 0.0) & (m[:, 2] - twin.ground_heights(m[:, :2]) < 0.03))
+    # street furniture stands on the sloped ground (not at z = 0)
+    fur = next(ob for ob in coll.objects if ob.name.split(".")[0] == "street_furniture")
+    p = np.array([list(fur.matrix_world @ x.co) for x in fur.data.vertices])
+    near = np.hypot(p[:, 0] - pole.position[0], p[:, 1] - pole.position[1]) < 0.3
+    assert abs(p[near, 2].min() - twin.ground_height(*pole.position)) < 0.01 and p[near, 2].min() > 6.0

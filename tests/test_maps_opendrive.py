@@ -111,6 +111,11 @@ def test_integration_map_imports_under_5s_with_plot_and_lut(tmp_path):
     assert cpu < 5.0, f"{cpu:.2f} CPU-s"
     assert len(twin.roads) == 75 and len(twin.crosswalks) >= 9
     assert sum(rg.spec.junction is not None for rg in twin.roads.values()) > 20
+    # the terrain reaches 40 m beyond the roads everywhere (the map is 3050 m long)
+    x0, y0, x1, y1 = twin.bounds
+    g0, h0, g1, h1 = twin.ground_rect
+    assert x1 > 3000 and g0 <= x0 - 40 and h0 <= y0 - 40 and g1 >= x1 + 40 and h1 >= y1 + 40
+    assert twin.spec.ground_m >= max(x1 - x0, y1 - y0) + 80 - 1e-6
     assert cli(["twin", "import", "opendrive", str(MAPS / "12_map_integration.xodr"), str(tmp_path / "tw")]) == 0
     for f in ("twin.yaml", "twin_lut.csv", "twin.png", "12_map_integration.xodr"):
         assert (tmp_path / "tw" / f).stat().st_size > 0
@@ -213,6 +218,9 @@ GOOD_GEOM = '<geometry s="0" x="0" y="0" hdg="0" length="50"><line/></geometry>'
      "<laneSection>: road '1': laneSection at s=0.0 has no lanes"),
     (SYNTH.replace("{L}", "50").replace("{GEOM}", GOOD_GEOM).replace("+proj=tmerc", "+proj=nonsense"),
      "<geoReference>: PROJ cannot parse"),
+    (SYNTH.replace("{L}", "50").replace("{GEOM}", GOOD_GEOM).replace(
+        "+proj=tmerc +lat_0=48.1 +lon_0=11.5 +x_0=0 +y_0=0 +datum=WGS84 +units=m", "EPSG:4326"),
+     "<geoReference>: the geoReference 'EPSG:4326' is not a projected CRS"),
     (SYNTH.replace("{L}", "50").replace("{GEOM}", GOOD_GEOM).replace('hdg="0" length="50"', 'hdg="zero" length="50"'),
      "hdg='zero' is not a number"),
 ])

@@ -1,5 +1,6 @@
 """Render driver with Blender: small Cycles renders (160x90 .. 320x180, few samples)."""
 
+import math
 import time
 
 import numpy as np
@@ -308,3 +309,29 @@ def test_signal_pole_is_composited_but_not_labelled(tmp_path):
     inst = extract_instances(idx, FramePlan("t", 0.0, T.tolist(), [head]), cam, min_visible_px=1)
     assert [i["id"] for i in inst] == [5] and inst[0]["area"] == int((idx == 5).sum())
     assert abs(info["amodal_px"][5] - inst[0]["area"]) <= max(2, 0.05 * inst[0]["area"])
+
+
+def test_pitched_and_rolled_object_matches_its_3d_box(tmp_path):
+    """A car on a sloped, superelevated road: Blender's object rotation is the plan's
+    R_world_obj (yaw, pitch, roll), so the rendered box is the labelled 3-D box."""
+    from blendgen.labels.instances import box3d_cam
+
+    cam = Camera.from_hfov(160, 90, 70)
+    s = session(cam, samples=1)
+    try:
+        obj = PlacedObject(5, "car", (12.0, 0.5, 0.6), 0.3, (4.4, 1.8, 1.5), pitch=math.atan(0.05), roll=-0.06)
+        s.render_frame(FramePlan("p", 0.0, T.tolist(), [obj], SUN), tmp_path / "p.exr", {"index"})
+        M = np.array(s._placed[5].root.matrix_world)
+        np.testing.assert_allclose(M[:3, :3], obj.R_world_obj(), atol=1e-6)
+        np.testing.assert_allclose(M[:3, 3], obj.position, atol=1e-6)
+        # the mesh's world bounding box is the plan's 3-D box (box builder: exactly its dims)
+        ob = s._placed[5].root
+        from mathutils import Vector
+
+        world = np.array([list(ob.matrix_world @ Vector(c)) for c in ob.bound_box])
+        corners = obj.box_corners_world()
+        assert np.abs(np.sort(world, axis=0) - np.sort(corners, axis=0)).max() < 1e-4
+        box = box3d_cam(obj, T)
+        np.testing.assert_allclose(np.asarray(box["R_cam_obj"]), T[:3, :3].T @ obj.R_world_obj(), atol=1e-9)
+    finally:
+        s.close()

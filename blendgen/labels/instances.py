@@ -59,9 +59,7 @@ def box3d_cam(obj: PlacedObject, T_world_cam) -> dict:
     """
     T_cam_world = invert_pose(np.asarray(T_world_cam, dtype=float))
     R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
-    c, s = math.cos(obj.yaw), math.sin(obj.yaw)
-    R_world_obj = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    R_cam_obj = R @ R_world_obj
+    R_cam_obj = R @ obj.R_world_obj()  # yaw and the road's pitch/roll
     loc = R @ np.asarray(obj.position, dtype=float) + t
     corners = obj.box_corners_world() @ R.T + t
     fwd = R_cam_obj[:, 0]

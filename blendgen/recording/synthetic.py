@@ -120,9 +120,13 @@ def simulate_gnss(traj: Trajectory, rate_hz: float, noise_m: float, georef, seed
     walk -= walk.mean(axis=0)
     err = rng.normal(0, noise_m, (n, 3)) * [1, 1, 2] * 0.7 + walk * [1, 1, 2] * 0.3
     e, nn, u = (traj.p[idx] + err).T
-    lat, lon, alt = pymap3d.enu2geodetic(e, nn, u, *georef)
     speed = np.linalg.norm(traj.v[idx, :2], axis=1)
-    heading = np.degrees(np.arctan2(traj.v[idx, 0], traj.v[idx, 1])) % 360.0  # compass, from ENU velocity
+    if getattr(georef, "proj", None):  # a projected twin (a UTM map): pyproj, true north
+        lat, lon, alt = georef.to_geodetic(e, nn, u)
+        heading = georef.heading_of_yaw(e, nn, np.arctan2(traj.v[idx, 1], traj.v[idx, 0]))
+    else:
+        lat, lon, alt = pymap3d.enu2geodetic(e, nn, u, *georef)
+        heading = np.degrees(np.arctan2(traj.v[idx, 0], traj.v[idx, 1])) % 360.0  # compass, from ENU velocity
     heading = np.where(speed > 1.0, heading + rng.normal(0, 1.0, n), np.nan)
     return np.column_stack([traj.t[idx], lat, lon, alt, heading % 360.0, np.full(n, noise_m)])
 

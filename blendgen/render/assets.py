@@ -258,7 +258,7 @@ class AssetLibrary:
         scene = bpy.context.scene
         scene.collection.objects.link(root)
         root.location = tuple(float(x) for x in obj.position)
-        root.rotation_euler = (0.0, 0.0, float(obj.yaw))
+        root.rotation_euler = obj.euler_xyz  # yaw, and the road's pitch/roll
         root.pass_index = int(obj.id)
         root["blendgen_id"] = int(obj.id)
         root["blendgen_cls"] = obj.cls

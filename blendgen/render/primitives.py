@@ -71,5 +71,5 @@ def box_object(obj) -> bpy.types.Object:
     ob.data.materials.append(material(f"obj{obj.id}", color, roughness=0.4))
     ob.pass_index = int(obj.id)
     ob.location = tuple(float(c) for c in obj.position)
-    ob.rotation_euler = (0.0, 0.0, float(obj.yaw))
+    ob.rotation_euler = obj.euler_xyz  # yaw, and the road's pitch/roll
     return ob

@@ -375,7 +375,7 @@ class RenderSession:
                 ob.hide_render = False
             p.root.location = tuple(float(c) for c in o.position)
             p.root.rotation_mode = "XYZ"
-            p.root.rotation_euler = (0.0, 0.0, float(o.yaw))
+            p.root.rotation_euler = o.euler_xyz  # yaw, and the road's pitch/roll
         return stats
 
     @staticmethod

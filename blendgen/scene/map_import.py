@@ -83,13 +83,13 @@ def plot_twin(twin, png: Path) -> None:
     for rg in twin.roads.values():
         s = np.linspace(0, rg.length, max(2, int(rg.length / 2) + 1))
         junction = rg.spec.junction is not None
-        areas[junction].append(np.vstack([rg.line.offset_point(s, np.full(len(s), -rg.hw_right)),
-                                          rg.line.offset_point(s[::-1], np.full(len(s), rg.hw_left))]))
+        areas[junction].append(np.vstack([rg.line.offset_point(s, -rg.hw_r(s)),
+                                          rg.line.offset_point(s[::-1], rg.hw_l(s[::-1]))]))
         if rg.spec.sidewalk_m > 0:
-            walks += [rg.line.offset_point(s, np.full(len(s), sign * (hw + rg.spec.sidewalk_m / 2)))
-                      for sign, hw in ((-1, rg.hw_right), (1, rg.hw_left))]
-        for i, dr, cd in rg.lanes:
-            p = rg.line.offset_point(s, np.full(len(s), cd))
+            walks += [rg.line.offset_point(s, sign * (hw(s) + rg.spec.sidewalk_m / 2))
+                      for sign, hw in ((-1, rg.hw_r), (1, rg.hw_l))]
+        for i, dr, _ in rg.lanes:
+            p = rg.line.offset_point(s, rg.lane_d(i, dr, s))
             lanes[junction].append(p)
             m = len(p) // 2  # an arrow in the travel direction at the middle
             arrows.append((*p[m], *((p[m] - p[m - 1]) * dr)))

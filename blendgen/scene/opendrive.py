@@ -6,7 +6,9 @@ Why our own reader: see docs/design_decisions.md ("OpenDRIVE reader"). Errors na
 element and its line number (lxml's sourceline).
 
 Frame: the map's own inertial x/y (metres), which for a local transverse-Mercator
-geoReference about the map origin is the twin's ENU frame about that origin.
+geoReference about the map origin is the twin's ENU frame about that origin; for other
+projections (UTM, EPSG codes) the map's x/y less an origin in the middle of the map
+(`map_georef`).
 """
 
 from __future__ import annotations
@@ -146,6 +148,7 @@ class OdrLane:
     widths: list            # [(sOffset, a, b, c, d)] relative to the section start
     mark: str = "none"      # the lane's outer road mark type
     line: int = 0
+    border: list = field(default_factory=list)  # <border> records (outer border |t|) when no <width>
 
 
 @dataclass
@@ -210,20 +213,35 @@ class OdrRoad:
         return x, y, th
 
     def point(self, s, t) -> np.ndarray:
-        """Inertial (x, y) of road coordinates (s, t); t > 0 to the left."""
+        """Inertial (x, y) of road coordinates (s, t); t > 0 to the left. With
+        superelevation the cross-section is rolled: t runs along the tilted surface, so its
+        plan-view offset is t cos(theta) (OpenDRIVE 1.6, 10.5.1)."""
         x, y, th = self.ref(s)
-        t = np.asarray(t, dtype=float)
+        t = np.asarray(t, dtype=float) * np.cos(self.theta(s))
         return np.stack([x - t * np.sin(th), y + t * np.cos(th)], axis=-1)
+
+    def z(self, s, t=0.0) -> np.ndarray:
+        """Surface height at (s, t): the elevation profile plus t sin(superelevation)."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        return _poly(self.elevation, s) + np.asarray(t, dtype=float) * np.sin(self.theta(s))
+
+    def theta(self, s) -> np.ndarray:
+        """Superelevation (roll of the cross-section about the reference line, rad; > 0
+        falls to the right) at s."""
+        return _poly(self.superelevation, np.atleast_1d(np.asarray(s, dtype=float)))
+
+    @property
+    def relief(self) -> bool:
+        return any(any(r[1:]) for r in self.elevation + self.superelevation)
 
     def lane_center_t(self, sec: LaneSection, lane_id: int, s) -> np.ndarray:
         """Lateral offset t of a lane's centre at s within its section."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
         side = sec.left if lane_id > 0 else sec.right
-        t = _poly(self.lane_offset, s)
+        w = side_widths(side, s - sec.s0)
+        k = abs(lane_id) - 1
         sign = 1.0 if lane_id > 0 else -1.0
-        for ln in side[:abs(lane_id) - 1]:
-            t = t + sign * _poly(ln.widths, s - sec.s0)
-        return t + sign * _poly(side[abs(lane_id) - 1].widths, s - sec.s0) / 2
+        return _poly(self.lane_offset, s) + sign * (w[:k].sum(0) + w[k] / 2)
 
 
 @dataclass
@@ -289,9 +307,11 @@ def _check_proj(src: _Src, el, proj: str):
     import pyproj
 
     try:
-        pyproj.CRS.from_user_input(proj)
+        crs = pyproj.CRS.from_user_input(proj)
     except pyproj.exceptions.CRSError as e:
         raise src.err(el, f"PROJ cannot parse the geoReference {proj!r}: {e}") from None
+    if not crs.is_projected:
+        raise src.err(el, f"the geoReference {proj!r} is not a projected CRS (the map's x/y are metres)")
 
 
 def _records(src, els, s_name="s"):
@@ -388,13 +408,12 @@ def _section(src: _Src, sel, s0, s1, rid) -> LaneSection:
             if lid * sign <= 0:
                 raise src.err(ln, f"lane id {lid} does not belong in <{tag}>")
             widths = _records(src, ln.findall("width"), "sOffset")
-            if not widths:
-                if ln.find("border") is not None:
-                    raise src.err(ln, "lane <border> records are not supported; use <width>")
-                raise src.err(ln, f"lane {lid} has no <width>")
+            border = [] if widths else _records(src, ln.findall("border"), "sOffset")
+            if not widths and not border:
+                raise src.err(ln, f"lane {lid} has no <width> or <border>")
             marks = ln.findall("roadMark")
             out.append(OdrLane(lid, ln.get("type", "none"), widths,
-                               marks[0].get("type", "none") if marks else "none", ln.sourceline))
+                               marks[0].get("type", "none") if marks else "none", ln.sourceline, border))
         out.sort(key=lambda L: abs(L.id))
         if [abs(L.id) for L in out] != list(range(1, len(out) + 1)):
             raise src.err(el, f"lane ids in <{tag}> are not 1..{len(out)} consecutive")
@@ -412,48 +431,82 @@ _CENTER_MARKS = {"solid": "solid", "broken": "dashed", "solid solid": "double", 
                  "solid broken": "double", "broken solid": "double"}
 
 
-def map_georef(odr: OdrMap) -> tuple[float, float]:
-    """(lat0, lon0) of the map origin. The twin's ENU frame about it equals the map's x/y
-    when the geoReference is a local projection about that origin (checked here)."""
+def map_georef(odr: OdrMap) -> dict:
+    """The twin's georef for the map's geoReference.
+
+    A local projection about the map origin (the shared maps' +proj=tmerc +lat_0 +lon_0
+    +x_0=0 +y_0=0) makes the map's x/y the ENU frame about the origin's lat/lon: georef
+    (lat0, lon0). Any other projected CRS (UTM with its false easting, an EPSG code, a
+    tmerc about another point) keeps the map's x/y but moves the origin to the middle of
+    the map (Blender's single-precision vertices need coordinates near 0): the geometry is
+    shifted by `origin` here, and GNSS fixes map through pyproj (Georef.proj)."""
     if odr.proj is None:
-        return 0.0, 0.0
+        return {"lat0": 0.0, "lon0": 0.0, "alt0": 0.0}
     import pymap3d
     import pyproj
 
-    tr = pyproj.Transformer.from_crs(pyproj.CRS.from_user_input(odr.proj), "EPSG:4326", always_xy=True)
-    lon0, lat0 = tr.transform(0.0, 0.0)
-    if not (math.isfinite(lat0) and math.isfinite(lon0)):
-        raise UserError(f"geoReference {odr.proj!r} does not map the origin to a latitude/longitude",
-                        where=str(odr.path))
+    crs = pyproj.CRS.from_user_input(odr.proj)  # parsed and checked by _check_proj
+    tr = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
     pts = np.array([[g.x, g.y] for r in odr.roads.values() for g in r.geoms])
-    far = pts[np.argmax(np.linalg.norm(pts, axis=1))]
-    lon, lat = tr.transform(far[0], far[1])
-    e, n, _ = pymap3d.geodetic2enu(lat, lon, 0.0, lat0, lon0, 0.0)
-    err = math.hypot(e - far[0], n - far[1])
-    if err > 0.05 + 1e-4 * float(np.linalg.norm(far)):
-        raise UserError(f"geoReference {odr.proj!r}: map x/y differ from ENU about the map origin by "
-                        f"{err:.2f} m at {far.round(1).tolist()}; only local projections about the map "
-                        "origin (e.g. +proj=tmerc +lat_0 +lon_0 +x_0=0 +y_0=0) are supported", where=str(odr.path))
-    return float(lat0), float(lon0)
+    lon0, lat0 = tr.transform(0.0, 0.0)
+    if math.isfinite(lat0) and math.isfinite(lon0):
+        far = pts[np.argmax(np.linalg.norm(pts, axis=1))]
+        lon, lat = tr.transform(far[0], far[1])
+        e, n, _ = pymap3d.geodetic2enu(lat, lon, 0.0, lat0, lon0, 0.0)
+        err = math.hypot(e - far[0], n - far[1])
+        if err <= 0.05 + 1e-4 * float(np.linalg.norm(far)):  # local about the origin: ENU
+            return {"lat0": float(lat0), "lon0": float(lon0), "alt0": 0.0}
+    origin = np.round((pts.min(0) + pts.max(0)) / 2)
+    lon0, lat0 = tr.transform(*origin)
+    if not (math.isfinite(lat0) and math.isfinite(lon0)):
+        raise UserError(f"geoReference {odr.proj!r} does not map the map's centre {origin.tolist()} to a "
+                        "latitude/longitude", where=str(odr.path))
+    for r in odr.roads.values():
+        for g in r.geoms:
+            g.x, g.y = g.x - origin[0], g.y - origin[1]
+    return {"lat0": float(lat0), "lon0": float(lon0), "alt0": 0.0, "proj": odr.proj,
+            "origin": [float(origin[0]), float(origin[1])]}
 
 
-def _width_mid(lane: OdrLane, sec: LaneSection) -> float:
-    return float(_poly(lane.widths, [(sec.s1 - sec.s0) / 2])[0])
-
-
-def _cross_section(sec: LaneSection, side: list):
-    """(driving lanes, their mean width, edge width, sidewalk width) on one side."""
-    n, widths, edge, walk = 0, [], 0.0, 0.0
+def side_widths(side: list, ds) -> np.ndarray:
+    """(lanes, len(ds)) widths of one side's lanes (inner first) at section offsets ds.
+    A lane with <width> records adds its width to the inner edge; one with only <border>
+    records gives its outer edge |t| directly, so its width is that minus the inner edge
+    (OpenDRIVE 1.6, 9.5.2: width takes precedence where both are given)."""
+    ds = np.atleast_1d(np.asarray(ds, dtype=float))
+    out, inner = [], np.zeros_like(ds)
     for ln in side:
-        w = _width_mid(ln, sec)
+        if ln.widths:
+            w = _poly(ln.widths, ds)
+        else:
+            w = np.abs(_poly(ln.border, ds)) - inner
+        w = np.maximum(w, 0.0)
+        out.append(w)
+        inner = inner + w
+    return np.array(out).reshape(len(side), len(ds))
+
+
+def _cross_section(side: list, w: np.ndarray):
+    """(driving lanes, their widths (n, samples), edge width, sidewalk width) on one side,
+    from the side's lane widths `w` (lanes, samples)."""
+    n, widths, edge, walk = 0, [], 0.0, 0.0
+    for ln, wl in zip(side, w):
         if ln.kind in DRIVE_KINDS and n == len(widths) and edge == 0.0:
             n += 1
-            widths.append(w)
+            widths.append(wl)
         elif ln.kind in ("sidewalk", "walking"):
-            walk += w
+            walk += float(wl.max())
         elif ln.kind in EDGE_KINDS or ln.kind in DRIVE_KINDS:
-            edge += w
-    return n, widths, edge, walk
+            edge += float(wl.max())
+    return n, np.array(widths).reshape(n, w.shape[1]), edge, walk
+
+
+def _widths_along(wf: np.ndarray, wb: np.ndarray) -> dict:
+    """The twin's per-point lane widths when they are not one constant (1 mm)."""
+    w = np.vstack([wf, wb])
+    if w.size == 0 or np.ptp(w) < 1e-3:
+        return {}
+    return {"lane_widths_forward": np.round(wf.T, 4).tolist(), "lane_widths_backward": np.round(wb.T, 4).tolist()}
 
 
 def twin_data(odr: OdrMap) -> dict:
@@ -461,22 +514,32 @@ def twin_data(odr: OdrMap) -> dict:
     centre-line is the reference line shifted by the lane offset, sampled every SAMPLE_M."""
     from blendgen.scene.geom2d import Polyline
 
-    lat0, lon0 = map_georef(odr)
+    georef = map_georef(odr)
     roads, lines, where = [], {}, {}
     for r in odr.roads.values():
         for k, sec in enumerate(r.sections):
-            nf, wf, ef, sf = _cross_section(sec, sec.right)
-            nb, wb, eb, sb = _cross_section(sec, sec.left)
-            if nf + nb == 0 or sec.s1 - sec.s0 < 0.05:
+            if sec.s1 - sec.s0 < 0.05:
                 continue
             s = np.linspace(sec.s0, sec.s1, max(2, int(math.ceil((sec.s1 - sec.s0) / SAMPLE_M)) + 1))
-            pts = r.point(s, _poly(r.lane_offset, s))
+            # lane widths along s, in plan view (a superelevated cross-section is foreshortened)
+            cos_t = np.cos(r.theta(s))
+            nf, wf, ef, sf = _cross_section(sec.right, side_widths(sec.right, s - sec.s0) * cos_t)
+            nb, wb, eb, sb = _cross_section(sec.left, side_widths(sec.left, s - sec.s0) * cos_t)
+            if nf + nb == 0:
+                continue
+            loff = _poly(r.lane_offset, s)
+            pts = r.point(s, loff)
             rid = r.id if len(r.sections) == 1 else f"{r.id}.{k}"
             in_junction = r.junction != "-1"
-            roads.append({
+            relief = {}
+            if r.relief:  # the twin's centre-line (reference line + lane offset) carries the relief
+                relief = {"z": np.round(r.z(s, loff), 4).tolist(),
+                          "superelevation_deg": np.round(np.degrees(r.theta(s)), 5).tolist()}
+            roads.append({**relief,
                 "id": rid, "points": [[round(float(x), 4), round(float(y), 4)] for x, y in pts],
                 "lanes_forward": nf, "lanes_backward": nb,
-                "lane_width_m": float(np.clip(np.mean(wf + wb), 2.0, 6.0)),
+                "lane_width_m": float(np.clip(np.mean(np.vstack([wf, wb])), 2.0, 6.0)),
+                **_widths_along(wf, wb),
                 "shoulder_m": round(max(ef, eb), 3), "sidewalk_m": round(max(sf, sb), 3),
                 "center_line": "none" if in_junction else _CENTER_MARKS.get(sec.center_mark, "none"),
                 "speed_mps": float(np.clip(r.speed_mps or (8.3 if in_junction else 13.9), 1.0, 45.0)),
@@ -493,7 +556,7 @@ def twin_data(odr: OdrMap) -> dict:
                 return rid
         return None
 
-    data = {"name": odr.name, "georef": {"lat0": lat0, "lon0": lon0, "alt0": 0.0}, "roads": roads,
+    data = {"name": odr.name, "georef": georef, "roads": roads,
             "crosswalks": [], "traffic_lights": [], "signs": [], "poles": [], "buildings": []}
     for r in odr.roads.values():
         for o in r.objects:
@@ -530,5 +593,6 @@ def twin_data(odr: OdrMap) -> dict:
                 data["signs"].append({"position": p.round(3).tolist(), "yaw_deg": yaw_deg, "kind": sg.kind,
                                       "height_m": float(np.clip(sg.z_offset or 2.4, 0.6, 8.0))})
     allp = np.vstack([np.asarray(rd["points"]) for rd in roads])
-    data["ground_m"] = float(np.clip(2 * np.abs(allp).max() + 80.0, 10.0, 5000.0))
+    # the terrain square is centred on the roads (Twin.ground_rect): their extent + 40 m each side
+    data["ground_m"] = float(np.clip(np.ptp(allp, axis=0).max() + 80.0, 10.0, 20000.0))
     return data

@@ -142,4 +142,4 @@ def twin_data_from_osm(path) -> dict:
     allp = np.vstack([np.asarray(r["points"]) for r in roads])
     return {"name": path.name.split(".")[0], "georef": {"lat0": lat0, "lon0": lon0, "alt0": 0.0},
             "roads": roads, "intersections": intersections, "crosswalks": crosswalks, "buildings": buildings,
-            "ground_m": float(np.clip(2 * np.abs(allp).max() + 60.0, 10.0, 5000.0))}
+            "ground_m": float(np.clip(np.ptp(allp, axis=0).max() + 80.0, 10.0, 20000.0))}

@@ -57,10 +57,15 @@ class Track:
     scenario: str | None = None
     states: list | None = None
     rider_id: int = 0   # a ridden two-wheeler's rider is its own instance (blendgen.scene.riders)
+    pitch: np.ndarray | None = None  # (n,) the road's slope under a wheeled object (maps with relief)
+    roll: np.ndarray | None = None
     corners: np.ndarray = field(init=False)  # (n, 4, 2) footprints
     radius: float = field(init=False)
 
     def __post_init__(self):
+        n = len(self.xy)
+        self.pitch = np.zeros(n) if self.pitch is None else np.asarray(self.pitch, float)[:n]
+        self.roll = np.zeros(n) if self.roll is None else np.asarray(self.roll, float)[:n]
         self.corners = footprints(self.xy, self.yaw, self.dims[0], self.dims[1])
         self.radius = 0.5 * math.hypot(self.dims[0], self.dims[1])
 
@@ -231,7 +236,6 @@ class Planner:
         """A vehicle along lane (road, index, direction) from s0; `reverse`: against the lane's
         direction (a real frame's oncoming traffic on the ground-plane twin's one-way lanes)."""
         rg = self.twin.roads[road]
-        cd = next(c for i, dr, c in rg.lanes if i == index and dr == direction)
         tt = self._frames_from(k0)
         chain = None if lat_profile is not None or speed <= 0 or reverse else self.twin.lane_chain(
             road, index, direction, s0, speed * tt[-1] + dims[0], self.rng)
@@ -244,6 +248,7 @@ class Planner:
         if n == 0:
             return None
         s, tt = s[:n], tt[:n]
+        cd = rg.lane_d(index, direction, s)  # the lane centre follows a map's varying widths
         d = cd + np.full(n, lat) if lat_profile is None else cd + lat_profile(tt)
         xy = rg.line.offset_point(s, d)
         _, tan = rg.line.at(s)
@@ -252,7 +257,17 @@ class Planner:
             left_rate = np.gradient(d, tt) * direction if n > 2 else np.zeros(n)
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         m = self._limit(k0, xy)
-        return self._track(cls, variant, dims, k0, xy[:m], np.zeros(m), wrap_angle(yaw[:m]), scenario)
+        return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
+
+    def _road_track(self, cls, variant, dims, k0, xy, yaw, scenario):
+        """A wheeled track on the road surface: its height, pitch and roll follow the road."""
+        if len(xy) == 0:
+            return None
+        if not self.twin.relief:
+            return self._track(cls, variant, dims, k0, xy, np.zeros(len(xy)), yaw, scenario)
+        z, pitch, roll = self.twin.surface_pose(xy, yaw, dims[0], dims[1])
+        tr = Track(0, cls, variant, dims, k0, xy, z, yaw, scenario, None, pitch=pitch, roll=roll)
+        return tr
 
     def _chain_track(self, k0, cls, variant, dims, chain, dist, lat, scenario):
         """A vehicle along a lane chain (through a junction); `lat` left of travel."""
@@ -262,8 +277,8 @@ class Planner:
         p, tan = chain.at(dist[:n])
         xy = p + lat * np.stack([-tan[:, 1], tan[:, 0]], axis=1)
         m = self._limit(k0, xy)
-        return self._track(cls, variant, dims, k0, xy[:m], np.zeros(m),
-                           wrap_angle(np.arctan2(tan[:m, 1], tan[:m, 0])), scenario)
+        return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(np.arctan2(tan[:m, 1], tan[:m, 0])),
+                                scenario)
 
     def walk_track(self, k0, variant, dims, start, direction_xy, speed, allowed, scenario=None,
                    stop_at=None) -> Track | None:
@@ -375,7 +390,7 @@ class Planner:
             road, s0, s1 = tw.crosswalk_info[j]
             rg = tw.roads[road]
             s = float(self.rng.uniform(s0 + 0.3, s1 - 0.3)) if s1 - s0 > 0.6 else (s0 + s1) / 2
-            start = rg.line.offset_point(s, float(self.rng.uniform(-rg.hw_right + 0.5, rg.hw_left - 0.5)))[0]
+            start = rg.line.offset_point(s, float(self.rng.uniform(-rg.hw_r(s) + 0.5, rg.hw_l(s) - 0.5)))[0]
             _, t = rg.line.at(s)
             across = np.array([-t[0, 1], t[0, 0]]) * (1 if self.rng.random() < 0.5 else -1)
             return self.walk_track(k, variant, dims, start, across, float(self.rng.uniform(*SPEED["person"])),
@@ -397,7 +412,7 @@ class Planner:
                     continue
                 s, d, _ = rg.line.project(p)
                 s, d = float(s[0]), float(d[0])
-                edge = -rg.hw_right if d < 0 else rg.hw_left
+                edge = float(-rg.hw_r(s) if d < 0 else rg.hw_l(s))
                 dd = edge + math.copysign(rg.spec.sidewalk_m * self.rng.uniform(0.25, 0.75), edge)
                 if abs(dd - d) < 12 and (best is None or abs(dd - d) < best[0]):
                     best = (abs(dd - d), rg.line.offset_point(s, dd)[0])
@@ -475,9 +490,10 @@ class Planner:
     # ------------------------------------------------------------ scenarios
     def stage_scenario(self, name: str, k: int) -> list[Track]:
         lane = self.ego.lane[k]
-        if lane is None or lane.in_junction:
+        near_crosswalk = name == "jaywalker" and self.twin.crosswalks  # needs no ego lane
+        if not near_crosswalk and (lane is None or lane.in_junction):
             return []
-        rg = self.twin.roads[lane.road]
+        rg = self.twin.roads[lane.road] if lane is not None else None
         fn = {"jaywalker": self._jaywalker, "cut_in": self._cut_in, "near_collision": self._near_collision,
               "occluded_pedestrian": self._occluded_pedestrian, "cyclist_overtake": self._cyclist}[name]
         for _ in range(6):
@@ -502,26 +518,68 @@ class Planner:
         return lane.s + lane.direction * dist
 
     def _jaywalker(self, k, lane, rg):
+        """A pedestrian crossing the road off a crosswalk: just beside one of the twin's
+        crosswalks in view when it has them (where people cut across), else mid-block across
+        the ego's road, away from junctions."""
         v, dims = sample_variant("person", self.rng)
         v["kind"] = "walking"
         v["stride_rad"] = v["stride_rad"] or 0.35
+        if self.twin.crosswalks:
+            return self._jaywalk_near_crosswalk(k, v, dims)
         dist = self.rng.uniform(max(self.d0, 12.0), min(self.d1, 35.0))
         s = self._ahead(lane, rg, dist)
         if not 2 < s < rg.length - 2:
             return None
         side = 1 if self.rng.random() < 0.5 else -1
-        d_start = (rg.hw_left + 0.4) if side > 0 else -(rg.hw_right + 0.4)
+        d_start = float(rg.hw_l(s) + 0.4) if side > 0 else -float(rg.hw_r(s) + 0.4)
         start = rg.line.offset_point(s, d_start)[0]
         if self.twin.on_crosswalk(*start):
             return None
+        # mid-block: the crossing and 5 m either side of it keep clear of junctions
+        dd = np.linspace(-float(rg.hw_r(s)), float(rg.hw_l(s)), 7)
+        probe = np.vstack([rg.line.offset_point(np.full(7, s + ds), dd) for ds in (-5.0, 0.0, 5.0)])
+        if self.twin.junction_mask(probe).any():
+            return None
         _, t = rg.line.at(s)
         normal = np.array([-t[0, 1], t[0, 0]]) * -side
-        width = rg.hw_left + rg.hw_right + 1.6
+        width = float(rg.hw_l(s) + rg.hw_r(s)) + 1.6
         speed = float(self.rng.uniform(1.2, 1.9))
         allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731 - jaywalking: anywhere
         return [self.walk_track(k, v, dims, start, normal, speed, allowed, "jaywalker", stop_at=width)]
 
+    def _jaywalk_near_crosswalk(self, k, v, dims):
+        tw, cam = self.twin, self.ego.cam[k, :2]
+        fwd = self.ego.heading[k]
+        cands = []
+        for j, (road, s0, s1) in enumerate(tw.crosswalk_info):
+            c = tw.crosswalks[j].mean(0)
+            rel = c - cam
+            dist = float(np.linalg.norm(rel))
+            if max(self.d0, 8.0) <= dist <= min(self.d1, 45.0) and rel @ fwd > 0.8 * dist:  # ahead, in view
+                cands.append(j)
+        if not cands:
+            return None
+        road, s0, s1 = tw.crosswalk_info[cands[int(self.rng.integers(len(cands)))]]
+        rg = tw.roads[road]
+        off = float(self.rng.uniform(0.6, 4.0))  # beside the zebra, not on it
+        options = [x for x in (s1 + off, s0 - off) if 0.5 < x < rg.length - 0.5]
+        if not options:
+            return None
+        s = options[int(self.rng.integers(len(options)))]
+        side = 1 if self.rng.random() < 0.5 else -1
+        start = rg.line.offset_point(s, side * (float(rg.hw_l(s) if side > 0 else rg.hw_r(s)) + 0.4))[0]
+        _, t = rg.line.at(s)
+        normal = np.array([-t[0, 1], t[0, 0]]) * -side
+        width = float(rg.hw_l(s) + rg.hw_r(s)) + 1.6
+        allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731 - jaywalking: anywhere
+        return [self.walk_track(k, v, dims, start, normal, float(self.rng.uniform(1.2, 1.9)), allowed,
+                                "jaywalker", stop_at=width)]
+
     def _cut_in(self, k, lane, rg):
+        """A vehicle from a neighbouring lane of the ego's direction cuts in ahead: only on a
+        multi-lane road segment, never in a junction (nor on a map's connecting road)."""
+        if rg.spec.junction is not None:
+            return None
         n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
         neighbours = [i for i in (lane.index - 1, lane.index + 1) if 0 <= i < n]
         if not neighbours:
@@ -535,7 +593,7 @@ class Planner:
         s0 = self._ahead(lane, rg, EGO_FRONT_OF_CAM + gap + dims[0] / 2)
         v_e = float(np.median(self.ego.speed[k:k + 10]))
         speed = max(4.0, v_e + self.rng.uniform(0.5, 2.5))
-        cd_from = next(c for i, dr, c in rg.lanes if i == j and dr == lane.direction)
+        cd_from = float(rg.lane_d(j, lane.direction, lane.s))
         delta = lane.center_d - cd_from
         # cosine profile; duration keeps the heading within 8 deg of the lane
         T = max(2.5, math.pi * abs(delta) / (2 * speed * math.tan(math.radians(8.0))))
@@ -545,8 +603,11 @@ class Planner:
             x = np.clip((tt - t_start) / T, 0, 1)
             return delta * (1 - np.cos(math.pi * x)) / 2
 
-        return [self.lane_track(k, cls, v, dims, rg.id, j, lane.direction, s0, speed, lat_profile=prof,
-                                scenario="cut_in")]
+        tr = self.lane_track(k, cls, v, dims, rg.id, j, lane.direction, s0, speed, lat_profile=prof,
+                             scenario="cut_in")
+        if tr is None or self.twin.junction_mask(tr.xy).any():
+            return None
+        return [tr]
 
     def _near_collision(self, k, lane, rg):
         cls = str(self.rng.choice(["car", "car", "truck", "bus"]))
@@ -566,7 +627,8 @@ class Planner:
         stop = np.searchsorted(tt, window)
         if stop < len(tt):
             tr.xy[stop:] = tr.xy[stop - 1 if stop else 0]
-            tr.yaw[stop:] = tr.yaw[stop - 1 if stop else 0]
+            for arr in (tr.yaw, tr.z, tr.pitch, tr.roll):
+                arr[stop:] = arr[stop - 1 if stop else 0]
             tr.__post_init__()
         # cut the track where the ego would get within g_min/2 of it
         ks = np.arange(tr.k0, tr.k1)
@@ -577,7 +639,7 @@ class Planner:
 
     def _truncate(self, tr: Track, n: int) -> Track:
         return Track(tr.id, tr.cls, tr.variant, tr.dims, tr.k0, tr.xy[:n], tr.z[:n], tr.yaw[:n], tr.scenario,
-                     tr.states[:n] if tr.states else None)
+                     tr.states[:n] if tr.states else None, pitch=tr.pitch[:n], roll=tr.roll[:n])
 
     def _occluded_pedestrian(self, k, lane, rg):
         # parked cars along the curb of the ego's side if the ego is not in the curb lane,
@@ -593,7 +655,8 @@ class Planner:
         curb_side = -1 if direction > 0 else 1  # d sign of this curb
         if rg.spec.sidewalk_m < 1.0:
             return None
-        cd = next(c for i, dr, c in rg.lanes if i == idx and dr == direction)
+        cd = float(rg.lane_d(idx, direction, lane.s))
+        w_idx = float(rg.lane_width(idx, direction, lane.s))
         dist = self.rng.uniform(max(self.d0, 12.0), min(self.d1, 30.0))
         s_gap = self._ahead(lane, rg, dist)
         gap = self.rng.uniform(1.2, 1.8)
@@ -604,16 +667,19 @@ class Planner:
             s_c = s_cursor[sgn] + sgn * dims[0] / 2
             if not dims[0] / 2 <= s_c <= rg.length - dims[0] / 2:
                 return None
-            lat_d = cd + curb_side * (rg.spec.lane_width_m / 2 - dims[1] / 2 - 0.25)
+            lat_d = cd + curb_side * (w_idx / 2 - dims[1] / 2 - 0.25)
             p = rg.line.offset_point(s_c, lat_d)[0]
             _, t = rg.line.at(s_c)
             yaw = math.atan2(t[0, 1], t[0, 0]) + (0 if direction > 0 else math.pi)
-            out.append(self.static_track(k, "car", v, dims, p, yaw, 0.0, "occluded_pedestrian"))
+            n = len(self._frames_from(k))
+            xy = np.repeat(p[None], n, axis=0)
+            m = self._limit(k, xy)
+            out.append(self._road_track("car", v, dims, k, xy[:m], np.full(m, yaw), "occluded_pedestrian"))
         pv, pdims = sample_variant("person", self.rng)
         pv["kind"], pv["stride_rad"] = "walking", max(pv["stride_rad"], 0.3)
-        edge = curb_side * (rg.hw_right if curb_side < 0 else rg.hw_left)
+        edge = curb_side * float(rg.hw_r(s_gap) if curb_side < 0 else rg.hw_l(s_gap))
         start = rg.line.offset_point(s_gap, edge + curb_side * 0.6)[0]
-        end_d = cd - curb_side * (rg.spec.lane_width_m / 2 - 0.35)  # peeks just past the cars
+        end_d = cd - curb_side * (w_idx / 2 - 0.35)  # peeks just past the cars
         _, t = rg.line.at(s_gap)
         normal = np.array([-t[0, 1], t[0, 0]]) * -curb_side
         allowed = lambda xy: np.ones(len(xy), bool)  # noqa: E731
@@ -628,7 +694,7 @@ class Planner:
         n = rg.spec.lanes_forward if lane.direction > 0 else rg.spec.lanes_backward
         dist = self.rng.uniform(max(self.d0, 8.0), min(self.d1, 25.0))
         s0 = self._ahead(lane, rg, dist)
-        lat = -(rg.spec.lane_width_m / 2 - 0.3 - dims[1] / 2)
+        lat = -(float(rg.lane_width(n - 1, lane.direction, s0)) / 2 - 0.3 - dims[1] / 2)
         return [self.lane_track(k, "bicycle", v, dims, rg.id, n - 1, lane.direction, s0,
                                 float(self.rng.uniform(4.0, 6.5)), lat=lat * lane.direction,
                                 scenario="cyclist_overtake")]
@@ -682,7 +748,7 @@ class Planner:
                     id=tr.id, cls=tr.cls, position=(float(tr.xy[i, 0]), float(tr.xy[i, 1]), float(tr.z[i])),
                     yaw=float(tr.yaw[i]), dims=tuple(float(x) for x in tr.dims), variant=dict(tr.variant),
                     velocity=tr.velocity(i, self.times), state=tr.states[i] if tr.states else None,
-                    scenario=tr.scenario), tr.rider_id)
+                    scenario=tr.scenario, pitch=float(tr.pitch[i]), roll=float(tr.roll[i])), tr.rider_id)
             decisions = [{"what": "rejected", "cls": c, "reason": r, "count": n} for (c, r), n in rejected.items()]
             if self.real is not None:
                 for tr in vis:

@@ -26,8 +26,7 @@ def split_rider(obj: PlacedObject, rider_id: int) -> list[PlacedObject]:
     lo, hi = part_box(obj.cls, v, "all")
     scale = np.asarray(obj.dims, float) / np.maximum(hi - lo, 1e-9)
     origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-    c, s = np.cos(obj.yaw), np.sin(obj.yaw)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    R = obj.R_world_obj()
     out = []
     for part, oid, cls, variant in (
             ("vehicle", obj.id, obj.cls, {**v, "part": "vehicle"}),
@@ -40,5 +39,6 @@ def split_rider(obj: PlacedObject, rider_id: int) -> list[PlacedObject]:
         if part == "rider":  # the rider's box starts at the pegs: say where the road is under it
             variant["above_ground_m"] = round(float((plo[2] - lo[2]) * scale[2]), 4)
         out.append(PlacedObject(id=oid, cls=cls, position=tuple(float(x) for x in pos), yaw=obj.yaw, dims=dims,
-                                variant=variant, velocity=obj.velocity, state=None, scenario=obj.scenario))
+                                variant=variant, velocity=obj.velocity, state=None, scenario=obj.scenario,
+                                pitch=obj.pitch, roll=obj.roll))
     return out

@@ -4,8 +4,9 @@ plans an ego route along a lane and exports the LUT for the sync stage.
 
 Frame: ENU about the twin's georeference (x east, y north, z up), metres. Right-hand
 traffic: a road's `lanes_forward` run along its centre-line on the right of it,
-`lanes_backward` against it on the left. Roads are flat at z = 0; sidewalks sit at
-curb height.
+`lanes_backward` against it on the left. Roads are flat at z = 0 unless a map gives them
+relief (elevation, superelevation: `RoadGeom.height`); sidewalks sit at curb height above
+the road edge.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 from pydantic import ValidationError
@@ -28,22 +28,70 @@ STEP_M = 1.0  # centre-line sampling
 SIGNAL_POLE_M = 4.2  # height of the signal poles built at intersection signal slots
 
 
-class Georef(NamedTuple):
-    """The twin's geodetic origin; a tuple (lat0, lon0, alt0) with ENU conversions."""
+class Georef(tuple):
+    """The twin's geodetic origin: a tuple (lat0, lon0, alt0) with conversions to and from
+    the twin frame. Without `proj` the twin frame is ENU about the origin; with it (maps
+    georeferenced in a projection such as UTM) x/y are the projected coordinates minus
+    `origin`, so GNSS fixes map through pyproj and grid north differs from true north by the
+    projection's meridian convergence."""
 
-    lat0: float
-    lon0: float
-    alt0: float
+    def __new__(cls, lat0: float, lon0: float, alt0: float = 0.0, proj: str | None = None,
+                origin: tuple[float, float] = (0.0, 0.0)):
+        self = super().__new__(cls, (float(lat0), float(lon0), float(alt0)))
+        self.proj, self.origin = proj, (float(origin[0]), float(origin[1]))
+        self._fwd = self._inv = None
+        return self
+
+    def __reduce__(self):  # pickles without the cached transformers
+        return Georef, (*self, self.proj, self.origin)
+
+    lat0 = property(lambda self: self[0])
+    lon0 = property(lambda self: self[1])
+    alt0 = property(lambda self: self[2])
+
+    def _transformers(self):
+        if self._fwd is None:
+            import pyproj
+
+            crs = pyproj.CRS.from_user_input(self.proj)
+            self._fwd = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+            self._inv = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+        return self._fwd, self._inv
 
     def to_geodetic(self, x, y, z):
-        import pymap3d
+        if self.proj is None:
+            import pymap3d
 
-        return pymap3d.enu2geodetic(x, y, z, self.lat0, self.lon0, self.alt0)
+            return pymap3d.enu2geodetic(x, y, z, self.lat0, self.lon0, self.alt0)
+        lon, lat = self._transformers()[1].transform(np.asarray(x, float) + self.origin[0],
+                                                     np.asarray(y, float) + self.origin[1])
+        return lat, lon, np.asarray(z, float) + self.alt0
 
     def to_enu(self, lat, lon, alt):
-        import pymap3d
+        """Twin-frame x, y, z of geodetic positions (named for the unprojected case)."""
+        if self.proj is None:
+            import pymap3d
 
-        return pymap3d.geodetic2enu(lat, lon, alt, self.lat0, self.lon0, self.alt0)
+            return pymap3d.geodetic2enu(lat, lon, alt, self.lat0, self.lon0, self.alt0)
+        x, y = self._transformers()[0].transform(lon, lat)
+        return np.asarray(x) - self.origin[0], np.asarray(y) - self.origin[1], np.asarray(alt, float) - self.alt0
+
+    def north_yaw(self, x, y):
+        """Twin-frame direction (rad, CCW from +x) of true north at x/y: pi/2 in ENU; in a
+        projection pi/2 minus the meridian convergence (by finite differences: exact for the
+        conformal projections maps use)."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        if self.proj is None:
+            return np.full(np.broadcast(x, y).shape, math.pi / 2)
+        lat, lon, _ = self.to_geodetic(x, y, np.zeros(np.broadcast(x, y).shape))
+        d = 1e-5  # ~1 m of latitude
+        x1, y1, _ = self.to_enu(np.asarray(lat) + d, lon, 0.0)
+        x0, y0, _ = self.to_enu(np.asarray(lat) - d, lon, 0.0)
+        return np.arctan2(np.asarray(y1) - y0, np.asarray(x1) - x0)
+
+    def heading_of_yaw(self, x, y, yaw):
+        """Compass heading (deg, clockwise from true north) of twin-frame yaw (rad) at x/y."""
+        return np.degrees(self.north_yaw(x, y) - np.asarray(yaw, float)) % 360.0
 
 
 @dataclass(frozen=True)
@@ -73,7 +121,13 @@ class Lane:
 
 
 class RoadGeom:
-    """One road: its centre-line and its cross-section."""
+    """One road: its centre-line and its cross-section.
+
+    A map's road may carry relief (`z`, `superelevation_deg`) and per-lane widths that vary
+    along it (`lane_widths_*`), given per centre-line point: they are interpolated in arc
+    length. `d` is the plan-view lateral offset (left > 0); the surface height at (s, d) is
+    z(s) + d tan(superelevation(s)). The scalar `hw_right` / `hw_left` / `lanes` centre
+    offsets are the widest extent / the mean, for callers that need one number."""
 
     def __init__(self, spec: Road):
         self.spec = spec
@@ -81,33 +135,105 @@ class RoadGeom:
         self.line = Polyline(_centerline(spec))
         self.length = self.line.length
         w, m, sh = spec.lane_width_m, spec.median_m, spec.shoulder_m
-        self.hw_right = m / 2 + spec.lanes_forward * w + sh   # carriageway extent, d < 0
-        self.hw_left = m / 2 + spec.lanes_backward * w + sh   # d > 0
+        # knots: arc length of the given points (the densified line keeps their arc length)
+        if spec.points is not None:
+            p = np.asarray(spec.points, dtype=float)
+            self._sk = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        else:
+            self._sk = np.array([0.0, self.length])
+        nk = len(self._sk)
+        self.relief = spec.z is not None or spec.superelevation_deg is not None
+        self._zk = np.asarray(spec.z, float) if spec.z is not None else np.zeros(nk)
+        self._tk = (np.tan(np.radians(spec.superelevation_deg)) if spec.superelevation_deg is not None
+                    else np.zeros(nk))
+        wf = (np.asarray(spec.lane_widths_forward, float).reshape(nk, spec.lanes_forward)
+              if spec.lane_widths_forward is not None else np.full((nk, spec.lanes_forward), w))
+        wb = (np.asarray(spec.lane_widths_backward, float).reshape(nk, spec.lanes_backward)
+              if spec.lane_widths_backward is not None else np.full((nk, spec.lanes_backward), w))
+        self._wk = {+1: wf, -1: wb}
+        # lane edges at the knots, |d| of each lane's inner edge: (nk, n + 1)
+        self._ek = {dr: m / 2 + np.concatenate([np.zeros((nk, 1)), np.cumsum(wk, axis=1)], axis=1)
+                    for dr, wk in self._wk.items()}
+        self._hrk = self._ek[+1][:, -1] + sh   # carriageway extent right (d < 0), per knot
+        self._hlk = self._ek[-1][:, -1] + sh
+        self.hw_right, self.hw_left = float(self._hrk.max()), float(self._hlk.max())
         self.half_width = max(self.hw_right, self.hw_left)
-        # (index, direction, centre d)
-        self.lanes = [(i, +1, -(m / 2 + (i + 0.5) * w)) for i in range(spec.lanes_forward)]
-        self.lanes += [(i, -1, m / 2 + (i + 0.5) * w) for i in range(spec.lanes_backward)]
+        self.varying = spec.lane_widths_forward is not None or spec.lane_widths_backward is not None
+        # (index, direction, mean centre d)
+        self.lanes = [(i, +1, -float(np.mean(self._ek[+1][:, i] + wf[:, i] / 2))) for i in range(spec.lanes_forward)]
+        self.lanes += [(i, -1, float(np.mean(self._ek[-1][:, i] + wb[:, i] / 2))) for i in range(spec.lanes_backward)]
+
+    def _interp(self, s, k):
+        return np.interp(np.asarray(s, dtype=float), self._sk, k)
+
+    # constant cross-sections (hand-written twins, most map roads) skip the interpolation:
+    # these run for every road on every placement query
+    def hw_r(self, s):
+        """Carriageway extent to the right (> 0) at arc length(s) s."""
+        if not self.varying:
+            return np.full(np.shape(s), self.hw_right) if np.ndim(s) else self.hw_right
+        return self._interp(s, self._hrk)
+
+    def hw_l(self, s):
+        if not self.varying:
+            return np.full(np.shape(s), self.hw_left) if np.ndim(s) else self.hw_left
+        return self._interp(s, self._hlk)
+
+    def lane_d(self, index: int, direction: int, s):
+        """Lateral offset of a lane's centre at s (array)."""
+        if not self.varying:
+            cd = next(c for i, dr, c in self.lanes if i == index and dr == direction)
+            return np.full(np.shape(s), cd, dtype=float)
+        e = self._ek[direction]
+        c = self._interp(s, e[:, index] + self._wk[direction][:, index] / 2)
+        return -c if direction > 0 else c
+
+    def lane_edge(self, index: int, direction: int, s):
+        """|d| of the outer edge of lane `index` (0: the edge next to the median) at s."""
+        return self._interp(s, self._ek[direction][:, index])
+
+    def lane_width(self, index: int, direction: int, s):
+        if not self.varying:
+            return self.spec.lane_width_m if not np.ndim(s) else np.full(np.shape(s), self.spec.lane_width_m)
+        return self._interp(s, self._wk[direction][:, index])
+
+    def height(self, s, d):
+        """Road surface height at (s, d)."""
+        if not self.relief:
+            return np.zeros(np.broadcast(np.asarray(s), np.asarray(d)).shape)
+        return self._interp(s, self._zk) + np.asarray(d, float) * self._interp(s, self._tk)
 
     def carriageway(self, s, d):
-        return (s >= 0) & (s <= self.length) & (d >= -self.hw_right) & (d <= self.hw_left)
+        if not self.varying:
+            return (s >= 0) & (s <= self.length) & (d >= -self.hw_right) & (d <= self.hw_left)
+        return (s >= 0) & (s <= self.length) & (d >= -self.hw_r(s)) & (d <= self.hw_l(s))
 
     def sidewalk_band(self, s, d):
         sw = self.spec.sidewalk_m
+        hr, hl = (self.hw_right, self.hw_left) if not self.varying else (self.hw_r(s), self.hw_l(s))
         inside = (s >= 0) & (s <= self.length)
-        return inside & (((d < -self.hw_right) & (d >= -self.hw_right - sw))
-                         | ((d > self.hw_left) & (d <= self.hw_left + sw)))
+        return inside & (((d < -hr) & (d >= -hr - sw)) | ((d > hl) & (d <= hl + sw)))
 
-    def lane_index_at(self, d: float):
-        """(index, direction, centre d) of the lane containing lateral offset d, else None."""
-        w, m = self.spec.lane_width_m, self.spec.median_m
-        if d < -m / 2:
-            i = int((-d - m / 2) // w)
-            if i < self.spec.lanes_forward:
-                return i, +1, -(m / 2 + (i + 0.5) * w)
-        elif d > m / 2:
-            i = int((d - m / 2) // w)
-            if i < self.spec.lanes_backward:
-                return i, -1, m / 2 + (i + 0.5) * w
+    def lane_index_at(self, d: float, s: float | None = None):
+        """(index, direction, centre d) of the lane containing lateral offset d at s, else None."""
+        m = self.spec.median_m
+        s = self.length / 2 if s is None else s
+        if not self.varying:
+            w = self.spec.lane_width_m
+            if d < -m / 2 or d > m / 2:
+                direction = +1 if d < 0 else -1
+                i = int((abs(d) - m / 2) // w)
+                n = self.spec.lanes_forward if direction > 0 else self.spec.lanes_backward
+                if i < n:
+                    return i, direction, -direction * (m / 2 + (i + 0.5) * w)
+            return None
+        if d < -m / 2 or d > m / 2:
+            direction = +1 if d < 0 else -1
+            edges = np.array([np.interp(s, self._sk, col) for col in self._ek[direction].T])
+            i = int(np.searchsorted(edges, abs(d), side="right")) - 1
+            n = self.spec.lanes_forward if direction > 0 else self.spec.lanes_backward
+            if 0 <= i < n:
+                return i, direction, float(self.lane_d(i, direction, s))
         return None
 
     def tangent_yaw(self, s: float) -> float:
@@ -181,7 +307,7 @@ class Twin:
         self.path = path
         self.name = spec.name
         g = spec.georef
-        self.georef = Georef(g.lat0, g.lon0, g.alt0)
+        self.georef = Georef(g.lat0, g.lon0, g.alt0, g.proj, g.origin)
         self.roads = {r.id: RoadGeom(r) for r in spec.roads}
         self.crosswalks: list[np.ndarray] = []   # convex polygons
         self.crosswalk_info: list[tuple[str, float, float]] = []  # (road, s0, s1)
@@ -252,8 +378,8 @@ class Twin:
                                     inter.id, rg.id))
 
     def _add_crosswalk(self, rg: RoadGeom, s0: float, s1: float):
-        pts = np.vstack([rg.line.offset_point(s0, -rg.hw_right), rg.line.offset_point(s1, -rg.hw_right),
-                         rg.line.offset_point(s1, rg.hw_left), rg.line.offset_point(s0, rg.hw_left)])
+        pts = np.vstack([rg.line.offset_point(s0, -rg.hw_r(s0)), rg.line.offset_point(s1, -rg.hw_r(s1)),
+                         rg.line.offset_point(s1, rg.hw_l(s1)), rg.line.offset_point(s0, rg.hw_l(s0))])
         self.crosswalks.append(pts)
         self.crosswalk_info.append((rg.id, s0, s1))
 
@@ -302,14 +428,14 @@ class Twin:
             if not rg.carriageway(s, d):
                 continue
             n_carriage += 1
-            li = rg.lane_index_at(d)
+            li = rg.lane_index_at(d, s)
             if li is None:
                 continue
             i, direction, cd = li
             yaw = rg.tangent_yaw(s) + (0.0 if direction > 0 else math.pi)
             yaw = math.atan2(math.sin(yaw), math.cos(yaw))
             n = rg.spec.lanes_forward if direction > 0 else rg.spec.lanes_backward
-            cands.append(Lane(rg.id, i, direction, yaw, rg.spec.lane_width_m, s, d, cd, i == n - 1,
+            cands.append(Lane(rg.id, i, direction, yaw, float(rg.lane_width(i, direction, s)), s, d, cd, i == n - 1,
                               False, rg.spec.speed_mps))
         if not cands:
             return None
@@ -341,6 +467,20 @@ class Twin:
             n += rg.carriageway(s, d)
         return n
 
+    def junction_mask(self, pts) -> np.ndarray:
+        """Which points lie in a junction: on a map's junction (connecting) road, or where
+        two carriageways overlap (a hand-written intersection)."""
+        pts = np.atleast_2d(np.asarray(pts, dtype=float))
+        n = np.zeros(len(pts), dtype=int)
+        jn = np.zeros(len(pts), dtype=bool)
+        for rg in self.roads.values():
+            s, d, _ = rg.line.project(pts)
+            on = rg.carriageway(s, d)
+            n += on
+            if rg.spec.junction is not None:
+                jn |= on
+        return jn | (n > 1)
+
     def sidewalk_mask(self, pts) -> np.ndarray:
         pts = np.atleast_2d(np.asarray(pts, dtype=float))
         band = np.zeros(len(pts), dtype=bool)
@@ -352,15 +492,63 @@ class Twin:
         return band & ~road
 
     def ground_heights(self, pts) -> np.ndarray:
-        """Vectorised ground_height: curb height on sidewalks, 0 elsewhere."""
+        """Vectorised ground_height: the road surface on carriageways (a map's elevation and
+        superelevation; the highest where roads overlap), the curb height above the road edge
+        on sidewalks, 0 elsewhere."""
         pts = np.atleast_2d(np.asarray(pts, dtype=float))
-        z = np.zeros(len(pts))
-        road = np.zeros(len(pts), dtype=bool)
+        z = np.full(len(pts), -np.inf)
+        zw = np.full(len(pts), -np.inf)
+        relief = self.relief
+        z_near, dist = np.zeros(len(pts)), np.full(len(pts), np.inf)
         for rg in self.roads.values():
             s, d, _ = rg.line.project(pts)
-            road |= rg.carriageway(s, d)
-            z = np.where(rg.sidewalk_band(s, d), np.maximum(z, rg.spec.curb_height_m), z)
-        return np.where(road, 0.0, z)
+            on = rg.carriageway(s, d)
+            walk = rg.sidewalk_band(s, d)
+            if relief:  # off the roads: the nearest road's edge height (the terrain follows it)
+                sc = np.clip(s, 0.0, rg.length)
+                dc = np.clip(d, -rg.hw_r(sc), rg.hw_l(sc))
+                far = np.hypot(s - sc, d - dc)
+                closer = far < dist
+                dist, z_near = np.where(closer, far, dist), np.where(closer, rg.height(sc, dc), z_near)
+            if not (on.any() or walk.any()):
+                continue
+            if rg.relief:
+                # sidewalks: the curb height above the road's surface extended outward (as built)
+                h = rg.height(s, d)
+                z = np.where(on, np.maximum(z, h), z)
+                zw = np.where(walk, np.maximum(zw, h + rg.spec.curb_height_m), zw)
+            else:
+                z = np.where(on, np.maximum(z, 0.0), z)
+                zw = np.where(walk, np.maximum(zw, rg.spec.curb_height_m), zw)
+        return np.where(np.isfinite(z), z, np.where(np.isfinite(zw), zw, z_near))
+
+    @property
+    def relief(self) -> bool:
+        """Whether any road has elevation or superelevation (else the twin is flat)."""
+        if getattr(self, "_relief", None) is None:
+            self._relief = any(rg.relief for rg in self.roads.values())
+        return self._relief
+
+    def surface_pose(self, xy, yaw, length: float, width: float):
+        """(z, pitch, roll) arrays of a wheeled object whose footprint (length x width) is
+        centred at xy (n, 2) facing yaw (n,): z the ground at the centre, pitch (> 0 nose up)
+        and roll (> 0 left side up) of the plane through the ground under the footprint's
+        front, rear, left and right edge midpoints (PlacedObject's rotation convention)."""
+        xy = np.atleast_2d(np.asarray(xy, dtype=float))
+        yaw = np.broadcast_to(np.asarray(yaw, dtype=float), (len(xy),))
+        if not self.relief:
+            return self.ground_heights(xy), np.zeros(len(xy)), np.zeros(len(xy))
+        h = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+        left = np.stack([-h[:, 1], h[:, 0]], axis=1)
+        a, b = length / 2, width / 2
+        z = self.ground_heights(np.vstack([xy, xy + a * h, xy - a * h, xy + b * left, xy - b * left]))
+        z = z.reshape(5, len(xy))
+        g_fwd = (z[1] - z[2]) / length
+        g_left = (z[3] - z[4]) / width
+        pitch = np.arctan(g_fwd)
+        # the body's left axis lies in the plane: tan(roll) = slope to the left * cos(pitch)
+        roll = np.arctan(g_left * np.cos(pitch))
+        return z[0], pitch, roll
 
     def crosswalk_mask(self, pts) -> np.ndarray:
         pts = np.atleast_2d(np.asarray(pts, dtype=float))
@@ -390,20 +578,16 @@ class Twin:
         return not any(convex_overlap(poly, self.structures[i].polygon, margin) for i in near)
 
     def ground_height(self, x: float, y: float) -> float:
-        if self.on_sidewalk(x, y):
-            hits = [rg for rg, s, d in self._roads_containing(x, y) if rg.sidewalk_band(s, d)]
-            return float(max(rg.spec.curb_height_m for rg in hits))
-        return 0.0
+        return float(self.ground_heights([[x, y]])[0])
 
     # ---------------------------------------------------------------- routes and LUT
     def lane_polyline(self, road: str, index: int, direction: int, s0: float, s1: float,
                       step: float = 1.0) -> np.ndarray:
         """Points along a lane centre from s0 to s1 (road arc length; s1 < s0 for backward)."""
         rg = self.roads[road]
-        cd = next(c for i, dr, c in rg.lanes if i == index and dr == direction)
         n = max(2, int(math.ceil(abs(s1 - s0) / step)) + 1)
         s = np.linspace(s0, s1, n)
-        return rg.line.offset_point(s, np.full(n, cd))
+        return rg.line.offset_point(s, rg.lane_d(index, direction, s))
 
     def ego_route(self, length_m: float, seed: int) -> np.ndarray:
         """An (N,2) polyline of `length_m` along the centre of one lane, in its direction,
@@ -440,7 +624,7 @@ class Twin:
             for rg in self.roads.values():
                 for i, dr, cd in rg.lanes:
                     s0, s1 = (0.0, rg.length) if dr > 0 else (rg.length, 0.0)
-                    p = rg.line.offset_point([s0, s1], [cd, cd])
+                    p = rg.line.offset_point([s0, s1], rg.lane_d(i, dr, [s0, s1]))
                     back = 0.0 if dr > 0 else math.pi
                     keys.append((rg.id, i, dr))
                     heads.append((*p[0], rg.tangent_yaw(s0) + back))
@@ -511,14 +695,18 @@ class Twin:
         rows = []
         for rg in self.roads.values():
             s = np.arange(0.0, rg.length + 1e-9, spacing_m)
-            for i, dr, cd in rg.lanes:
-                p = rg.line.offset_point(s, np.full(len(s), cd))
-                lat, lon, alt = self.georef.to_geodetic(p[:, 0], p[:, 1], np.zeros(len(p)))  # vectorised
-                for k, ((x, y), si) in enumerate(zip(p, s)):
-                    yaw = rg.tangent_yaw(si) + (0.0 if dr > 0 else math.pi)
-                    yaw_deg = math.degrees(math.atan2(math.sin(yaw), math.cos(yaw)))
-                    heading = (90.0 - yaw_deg) % 360.0
-                    rows.append((float(lat[k]), float(lon[k]), float(alt[k]), heading, x, y, 0.0, yaw_deg))
+            _, tan = rg.line.at(s)
+            for i, dr, _ in rg.lanes:
+                d = rg.lane_d(i, dr, s)
+                p = rg.line.offset_point(s, d)
+                z = rg.height(s, d)
+                lat, lon, alt = self.georef.to_geodetic(p[:, 0], p[:, 1], z)  # vectorised
+                yaw = np.arctan2(tan[:, 1], tan[:, 0]) + (0.0 if dr > 0 else math.pi)
+                yaw = np.arctan2(np.sin(yaw), np.cos(yaw))
+                heading = self.georef.heading_of_yaw(p[:, 0], p[:, 1], yaw)  # true north, not grid north
+                for k, (x, y) in enumerate(p):
+                    rows.append((float(lat[k]), float(lon[k]), float(alt[k]), float(heading[k]), x, y,
+                                 float(z[k]), math.degrees(yaw[k])))
         return rows
 
     def export_lut(self, path, spacing_m: float = 2.0) -> int:
@@ -532,6 +720,18 @@ class Twin:
                   for a, b, c, h, x, y, z, w in rows]
         atomic.write_text(path, "\n".join(lines) + "\n")
         return len(rows)
+
+    GROUND_MARGIN_M = 40.0
+
+    @property
+    def ground_rect(self) -> tuple[float, float, float, float]:
+        """(x0, y0, x1, y1) of the terrain: the `ground_m` square about the roads' centre,
+        widened where needed to the roads' extent + 40 m (a long map is not cut off)."""
+        x0, y0, x1, y1 = self.bounds
+        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+        hx = max(self.spec.ground_m / 2, (x1 - x0) / 2 + self.GROUND_MARGIN_M)
+        hy = max(self.spec.ground_m / 2, (y1 - y0) / 2 + self.GROUND_MARGIN_M)
+        return cx - hx, cy - hy, cx + hx, cy + hy
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:

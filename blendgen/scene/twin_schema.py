@@ -21,6 +21,10 @@ class Georef(_M):
     lat0: Annotated[float, Field(ge=-90, le=90)]
     lon0: Annotated[float, Field(ge=-180, le=180)]
     alt0: float = 0.0
+    # A projected twin (maps georeferenced in e.g. UTM): twin x/y = projected x/y - origin;
+    # GNSS lat/lon map through pyproj instead of ENU about (lat0, lon0).
+    proj: str | None = None
+    origin: XY = (0.0, 0.0)
 
 
 class Arc(_M):
@@ -57,6 +61,13 @@ class Road(_M):
     center_line: Literal["solid", "dashed", "double", "none"] = "dashed"
     speed_mps: Annotated[float, Field(gt=0, le=45)] = 12.0
     junction: str | None = None  # id of the junction this connecting road belongs to (maps)
+    # Relief and varying widths (maps), one value per `points` entry: the centre-line's
+    # surface height (m), the cross-section's roll (superelevation, deg, > 0 falls to the
+    # right) and each lane's width (m; inner lane first).
+    z: list[float] | None = None
+    superelevation_deg: list[Annotated[float, Field(ge=-30, le=30)]] | None = None
+    lane_widths_forward: list[list[NonNeg]] | None = None
+    lane_widths_backward: list[list[NonNeg]] | None = None
 
     @model_validator(mode="after")
     def _line(self):
@@ -69,6 +80,16 @@ class Road(_M):
             raise ValueError("give the centre-line as `points` or as `start` + `segments`")
         if self.lanes_forward + self.lanes_backward == 0:
             raise ValueError("a road needs at least one lane (lanes_forward + lanes_backward > 0)")
+        for name in ("z", "superelevation_deg", "lane_widths_forward", "lane_widths_backward"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if self.points is None or len(v) != len(self.points):
+                raise ValueError(f"`{name}` needs `points` and one entry per point "
+                                 f"({len(v)} entries, {len(self.points or [])} points)")
+            n = {"lane_widths_forward": self.lanes_forward, "lane_widths_backward": self.lanes_backward}.get(name)
+            if n is not None and any(len(w) != n for w in v):
+                raise ValueError(f"`{name}`: every entry lists {n} lane width(s)")
         return self
 
 
@@ -146,7 +167,7 @@ class TwinSpec(_M):
     traffic_lights: list[TrafficLightStatic] = Field(default_factory=list)
     barriers: list[Barrier] = Field(default_factory=list)
     trees: list[Tree] = Field(default_factory=list)
-    ground_m: Annotated[float, Field(ge=10, le=5000)] = 400.0  # side of the square ground plane
+    ground_m: Annotated[float, Field(ge=10, le=20000)] = 400.0  # side of the square ground plane (at least the roads' extent + 40 m)
     materials: dict[Literal["asphalt", "marking", "sidewalk", "curb", "ground", "building"],
                     MaterialSpec] = Field(default_factory=dict)
 

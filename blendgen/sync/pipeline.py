@@ -73,8 +73,13 @@ def gnss_to_world(rec: Recording, lut: Lut | None, georef):
         yaw = np.radians(90.0 - heading) + rot if heading is not None else np.full(len(t), np.nan)
         return t, xyz, inside, so3.wrap_angle(yaw), None
     origin = tuple(georef) if georef is not None else (lat[0], lon[0], alt[0])
-    e, n, u = pymap3d.geodetic2enu(lat, lon, alt, *origin)
-    yaw = np.radians(90.0 - heading) if heading is not None else np.full(len(t), np.nan)
+    if getattr(georef, "proj", None):  # a projected twin (a UTM map): pyproj, grid vs true north
+        e, n, u = georef.to_enu(lat, lon, alt)
+        north = georef.north_yaw(e, n)
+    else:
+        e, n, u = pymap3d.geodetic2enu(lat, lon, alt, *origin)
+        north = np.pi / 2
+    yaw = north - np.radians(heading) if heading is not None else np.full(len(t), np.nan)
     return t, np.stack([e, n, u], axis=1), np.ones(len(t), bool), so3.wrap_angle(yaw), origin
 
 

@@ -239,10 +239,10 @@ class Planner:
         tt = self._frames_from(k0)
         chain = None if lat_profile is not None or speed <= 0 or reverse else self.twin.lane_chain(
             road, index, direction, s0, speed * tt[-1] + dims[0], self.rng)
-        direction = -direction if reverse else direction
+        travel = -direction if reverse else direction
         if chain is not None:  # a map's lane goes on through a junction: follow its connecting road
             return self._chain_track(k0, cls, variant, dims, chain, speed * tt, lat * direction, scenario)
-        s = s0 + direction * speed * tt
+        s = s0 + travel * speed * tt
         ok = (s >= dims[0] / 2) & (s <= rg.length - dims[0] / 2)
         n = int(np.argmin(ok)) if not ok.all() else len(s)
         if n == 0:
@@ -252,9 +252,9 @@ class Planner:
         d = cd + np.full(n, lat) if lat_profile is None else cd + lat_profile(tt)
         xy = rg.line.offset_point(s, d)
         _, tan = rg.line.at(s)
-        yaw = np.arctan2(tan[:, 1], tan[:, 0]) + (0.0 if direction > 0 else math.pi)
+        yaw = np.arctan2(tan[:, 1], tan[:, 0]) + (0.0 if travel > 0 else math.pi)
         if n > 1 and lat_profile is not None:  # heading follows the lane change
-            left_rate = np.gradient(d, tt) * direction if n > 2 else np.zeros(n)
+            left_rate = np.gradient(d, tt) * travel if n > 2 else np.zeros(n)
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         m = self._limit(k0, xy)
         return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
@@ -371,8 +371,8 @@ class Planner:
         # the ego, so the vehicle keeps the lane and travels against it (and is parked facing so)
         towards = False
         if self.real is not None:  # decided where the vehicle will be, not where it was sampled
-            cd = next(c for i, dr, c in rg.lanes if i == lane.index and dr == lane.direction)
-            xy = rg.line.offset_point(lane.s, cd + lat * lane.direction)[0]
+            cd = rg.lane_d(lane.index, lane.direction, np.array([lane.s]))
+            xy = rg.line.offset_point(np.array([lane.s]), cd + lat * lane.direction)[0]
             towards = self.real.oncoming(k, self.ego.T[k], xy)
         # `lat` is relative to the travel direction (left > 0); lane_track wants road-frame d
         return self.lane_track(k, cls, variant, dims, lane.road, lane.index, lane.direction, lane.s,

@@ -27,7 +27,7 @@ from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
-from blendgen.sync.vo import OrbVo, VoConfig, VoResult
+from blendgen.sync.vo import VoConfig, VoResult, make_vo
 
 VO_ROT_STD = 0.0015  # rad (0.09 deg), relative rotation between two frames
 VO_DIR_STD = 0.012  # rad (0.7 deg), direction of travel between two frames
@@ -226,7 +226,7 @@ def _frames(rec: Recording):
 
 
 def _vo_config(settings) -> VoConfig:
-    return VoConfig(n_features=int(settings.orb_features))
+    return VoConfig(n_features=int(settings.orb_features), method=str(getattr(settings, "vo_method", "klt")))
 
 
 def _quality(vo: VoResult | None, flags: list[str]) -> dict:
@@ -361,7 +361,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     I = np.concatenate(ev_i)
     order = np.lexsort((K, T))
 
-    vo = OrbVo(rec.camera, _vo_config(settings)) if use_vo and not vo_cache else None
+    vo = make_vo(rec.camera, _vo_config(settings)) if use_vo and not vo_cache else None
     frames = _frames(rec) if vo is not None else None
     poses, covs, quality = [], [], []
     pending = []  # flags since the last pose
@@ -490,7 +490,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
 
 def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
     """Camera only: chain relative poses; scale from the assumed speed (flag scale_unknown)."""
-    vo = OrbVo(rec.camera, _vo_config(settings))
+    vo = make_vo(rec.camera, _vo_config(settings))
     R_wc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # level, looking along +x
     T = make_pose(R_wc, np.zeros(3))
     last_step, last_dir = None, None

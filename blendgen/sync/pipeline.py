@@ -28,9 +28,8 @@ from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import VoConfig, VoResult, make_vo
+from blendgen.sync.vo_trust import vo_noise
 
-VO_ROT_STD = 0.0015  # rad (0.09 deg), relative rotation between two frames
-VO_DIR_STD = 0.012  # rad (0.7 deg), direction of travel between two frames
 ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
 # vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
 # velocity of a car, and how far from level across a road is (crown, banking)
@@ -434,10 +433,8 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     flags.append("repeated_frame")
                 else:
                     if res.has_rotation and ekf.has_clone:
-                        # measured on synthetic 480x270 frames at 5 fps (USAC + Sampson refit):
-                        # rotation 0.035-0.046 deg, direction 0.35 deg (1 sigma); about doubled
-                        rot_std = VO_ROT_STD if res.status == "ok" else 2 * VO_ROT_STD
-                        dir_std = VO_DIR_STD if res.has_direction else None
+                        # noise from this pair's own fit (inliers, residuals, parallax), not a constant
+                        rot_std, dir_std = vo_noise(res)
                         # features that do not move mean "standing" only if the IMU agrees and
                         # the filter is slow: a far scene (highway, drone) barely moves either
                         imu_quiet = (not use_imu) or bool(

@@ -63,6 +63,10 @@ class VoResult:
     parallax_px: float = 0.0               # median motion left after removing the rotation
     residual_px: float = 0.0               # RMS residual of the inliers to the fitted model
     inliers: np.ndarray | None = field(default=None, repr=False)  # mask over the correspondences
+    # first-order covariances of the fit (pixel noise from the inliers' residuals, no floor):
+    # rotation error of R_c1c2 (right perturbation, rad^2) and of u_dir (3x3, rank 2)
+    rot_cov: np.ndarray | None = field(default=None, repr=False)
+    dir_cov: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def has_rotation(self) -> bool:
@@ -367,6 +371,8 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
     if res.flow_px < cfg.stationary_px:
         res.status, res.n_inliers = "stationary", len(p1)
         res.inliers = np.ones(len(p1), bool)
+        res.residual_px = res.flow_px
+        res.rot_cov = _rotation_covariance(q1, max(res.flow_px, 0.1) / f)
         return res
     n1, n2 = q1[:, :2] / q1[:, 2:], q2[:, :2] / q2[:, 2:]
     # USAC (LO-RANSAC) is about twice as fast as classic RANSAC here, same accuracy after the refit
@@ -399,6 +405,7 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
         res.R_c1c2 = R21.T
         res.residual_px = _rotation_residual_px(R21, q1[inl_r], q2[inl_r], f)
         res.inliers = inl_r
+        res.rot_cov = _rotation_covariance(q1[inl_r], max(res.residual_px, 0.1) / f)
         return res
     # RANSAC's E comes from one minimal sample: refit R, t on all its inliers (Sampson error).
     # All, not only those recoverPose would keep (in front, nearer than 50 baselines): far
@@ -410,6 +417,7 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
     res.u_dir = u / np.linalg.norm(u)
     res.n_inliers = int(ransac.sum())
     res.residual_px = _sampson_rms_px(R21, t.ravel(), n1[ransac], n2[ransac], f)
+    res.rot_cov, res.dir_cov = _pair_covariance(R21, t.ravel(), n1[ransac], n2[ransac])
     # tracks to keep: all that fit the epipolar geometry (far points are fine for tracking)
     res.inliers = ransac
     return res
@@ -444,6 +452,49 @@ def _recover_pose(E: np.ndarray, n1: np.ndarray, n2: np.ndarray, mask: np.ndarra
     inl = np.zeros(len(n1), bool)
     inl[idx[front]] = True
     return R, tt.reshape(3, 1), inl
+
+
+def _rotation_covariance(q: np.ndarray, sigma: float) -> np.ndarray:
+    """Covariance of a rotation fitted to bearings q (rows) with angular noise sigma (rad):
+    sigma^2 (sum (I - b b^T))^-1, the linearised Kabsch information. Roll about the optical
+    axis comes out less certain than pan / tilt, as it should for a narrow field of view."""
+    if len(q) < 3:
+        return np.eye(3) * 1e2
+    b = q / np.linalg.norm(q, axis=1, keepdims=True)
+    info = len(b) * np.eye(3) - b.T @ b
+    return sigma**2 * np.linalg.pinv(info)
+
+
+def _pair_covariance(R21: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray):
+    """First-order covariance of the two-view fit: s^2 (J^T J)^-1 of the Sampson residuals
+    with respect to a right rotation perturbation of R21 and a tangent perturbation of t, s^2
+    the residuals' mean square. It grows with fewer inliers, larger residuals and less
+    parallax (a short baseline or far scene makes the direction columns of J small). Returns
+    (cov of the right perturbation of R_c1c2, cov of u_dir (3x3, rank 2))."""
+    if len(n1) < 8:
+        return np.eye(3) * 1e2, np.eye(3) * 1e2
+    x1 = np.hstack([n1, np.ones((len(n1), 1))])
+    x2 = np.hstack([n2, np.ones((len(n2), 1))])
+    t = t / np.linalg.norm(t)
+    a = np.array([1.0, 0, 0]) if abs(t[0]) < 0.9 else np.array([0, 1.0, 0])
+    b1 = np.cross(t, a)
+    b1 /= np.linalg.norm(b1)
+    b2 = np.cross(t, b1)
+
+    def E_of(d):
+        tt = t + d[3] * b1 + d[4] * b2
+        return so3.hat(tt / np.linalg.norm(tt)) @ (R21 @ so3.exp(d[:3]))
+
+    h = 1e-6
+    Es = np.stack([E_of(np.zeros(5))] + [E_of(h * e) for e in np.eye(5)])
+    r = _sampson_E(Es, x1, x2)
+    J = ((r[1:] - r[0]) / h).T
+    s2 = float(np.mean(r[0] ** 2))
+    C = s2 * np.linalg.pinv(J.T @ J)
+    # R_c1c2 = R21^T; R21 exp(d) -> R21^T exp(-R21 d): right perturbation -R21 d
+    rot = R21 @ C[:3, :3] @ R21.T
+    A = -R21.T @ np.stack([b1, b2], axis=1)  # u = -R21^T t
+    return 0.5 * (rot + rot.T), A @ C[3:, 3:] @ A.T
 
 
 def _sampson_rms_px(R21, t, n1, n2, f) -> float:

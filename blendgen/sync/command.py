@@ -69,6 +69,11 @@ def _run(args: argparse.Namespace) -> int:
     print(f"sync: {len(res.poses)} poses -> {Path(args.out) / 'poses.csv'} in {s['seconds']:.1f} s "
           f"(VO {good}/{max(len(res.poses) - 1, 0)} pairs, GNSS {upd.get('gnss', 0)} used / "
           f"{s.get('rejected', {}).get('gnss', 0)} rejected, {len(s.get('reader_issues', []))} reader issues)")
+    if "vo_trust" in s:
+        tr = s["vo_trust"]
+        print(f"sync: VO trust: {tr['trusted']} (gated against the gyro: {tr['gyro_gated']}, frozen frames: "
+              f"{tr['frozen']}, skipped frames: {tr['skipped']}; stabiliser detected: "
+              f"{'yes' if tr['stabiliser_detected'] else 'no'})")
     if "calibration" in s:
         from blendgen.sync.calibration import describe
 

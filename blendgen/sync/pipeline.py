@@ -28,7 +28,7 @@ from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import VoConfig, VoResult, make_vo
-from blendgen.sync.vo_trust import vo_noise
+from blendgen.sync.vo_trust import TrustReport, assess, gyro_rotations, vo_noise
 
 ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
 # vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
@@ -283,8 +283,16 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                          np.full(3, 0.01**2), np.full(3, ACC_BIAS_PRIOR**2)])
     smooth = bool(getattr(settings, "smooth", True))
     vo_cache: dict[int, VoResult | None] = {}
+    trust = None
+    if use_vo:
+        # VO first, over all frames: each pair is checked against the gyro, and whether the
+        # frames move rigidly with the IMU at all is decided, before the filter trusts any
+        _vo_all(rec, settings, len(out_t), vo_cache, progress)
+        if use_imu:
+            trust = assess([vo_cache.get(i) for i in range(len(out_t))], gyro_rotations(imu, out_t, cfg.max_imu_dt),
+                           R_bc, out_t, cfg.gyro_noise)
     args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
-            R_bc, p_bc, fwd, imu, vo_cache, calib)
+            R_bc, p_bc, fwd, imu, vo_cache, calib, trust)
     res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress)
     res.summary["passes"] = 1
     if smooth and use_imu:
@@ -305,7 +313,27 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             res.summary["passes"] = 2
         else:
             res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
+    if trust is not None:
+        res.summary["vo_trust"] = trust.summary()
+        if trust.stabilised:
+            # composites must follow the image: the body's camera turned by the stabiliser's correction
+            res.poses = [(fid, t, T @ make_pose(C, np.zeros(3))) for (fid, t, T), C in zip(res.poses, trust.correction)]
     return res
+
+
+def _vo_all(rec, settings, n: int, cache: dict, progress: bool) -> None:
+    vo = make_vo(rec.camera, _vo_config(settings))
+    frames = _frames(rec)
+    bar = _bar(progress, n, "VO")
+    for i in range(n):
+        _, img = next(frames)
+        if img is None:
+            vo.reset()
+            cache[i] = None
+        else:
+            cache[i] = vo.track(img)
+        bar.update(1)
+    bar.close()
 
 
 def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: float = 30.0) -> float:
@@ -328,7 +356,8 @@ def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: floa
 
 
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
-                 gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, progress):
+                 gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, trust: TrustReport | None,
+                 progress):
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
@@ -365,6 +394,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     poses, covs, quality = [], [], []
     pending = []  # flags since the last pose
     last_zupt_t = -np.inf
+    clone_i = -1  # frame whose image the clone belongs to
     last = None  # latest IMU sample: carries the state to a GNSS fix or frame between samples
 
     def advance(t):
@@ -431,6 +461,20 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     # a duplicated frame (encoder repeat) says nothing about motion: no update,
                     # and the clone stays at the frame whose image this is
                     flags.append("repeated_frame")
+                elif trust is not None and trust.stabilised and res.has_rotation:
+                    # the image turns with the stabiliser, not the body: take the estimated
+                    # correction out (image camera -> body camera) and use what is left
+                    if ekf.has_clone and clone_i >= 0:
+                        C0, C1 = trust.correction[clone_i], trust.correction[i]
+                        rot_cov, dir_cov = vo_noise(res)
+                        u = C0 @ res.u_dir if res.has_direction else None
+                        if u is not None:
+                            dir_cov = C0 @ dir_cov @ C0.T + trust.correction_std**2 * (np.eye(3) - np.outer(u, u))
+                        ok = ekf.update_relative(C0 @ res.R_c1c2 @ C1.T, u, R_bc, p_bc, C1 @ rot_cov @ C1.T,
+                                                 dir_cov if u is not None else None)
+                        flags.append("vo_destabilised" if ok else "vo_rejected")
+                elif trust is not None and trust.flags[i] is not None:
+                    flags.append("vo_" + trust.flags[i])  # disagrees with the gyro over this pair
                 else:
                     if res.has_rotation and ekf.has_clone:
                         # noise from this pair's own fit (inliers, residuals, parallax), not a constant
@@ -449,6 +493,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                         flags.append("vo_failed")
                 if res is None or res.status != "repeated":
                     ekf.clone()
+                    clone_i = i
             if smooth:
                 marks.append(ekf.mark())
             T_wb = make_pose(ekf.R, ekf.p)

@@ -205,3 +205,26 @@ def test_rigid_shaky_video_is_trusted(shaky, tmp_path):
     assert not tr["stabiliser_detected"] and abs(tr["image_to_gyro_rotation_gain"] - 1) < 0.05
     assert tr["gyro_gated"] + tr["frozen"] + tr["skipped"] <= 0.02 * tr["pairs_checked"]
     assert np.median(err) < 0.5 * np.median(err_imu)
+
+
+def test_frozen_frame_in_a_shaky_drive_is_not_a_standstill(shaky, tmp_path):
+    """A re-encoded repeat (the previous image plus new sensor noise: not bit-identical) while
+    the camera shakes: VO sees no motion, the gyro does; the pair is flagged frozen, not used,
+    and no VO standstill is applied."""
+    import copy
+
+    from blendgen.job.schema import Sync
+    from blendgen.sync.pipeline import run_sync
+
+    rec0, _, _ = shaky["rigid"]
+    rec = copy.copy(rec0)
+    rec.extra = dict(rec0.extra)
+    imgs = list(rec0.extra["images"])
+    rng = np.random.default_rng(9)
+    k = 60
+    imgs[k] = np.clip(imgs[k - 1] + rng.normal(0, 2.0, imgs[k - 1].shape), 0, 255).astype(np.uint8)
+    rec.extra["images"] = imgs
+    res = run_sync(rec, Sync(), tmp_path, georef=rec.extra["georef"], progress=False)
+    q = res.quality[k]
+    assert q["vo_status"] == "stationary" and "vo_frozen" in q["flags"] and "zupt" not in q["flags"]
+    assert res.summary["vo_trust"]["frozen"] >= 1 and not res.summary["vo_trust"]["stabiliser_detected"]

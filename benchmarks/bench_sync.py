@@ -5,13 +5,17 @@
 1. A synthetic drive (60 s, --quick 20 s) like the built-in demo: 480x270 frames at 5 fps
    ray-cast through a textured street, IMU 200 Hz with noise and bias, GNSS 10 Hz with 1 m
    noise, a camera mounted 1.2 m ahead of the IMU, pitched 3 deg down and yawed 1.5 deg.
-   Sync variants (ORB features, VO/IMU on/off, smoother, re-anchoring interval, VO alone)
+   Sync variants (VO front end KLT / ORB and features, VO/IMU on/off, smoother,
+   re-anchoring interval, VO alone)
    and the peer GTSAM (ISAM2 + CombinedImuFactor preintegration + GPSFactor) on the same input.
    Accuracy: ATE, RPE (frame to frame), median rotation error, reprojection error of a point
    20 m ahead on the optical axis at 1280x720 -- absolute (twin frame) and after a 4-DoF
    (yaw + translation) alignment, the usual VIO convention.
-2. VO throughput at 960x540 on one core (cv2.setNumThreads(1)) per ORB feature count.
+2. VO throughput at 960x540 on one core (cv2.setNumThreads(1), CPU time) per front end and
+   feature count (accuracy per setting: benchmarks/bench_vo.py).
 3. comma2k19 (real IMU + GNSS, if ../shared/data is there): blendgen vs GTSAM vs raw GNSS.
+4. A shaky drive with electronically stabilised frames: camera orientation vs the image's,
+   with the gyro checks, IMU + GNSS alone, and VO taken as rigid (before issue 14).
 
 Writes benchmarks/results/sync.png and docs/benchmarks/sync.md.
 """
@@ -55,9 +59,10 @@ def synthetic(quick: bool):
     ref = gt_poses(rec.groundtruth)
     cam720 = rec.camera.scaled(1280, 720)
     speed = float(np.mean(np.linalg.norm(np.diff([T[:3, 3] for T in ref], axis=0), axis=1)) * 5.0)
-    variants = [("full, ORB 250", Sync(orb_features=250)), ("full, ORB 500", Sync(orb_features=500)),
-                ("full, ORB 1000", Sync(orb_features=1000)), ("full, ORB 1500 (default)", Sync()),
-                ("full, ORB 2000", Sync(orb_features=2000)),
+    variants = [("full, KLT 500", Sync(orb_features=500)), ("full, KLT 1000", Sync(orb_features=1000)),
+                ("full, KLT 1500 (default)", Sync()), ("full, KLT 2000", Sync(orb_features=2000)),
+                ("full, ORB 500", Sync(orb_features=500, vo_method="orb")),
+                ("full, ORB 1500", Sync(vo_method="orb")),
                 ("IMU+GNSS, no VO", Sync(use_vo=False)), ("VO+GNSS, no IMU", Sync(use_imu=False)),
                 ("full, filter only (no smoother)", Sync(smooth=False)),
                 ("full, re-anchoring off", Sync(reanchor_every_s=None)),
@@ -105,7 +110,7 @@ def vo_throughput(quick: bool):
     import cv2
 
     from blendgen.geometry import Camera, R_world_cam_from_ypr
-    from blendgen.sync.vo import OrbVo, VoConfig
+    from blendgen.sync.vo import VoConfig, make_vo
 
     cv2.setNumThreads(1)
     cam = Camera.from_hfov(960, 540, 70.0)
@@ -114,19 +119,20 @@ def vo_throughput(quick: bool):
     imgs = [scene.render(cam, make_pose(R_world_cam_from_ypr(0.01 * k), [0.32 * k, 0.0, 1.5]),
                          rng=np.random.default_rng(k)) for k in range(n)]  # 8 m/s at 25 fps
     out = []
-    for nf in (250, 500, 1000, 2000):
-        vo = OrbVo(cam, VoConfig(n_features=nf))
-        times = []
-        ok = 0
-        for img in imgs:
-            t = time.perf_counter()
-            r = vo.track(img)
-            times.append(time.perf_counter() - t)
-            ok += r.status == "ok"
-        med = statistics.median(times[1:])
-        out.append({"features": nf, "ms": 1e3 * med, "fps": 1.0 / med, "ok": ok, "pairs": n - 1})
-        print(f"  VO 960x540 ORB {nf:5d}: {1e3 * med:6.1f} ms/frame median = {1 / med:5.1f} fps (1 core), "
-              f"{ok}/{n - 1} pairs ok")
+    for method in ("klt", "orb"):
+        for nf in (500, 1000, 1500, 2000):
+            vo = make_vo(cam, VoConfig(n_features=nf, method=method))
+            times = []
+            ok = 0
+            for img in imgs:
+                t = time.process_time()
+                r = vo.track(img)
+                times.append(time.process_time() - t)
+                ok += r.status == "ok"
+            med = statistics.median(times[1:])
+            out.append({"method": method, "features": nf, "ms": 1e3 * med, "fps": 1.0 / med, "ok": ok, "pairs": n - 1})
+            print(f"  VO 960x540 {method.upper()} {nf:5d}: {1e3 * med:6.1f} ms/frame median = {1 / med:5.1f} fps "
+                  f"(1 core, CPU time), {ok}/{n - 1} pairs ok")
     return out
 
 
@@ -168,6 +174,37 @@ def comma(quick: bool):
     return out
 
 
+def stabilised(quick: bool):
+    """A shaky drive (1 deg, 1-6 Hz) whose frames a simulated stabiliser warped (K C K^-1, the
+    body orientation smoothed over 0.3 s): camera orientation against the *image* orientation."""
+    import blendgen.sync.pipeline as pl
+    from blendgen.sync import so3
+    from blendgen.sync.vo_trust import TrustReport
+
+    dur = 12.0
+    rec, _, _ = synthetic_recording("drive", dur, fps=10.0, shake_deg=1.0, stabilise_s=0.3)
+    ref = rec.extra["image_groundtruth"]
+    rows = []
+    real_assess = pl.assess
+    for name, s, trust in (("full (VO checked against the gyro)", Sync(), True),
+                           ("IMU+GNSS, no VO", Sync(use_vo=False), True),
+                           ("full, VO taken as rigid (no gyro check: before issue 14)", Sync(), False)):
+        if not trust:
+            pl.assess = lambda res, *a, **k: TrustReport(flags=[None] * len(res), reason="not checked")
+        try:
+            with tempfile.TemporaryDirectory() as d:
+                res = run_sync(rec, s, Path(d), georef=GEOREF, progress=False)
+        finally:
+            pl.assess = real_assess
+        e = np.degrees([np.linalg.norm(so3.log(g[:3, :3].T @ p[2][:3, :3])) for g, p in zip(ref, res.poses)])
+        tr = res.summary.get("vo_trust", {})
+        rows.append({"name": name, "med": float(np.median(e)), "p90": float(np.percentile(e, 90)),
+                     "max": float(e.max()), "stab": tr.get("stabiliser_detected"), "gain": tr.get("image_to_gyro_rotation_gain")})
+        print(f"  {name:58s} vs image: median {rows[-1]['med']:.3f} p90 {rows[-1]['p90']:.3f} max {rows[-1]['max']:.3f} deg"
+              f"  stabiliser detected {rows[-1]['stab']} gain {rows[-1]['gain']}")
+    return rows, dur
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20 s drive, fewer VO timing frames")
@@ -179,6 +216,8 @@ def main() -> None:
     vo = vo_throughput(args.quick)
     print("3. comma2k19")
     cm = comma(args.quick)
+    print("4. stabilised video")
+    st, st_dur = stabilised(args.quick)
 
     import matplotlib
 
@@ -199,9 +238,11 @@ def main() -> None:
             ax.grid(True, alpha=0.3)
     axes[0].set_title(f"synthetic {dur:.0f} s drive, {nframes} frames 480x270")
     axes[1].set_title("rotation error vs time")
-    axes[2].plot([v["features"] for v in vo], [v["fps"] for v in vo], "o-")
+    for m in ("klt", "orb"):
+        axes[2].plot([v["features"] for v in vo if v["method"] == m], [v["fps"] for v in vo if v["method"] == m], "o-",
+                     label=m.upper())
     axes[2].axhline(60, color="r", ls="--", label="target 60 fps")
-    axes[2].set_xlabel("ORB features")
+    axes[2].set_xlabel("VO features")
     axes[2].set_ylabel("VO frames/s at 960x540, 1 core")
     axes[2].set_title("VO throughput")
     axes[2].legend()
@@ -227,22 +268,31 @@ def main() -> None:
         md.append(f"| {r['name']} | {r['ms_per_frame']:.1f} | {r['ate']:.3f} | {r['ate4']:.3f} | {r['ateh']:.3f} | "
                   f"{r['ateh4']:.3f} | {r['rpe']:.3f} | "
                   f"{r['rot']:.3f} | {r['rot4']:.3f} | {r['px']:.1f} | {r['px4']:.1f} |")
-    md += ["", "## VO throughput at 960x540, one core (cv2.setNumThreads(1))", "",
-           "| ORB features | ms/frame (median) | frames/s | pairs ok |", "|---|---|---|---|"]
+    md += ["", "## VO throughput at 960x540, one core (cv2.setNumThreads(1), CPU time)", "",
+           "Accuracy per setting: `docs/benchmarks/vo.md` (`benchmarks/bench_vo.py`).", "",
+           "| method | features | ms/frame (median) | frames/s | pairs ok |", "|---|---|---|---|---|"]
     for v in vo:
-        md.append(f"| {v['features']} | {v['ms']:.1f} | {v['fps']:.1f} | {v['ok']}/{v['pairs']} |")
+        md.append(f"| {v['method'].upper()} | {v['features']} | {v['ms']:.1f} | {v['fps']:.1f} | {v['ok']}/{v['pairs']} |")
     if cm:
         md += ["", "## comma2k19 example segment (real IMU + GNSS, no video)", "",
                "Constant horizontal offset removed (issue 3). rel 1 s: median error of the 1 s displacement.", "",
-               "| | seconds | horizontal RMSE (m) | rel 1 s (m) | camera heading median (deg) |",
-               "|---|---|---|---|---|"]
+               "| | seconds | horizontal RMSE (m) | raw horizontal RMSE (m) | rel 1 s (m) | camera heading median (deg) "
+               "| 3-D rotation median (deg) | pitch median (deg) |",
+               "|---|---|---|---|---|---|---|---|"]
         for k, (secs, e) in cm.items():
             s = e["sync"]
-            md.append(f"| {k} | {secs:.2f} | {s['h_rmse_m']:.3f} | {s['rel_1s_median_m']:.3f} | "
-                      f"{s['heading_median_deg']:.3f} |")
+            md.append(f"| {k} | {secs:.2f} | {s['h_rmse_m']:.3f} | {s.get('h_rmse_raw_m', float('nan')):.3f} | "
+                      f"{s['rel_1s_median_m']:.3f} | {s['heading_median_deg']:.3f} | "
+                      f"{s.get('rot3d_median_deg', float('nan')):.3f} | {s.get('pitch_median_deg', float('nan')):.3f} |")
         g = cm["blendgen"][1]["raw_gnss"]
-        md.append(f"| raw GNSS (u-blox) | - | {g['h_rmse_m']:.3f} | {g['rel_1s_median_m']:.3f} | "
-                  f"{g['heading_median_deg']:.3f} (velocity heading) |")
+        md.append(f"| raw GNSS (u-blox) | - | {g['h_rmse_m']:.3f} | - | {g['rel_1s_median_m']:.3f} | "
+                  f"{g['heading_median_deg']:.3f} (velocity heading) | - | - |")
+    md += ["", f"## Stabilised video (synthetic, {st_dur:.0f} s at 10 fps, 1 deg shake, stabiliser 0.3 s)", "",
+           "Camera orientation against the orientation of the warped image (what composites must follow).", "",
+           "| variant | median (deg) | p90 (deg) | max (deg) | stabiliser detected | image/gyro rotation gain |",
+           "|---|---|---|---|---|---|"]
+    for r in st:
+        md.append(f"| {r['name']} | {r['med']:.3f} | {r['p90']:.3f} | {r['max']:.3f} | {r['stab']} | {r['gain']} |")
     md += ["", f"Plot: `benchmarks/results/{png.name}`", ""]
     out_md = ROOT / "docs" / "benchmarks" / ("sync_quick.md" if args.quick else "sync.md")
     atomic.write_text(out_md, "\n".join(md))

@@ -1,4 +1,4 @@
-"""ORB visual odometry on ray-cast synthetic frames with exact ground truth (no Blender)."""
+"""ORB and KLT visual odometry on ray-cast synthetic frames with exact ground truth (no Blender)."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ import pytest
 from blendgen.geometry import Camera, R_world_cam_from_ypr, invert_pose, make_pose
 from blendgen.sync import so3
 from blendgen.sync.simulate import StreetScene
-from blendgen.sync.vo import OrbVo, VoConfig
+from blendgen.sync.vo import KltVo, OrbVo, VoConfig, make_vo
 
 CAM = Camera.from_hfov(480, 270, 70.0)
 
@@ -28,9 +28,13 @@ def _rel_errors(res, T1, T2):
     return rot, ang
 
 
-def test_forward_drive_low_fps(scene):
+FRONT_ENDS = pytest.mark.parametrize("method", ["orb", "klt"])
+
+
+@FRONT_ENDS
+def test_forward_drive_low_fps(scene, method):
     """8 m/s at 5 fps with a gentle turn: 1.6 m and 1 deg between frames."""
-    vo = OrbVo(CAM, VoConfig(n_features=1000))
+    vo = make_vo(CAM, VoConfig(n_features=1000, method=method))
     rng = np.random.default_rng(1)
     poses = [_pose(1.6 * k, 0.02 * k**2, np.radians(1.0 * k)) for k in range(6)]
     rots, angs = [], []
@@ -59,8 +63,9 @@ def test_features_are_spread(scene):
     assert len(cells) >= 0.7 * textured
 
 
-def test_no_features_lens_cap(scene):
-    vo = OrbVo(CAM)
+@FRONT_ENDS
+def test_no_features_lens_cap(scene, method):
+    vo = make_vo(CAM, VoConfig(method=method))
     rng = np.random.default_rng(0)
     vo.track(scene.render(CAM, _pose(0.0)))
     for _ in range(20):  # 20 dark frames
@@ -76,8 +81,9 @@ def test_no_features_lens_cap(scene):
     assert vo.track(scene.render(CAM, _pose(6.0))).status == "ok"
 
 
-def test_pure_rotation_has_no_direction(scene):
-    vo = OrbVo(CAM)
+@FRONT_ENDS
+def test_pure_rotation_has_no_direction(scene, method):
+    vo = make_vo(CAM, VoConfig(method=method))
     T1, T2 = _pose(0.0, yaw=0.0), _pose(0.0, yaw=np.radians(4.0))
     vo.track(scene.render(CAM, T1))
     res = vo.track(scene.render(CAM, T2))
@@ -86,8 +92,9 @@ def test_pure_rotation_has_no_direction(scene):
     assert rot < 0.3
 
 
-def test_stationary_and_repeated_frames(scene):
-    vo = OrbVo(CAM)
+@FRONT_ENDS
+def test_stationary_and_repeated_frames(scene, method):
+    vo = make_vo(CAM, VoConfig(method=method))
     rng = np.random.default_rng(3)
     img = scene.render(CAM, _pose(2.0), rng=rng)
     vo.track(img)
@@ -96,3 +103,25 @@ def test_stationary_and_repeated_frames(scene):
     res = vo.track(scene.render(CAM, _pose(2.0), rng=rng))  # same place, new sensor noise
     assert res.status == "stationary" and res.stationary
     assert np.allclose(res.R_c1c2, np.eye(3))
+
+
+def test_klt_tracks_then_detects_only_where_tracks_were_lost(scene):
+    """Track-then-detect: corners that stay in view are tracked (not re-detected); new corners
+    appear only in cells that lost theirs, and the set stays spread over the textured cells."""
+    cfg = VoConfig(n_features=800, method="klt")
+    vo = KltVo(CAM, cfg)
+    rng = np.random.default_rng(5)
+    assert vo.track(scene.render(CAM, _pose(0.0), rng=rng)).status == "first"
+    first = vo.prev[2].copy()
+    gx, gy = cfg.grid
+    cells = set(zip((first[:, 0] * gx / CAM.width).astype(int), (first[:, 1] * gy / CAM.height).astype(int)))
+    assert len(first) >= 0.6 * 800 and len(cells) >= 0.7 * (gx * gy - gx)
+    res = vo.track(scene.render(CAM, _pose(0.3), rng=rng))  # 0.3 m ahead: most corners stay in view
+    assert res.status == "ok" and res.n_inliers >= 0.7 * len(first)
+    kept = vo.prev[2]
+    # the tracked corners come first and keep their order; few new ones were needed
+    n_tracked = res.n_inliers
+    assert len(kept) - n_tracked < 0.3 * len(first)
+    # no corner appears twice: new corners keep klt_min_dist from the tracked ones
+    d = np.linalg.norm(kept[n_tracked:, None, :] - kept[None, :n_tracked, :], axis=2)
+    assert d.size == 0 or d.min() >= cfg.klt_min_dist * 0.99

@@ -8,7 +8,7 @@ from pathlib import Path
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "sync", help="estimate the camera pose of every frame (LUT + ORB VO + IMU/GNSS EKF)",
+        "sync", help="estimate the camera pose of every frame (LUT + KLT/ORB VO + IMU/GNSS EKF)",
         description="Estimate T_world_cam for every frame of RECORDING and write OUT/poses.csv and "
                     "OUT/poses.tum. Without --lut, positions are ENU about --georef or the first GNSS fix.")
     p.add_argument("recording", type=Path, help="recording folder (calib.yaml, frames.csv, imu.csv, gnss.csv)")
@@ -16,7 +16,9 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--georef", type=float, nargs=3, metavar=("LAT", "LON", "ALT"), default=None,
                    help="ENU origin when there is no LUT (default: the first GNSS fix)")
-    p.add_argument("--orb-features", type=int, default=None, help="ORB features per frame (default 1500)")
+    p.add_argument("--orb-features", type=int, default=None, help="VO features per frame (default 1500)")
+    p.add_argument("--vo-method", choices=("klt", "orb"), default=None,
+                   help="VO front end: klt (track-then-detect, default) or orb (detect + match)")
     p.add_argument("--reanchor-every", type=float, default=None, metavar="S",
                    help="re-anchoring interval in seconds (0 disables; default 5)")
     p.add_argument("--no-imu", action="store_true", help="ignore imu.csv")
@@ -35,6 +37,8 @@ def settings_from_args(args: argparse.Namespace):
     kw: dict = {}
     if args.orb_features is not None:
         kw["orb_features"] = args.orb_features
+    if getattr(args, "vo_method", None) is not None:
+        kw["vo_method"] = args.vo_method
     if args.reanchor_every is not None:
         kw["reanchor_every_s"] = args.reanchor_every if args.reanchor_every > 0 else None
     kw["use_imu"], kw["use_vo"], kw["use_gnss"] = not args.no_imu, not args.no_vo, not args.no_gnss
@@ -65,6 +69,11 @@ def _run(args: argparse.Namespace) -> int:
     print(f"sync: {len(res.poses)} poses -> {Path(args.out) / 'poses.csv'} in {s['seconds']:.1f} s "
           f"(VO {good}/{max(len(res.poses) - 1, 0)} pairs, GNSS {upd.get('gnss', 0)} used / "
           f"{s.get('rejected', {}).get('gnss', 0)} rejected, {len(s.get('reader_issues', []))} reader issues)")
+    if "vo_trust" in s:
+        tr = s["vo_trust"]
+        print(f"sync: VO trust: {tr['trusted']} (gated against the gyro: {tr['gyro_gated']}, frozen frames: "
+              f"{tr['frozen']}, skipped frames: {tr['skipped']}; stabiliser detected: "
+              f"{'yes' if tr['stabiliser_detected'] else 'no'})")
     if "calibration" in s:
         from blendgen.sync.calibration import describe
 

@@ -359,11 +359,13 @@ class ErrorStateEkf:
         H[0, IM] = -(self.R @ self.R_bv @ so3.hat(np.array([0.0, 1.0, 0.0])))[2]
         return self._update("level", np.array([-y_w[2]]), H, np.array([[std**2]]))
 
-    def update_relative(self, R_c1c2, u_dir, R_bc, p_bc, rot_std: float, dir_std: float | None) -> bool:
+    def update_relative(self, R_c1c2, u_dir, R_bc, p_bc, rot_std, dir_std) -> bool:
         """VO between the clone (frame 1) and now (frame 2), in camera coordinates.
 
         R_c1c2: rotation of camera 2 in camera 1. u_dir: unit direction of camera 2's centre
         in camera 1 (None when there is no parallax to trust). R_bc, p_bc: camera in body.
+        rot_std: a std (rad) or a 3x3 covariance of the right rotation error of R_c1c2;
+        dir_std: a std (rad) or a 3x3 covariance of u_dir (projected on its tangent plane).
         """
         if not self.has_clone:
             return False
@@ -373,7 +375,9 @@ class ErrorStateEkf:
         H_rot = np.zeros((3, N))
         H_rot[:, ITH] = R_bc.T
         H_rot[:, ICT] = -R_bc.T @ M.T
-        rows_r, rows_H, rows_R = [r_rot], [H_rot], [np.full(3, rot_std**2)]
+        rot_cov = np.asarray(rot_std, dtype=float)
+        rot_cov = np.eye(3) * rot_cov**2 if rot_cov.ndim == 0 else rot_cov
+        rows_r, rows_H, blocks = [r_rot], [H_rot], [rot_cov]
         if u_dir is not None and dir_std is not None:
             w = self.p - self.p_c + self.R @ p_bc
             d = R_bc.T @ (self.R_c.T @ w - p_bc)
@@ -393,10 +397,16 @@ class ErrorStateEkf:
                 Jd[:, ICT] = R_bc.T @ so3.hat(self.R_c.T @ w)
                 rows_r.append(B @ np.asarray(u_dir, dtype=float))
                 rows_H.append(B @ Jd / nd)
-                rows_R.append(np.full(2, dir_std**2))
+                dc = np.asarray(dir_std, dtype=float)
+                blocks.append(np.eye(2) * dc**2 if dc.ndim == 0 else B @ dc @ B.T)
         r = np.concatenate(rows_r)
         H = np.vstack(rows_H)
-        return self._update("vo", r, H, np.diag(np.concatenate(rows_R)))
+        Rm = np.zeros((len(r), len(r)))
+        k = 0
+        for blk in blocks:
+            Rm[k:k + len(blk), k:k + len(blk)] = blk
+            k += len(blk)
+        return self._update("vo", r, H, 0.5 * (Rm + Rm.T))
 
     # ------------------------------------------------------------------ smoothing
     def mark(self) -> int:

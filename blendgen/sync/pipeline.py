@@ -27,10 +27,9 @@ from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
-from blendgen.sync.vo import OrbVo, VoConfig, VoResult
+from blendgen.sync.vo import VoConfig, VoResult, make_vo
+from blendgen.sync.vo_trust import TrustReport, assess, gyro_rotations, vo_noise
 
-VO_ROT_STD = 0.0015  # rad (0.09 deg), relative rotation between two frames
-VO_DIR_STD = 0.012  # rad (0.7 deg), direction of travel between two frames
 ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
 # vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
 # velocity of a car, and how far from level across a road is (crown, banking)
@@ -231,7 +230,7 @@ def _frames(rec: Recording):
 
 
 def _vo_config(settings) -> VoConfig:
-    return VoConfig(n_features=int(settings.orb_features))
+    return VoConfig(n_features=int(settings.orb_features), method=str(getattr(settings, "vo_method", "klt")))
 
 
 def _quality(vo: VoResult | None, flags: list[str]) -> dict:
@@ -289,8 +288,16 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                          np.full(3, 0.01**2), np.full(3, ACC_BIAS_PRIOR**2)])
     smooth = bool(getattr(settings, "smooth", True))
     vo_cache: dict[int, VoResult | None] = {}
+    trust = None
+    if use_vo:
+        # VO first, over all frames: each pair is checked against the gyro, and whether the
+        # frames move rigidly with the IMU at all is decided, before the filter trusts any
+        _vo_all(rec, settings, len(out_t), vo_cache, progress)
+        if use_imu:
+            trust = assess([vo_cache.get(i) for i in range(len(out_t))], gyro_rotations(imu, out_t, cfg.max_imu_dt),
+                           R_bc, out_t, cfg.gyro_noise)
     args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
-            R_bc, p_bc, fwd, imu, vo_cache, calib)
+            R_bc, p_bc, fwd, imu, vo_cache, calib, trust)
     res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress)
     res.summary["passes"] = 1
     if smooth and use_imu:
@@ -311,7 +318,27 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             res.summary["passes"] = 2
         else:
             res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
+    if trust is not None:
+        res.summary["vo_trust"] = trust.summary()
+        if trust.stabilised:
+            # composites must follow the image: the body's camera turned by the stabiliser's correction
+            res.poses = [(fid, t, T @ make_pose(C, np.zeros(3))) for (fid, t, T), C in zip(res.poses, trust.correction)]
     return res
+
+
+def _vo_all(rec, settings, n: int, cache: dict, progress: bool) -> None:
+    vo = make_vo(rec.camera, _vo_config(settings))
+    frames = _frames(rec)
+    bar = _bar(progress, n, "VO")
+    for i in range(n):
+        _, img = next(frames)
+        if img is None:
+            vo.reset()
+            cache[i] = None
+        else:
+            cache[i] = vo.track(img)
+        bar.update(1)
+    bar.close()
 
 
 def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: float = 30.0) -> float:
@@ -334,7 +361,8 @@ def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: floa
 
 
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
-                 gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, progress):
+                 gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, trust: TrustReport | None,
+                 progress):
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
@@ -366,11 +394,12 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     I = np.concatenate(ev_i)
     order = np.lexsort((K, T))
 
-    vo = OrbVo(rec.camera, _vo_config(settings)) if use_vo and not vo_cache else None
+    vo = make_vo(rec.camera, _vo_config(settings)) if use_vo and not vo_cache else None
     frames = _frames(rec) if vo is not None else None
     poses, covs, quality = [], [], []
     pending = []  # flags since the last pose
     last_zupt_t = -np.inf
+    clone_i = -1  # frame whose image the clone belongs to
     last = None  # latest IMU sample: carries the state to a GNSS fix or frame between samples
 
     def advance(t):
@@ -437,12 +466,24 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     # a duplicated frame (encoder repeat) says nothing about motion: no update,
                     # and the clone stays at the frame whose image this is
                     flags.append("repeated_frame")
+                elif trust is not None and trust.stabilised and res.has_rotation:
+                    # the image turns with the stabiliser, not the body: take the estimated
+                    # correction out (image camera -> body camera) and use what is left
+                    if ekf.has_clone and clone_i >= 0:
+                        C0, C1 = trust.correction[clone_i], trust.correction[i]
+                        rot_cov, dir_cov = vo_noise(res)
+                        u = C0 @ res.u_dir if res.has_direction else None
+                        if u is not None:
+                            dir_cov = C0 @ dir_cov @ C0.T + trust.correction_std**2 * (np.eye(3) - np.outer(u, u))
+                        ok = ekf.update_relative(C0 @ res.R_c1c2 @ C1.T, u, R_bc, p_bc, C1 @ rot_cov @ C1.T,
+                                                 dir_cov if u is not None else None)
+                        flags.append("vo_destabilised" if ok else "vo_rejected")
+                elif trust is not None and trust.flags[i] is not None:
+                    flags.append("vo_" + trust.flags[i])  # disagrees with the gyro over this pair
                 else:
                     if res.has_rotation and ekf.has_clone:
-                        # measured on synthetic 480x270 frames at 5 fps (USAC + Sampson refit):
-                        # rotation 0.035-0.046 deg, direction 0.35 deg (1 sigma); about doubled
-                        rot_std = VO_ROT_STD if res.status == "ok" else 2 * VO_ROT_STD
-                        dir_std = VO_DIR_STD if res.has_direction else None
+                        # noise from this pair's own fit (inliers, residuals, parallax), not a constant
+                        rot_std, dir_std = vo_noise(res)
                         # features that do not move mean "standing" only if the IMU agrees and
                         # the filter is slow: a far scene (highway, drone) barely moves either
                         imu_quiet = (not use_imu) or bool(
@@ -457,6 +498,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                         flags.append("vo_failed")
                 if res is None or res.status != "repeated":
                     ekf.clone()
+                    clone_i = i
             if smooth:
                 marks.append(ekf.mark())
             T_wb = make_pose(ekf.R, ekf.p)
@@ -495,7 +537,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
 
 def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
     """Camera only: chain relative poses; scale from the assumed speed (flag scale_unknown)."""
-    vo = OrbVo(rec.camera, _vo_config(settings))
+    vo = make_vo(rec.camera, _vo_config(settings))
     R_wc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # level, looking along +x
     T = make_pose(R_wc, np.zeros(3))
     last_step, last_dir = None, None

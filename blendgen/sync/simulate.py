@@ -241,14 +241,38 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
                         resolution=(480, 270), hfov_deg: float = 70.0, speed: float = 8.0,
                         imu: bool = True, gnss: bool = True, gnss_std: float = 1.0, frames: bool = True,
                         dropout=None, imu_gap=None, dark_frames=None, seed: int = 0,
-                        scene: StreetScene | None = None, imu_mount_rpy_deg=(0.0, 0.0, 0.0)):
+                        scene: StreetScene | None = None, imu_mount_rpy_deg=(0.0, 0.0, 0.0),
+                        shake_deg: float = 0.0, stabilise_s: float | None = None, margin: float = 0.12):
     """An in-memory Recording (images kept in `rec.extra['images']`) and its ground truth.
 
     imu_mount_rpy_deg: the IMU rotated (roll, pitch, yaw; about the vehicle's x, y, z) in the
     vehicle; the camera stays where it is, so T_cam_imu includes that rotation.
-    Returns (rec, traj, T_cam_imu). `rec.groundtruth` holds T_world_cam per frame.
+    shake_deg: camera shake (rough road, a hand): the body's roll, pitch and yaw get sums of
+    1-6 Hz sinusoids of about this amplitude; the IMU feels it.
+    stabilise_s: simulated electronic stabiliser. Each frame is rendered `margin` larger on
+    every side and warped by the homography K C K^-1 of the stabiliser's correction C (the
+    rotation from the true camera to one that follows the body orientation low-passed with a
+    Gaussian of this std in seconds), then cropped: the image rotates with the smoothed body,
+    not the body. `rec.extra['image_groundtruth']` holds T_world_cam of the image (the true
+    position, the smoothed orientation) and `rec.extra['stabiliser_correction']` the C per frame.
+    Returns (rec, traj, T_cam_imu). `rec.groundtruth` holds T_world_cam per frame (the body's camera).
     """
     traj = make_trajectory(kind, duration + 1.0, speed=speed)
+    traj_smooth = None
+    if shake_deg > 0:
+        rng_s = np.random.default_rng(seed + 11)
+        shake = np.zeros_like(traj.ypr)
+        for axis, k in ((0, 0.6), (1, 1.0), (2, 0.8)):  # yaw, pitch, roll
+            for hz in (1.1, 2.3, 3.7, 5.9):
+                shake[:, axis] += k * np.sin(2 * np.pi * (hz * (1 + 0.1 * rng_s.normal())) * traj.t
+                                             + rng_s.uniform(0, 2 * np.pi)) / 2.0
+        traj = Trajectory(traj.t, traj.xyz, traj.ypr + np.radians(shake_deg) * shake)
+    if stabilise_s is not None:
+        from scipy.ndimage import gaussian_filter1d
+
+        dt = float(traj.t[1] - traj.t[0])
+        ypr_s = gaussian_filter1d(np.unwrap(traj.ypr, axis=0), stabilise_s / dt, axis=0, mode="nearest")
+        traj_smooth = Trajectory(traj.t, traj.xyz, ypr_s)
     R_body_imu = Rotation.from_euler("xyz", np.radians(imu_mount_rpy_deg)).as_matrix()
     T_cam_imu = default_T_cam_imu() @ make_pose(R_body_imu, np.zeros(3))
     T_imu_cam = invert_pose(T_cam_imu)
@@ -271,11 +295,28 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     scene = scene or (StreetScene() if frames else None)
     rng = np.random.default_rng(seed + 7)
     T_body_cam = make_pose(R_body_imu, np.zeros(3)) @ T_imu_cam
+    img_gt, corrections = [], []
+    if traj_smooth is not None and frames:
+        mx, my = int(round(margin * cam.width)), int(round(margin * cam.height))
+        cam_big = Camera(cam.width + 2 * mx, cam.height + 2 * my, cam.fx, cam.fy, cam.cx + mx, cam.cy + my)
     for i, t in enumerate(ft):
         T_wc = traj.pose(t) @ T_body_cam
         gt.append(T_wc)
-        if frames:
+        if traj_smooth is not None:
+            T_img = traj_smooth.pose(t) @ T_body_cam
+            T_img[:3, 3] = T_wc[:3, 3]
+            C = T_wc[:3, :3].T @ T_img[:3, :3]  # the image's camera in the true camera
+            img_gt.append(T_img)
+            corrections.append(C)
+        if frames and traj_smooth is not None:
+            big = scene.render(cam_big, T_wc, rng=rng)
+            # output pixel -> ray in the image camera -> C -> ray in the true camera -> big pixel
+            M = cam_big.K @ C @ np.linalg.inv(cam.K)
+            img = cv2.warpPerspective(big, M, (cam.width, cam.height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                      borderMode=cv2.BORDER_REPLICATE)
+        elif frames:
             img = scene.render(cam, T_wc, rng=rng)
+        if frames:
             if dark_frames is not None and dark_frames[0] <= i < dark_frames[1]:
                 img = np.clip(rng.normal(3, 1.5, img.shape), 0, 255).astype(np.uint8)  # lens cap
             images.append(img)
@@ -286,4 +327,7 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     rec.groundtruth = np.array(rows).reshape(-1, 8)
     rec.extra["images"] = images
     rec.extra["georef"] = GEOREF
+    if traj_smooth is not None:
+        rec.extra["image_groundtruth"] = img_gt
+        rec.extra["stabiliser_correction"] = np.array(corrections)
     return rec, traj, T_cam_imu

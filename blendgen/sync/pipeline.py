@@ -284,8 +284,8 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         R_bv0 = calibration.nominal_vehicle_frame(fwd, R0.T @ np.array([0.0, 0.0, 1.0]))
         calib = (R_bv0, pri.mount_std, pri.latency_s, pri.latency_std_s, R_bv0 @ pri.lever_arm_v,
                  pri.lever_arm_std_m)
-        # the car stays on the road: its height from the twin's road surface, else a smooth
-        # ground fitted to the fixes, instead of the fixes' heights (blendgen.sync.road_height)
+        # the car stays on the road: with a twin, its height follows the road surface
+        # (blendgen.sync.road_height), not the fixes' vertical noise
         road = road_height.build(gt_t, g_xyz, _height_error_correlation_s(gt_t, g_xyz), road_surface,
                                  pri.camera_height_m)
     # the levelling above cannot see the car's own longitudinal acceleration: start with a
@@ -404,10 +404,11 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
         elif kind == 1:
             advance(t)
             s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
-            # with a road-height model the fixes' heights enter only through it (no double count)
-            ok = ekf.update_position(g_xyz[i], (s, s, s * z_scale if road is None else 1e3), kind="gnss")
+            # an antenna height estimated from the fixes is their vertical information: no double count
+            sz = 1e3 if road is not None and road.replaces_fix_heights else s * z_scale
+            ok = ekf.update_position(g_xyz[i], (s, s, sz), kind="gnss")
             if road is not None and t >= next_road_t:
-                road_height.apply(ekf, road, t, p_bc)
+                pending.append("road" if road_height.apply(ekf, road, p_bc) else "road_rejected")
                 next_road_t = t + road_height.EVERY_S
             pending.append("gnss" if ok else "gnss_rejected")
             speed = float(np.linalg.norm(ekf.v[:2]))

@@ -36,6 +36,11 @@ import numpy as np
 
 ROUGH_STD = 0.03  # m: road roughness + suspension heave/pitch at the camera or antenna
 EVERY_S = 1.0  # s between pseudo-measurements (suspension motion decorrelates in ~1 s)
+# gate in metres, not chi-square: in a hard start (stop-and-go, tilt from an accelerating car)
+# the vertical channel can be overconfident, and a chi-square gate then rejected every road
+# update for 27 s while the height ran 3 m off; a residual beyond this means another surface
+# (bridge, multi-level junction, a twin that does not match) and is rejected
+MAX_RESIDUAL_M = 2.0
 
 
 @dataclass
@@ -102,4 +107,4 @@ def apply(ekf, road: RoadHeight, p_bc: np.ndarray) -> bool:
     if tgt is None:
         return False
     z, std, grad = tgt
-    return ekf.update_height(z, std, p_bc if cam else None, grad)
+    return ekf.update_height(z, std, p_bc if cam else None, grad, max_residual=MAX_RESIDUAL_M)

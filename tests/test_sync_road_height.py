@@ -1,6 +1,8 @@
 """Road-height constraint (blendgen.sync.road_height): with a twin's road surface the estimated
 height stops following the vertical GNSS noise (1.5 m in the simulation)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -105,3 +107,22 @@ def test_bad_camera_height_is_a_user_error(bad):
 
     with pytest.raises(UserError, match="camera_height_m"):
         read_priors(R())
+
+
+def test_command_with_a_twin(tmp_path, capsys):
+    """`blendgen sync --twin`: the twin's road surface and the calib.yaml camera height."""
+    from blendgen.cli import main
+    from blendgen.recording import folder
+
+    rec, _, T_cam_imu = synthetic_recording("drive", 20.0, frames=False)
+    root = tmp_path / "rec"
+    root.mkdir()
+    folder.write_calib(root, None, T_cam_imu, rec.imu_noise, extra={"vehicle": {"camera_height_m": 1.5}})
+    folder.write_imu(root, rec.imu)
+    folder.write_gnss(root, rec.gnss, ["t", "lat", "lon", "alt"])
+    twin = Path(__file__).resolve().parents[1] / "assets_procedural" / "twins" / "demo_town.yaml"
+    code = main(["sync", str(root), "--out", str(tmp_path / "out"), "--twin", str(twin), "--quiet",
+                 "--georef", *map(str, rec.extra["georef"])])
+    out = capsys.readouterr().out
+    assert code == 0 and "road height: camera 1.500 +- 0.000 m" in out
+    assert main(["sync", str(root), "--out", str(tmp_path / "o2"), "--twin", str(tmp_path / "none.yaml")]) == 2

@@ -180,6 +180,8 @@ def write_sensor_data(root: Path, twin, settings, seed: int) -> np.ndarray:
     root.mkdir(parents=True, exist_ok=True)
     folder.write_calib(root, camera, invert_pose(T_imu_cam()), noise, 0.0,
                        extra={"time_origin_utc": settings.start_time_utc,
+                              # the rig's camera height above the road: sync's road-height constraint
+                              "vehicle": {"camera_height_m": float(settings.camera_height_m)},
                               "synthetic": {"twin": str(getattr(twin, "path", "")), "seed": seed}})
     folder.write_imu(root, imu)
     folder.write_gnss(root, gnss, ["t", "lat", "lon", "alt", "heading_deg", "h_std_m"])

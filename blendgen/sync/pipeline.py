@@ -297,7 +297,8 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     vo_cache: dict[int, VoResult | None] = {}
     args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
             R_bc, p_bc, fwd, imu, vo_cache, calib)
-    res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress, road=road)
+    res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress,
+                                   road=road)
     res.summary["passes"] = 1
     if smooth and use_imu:
         # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior

@@ -100,7 +100,7 @@ class Runner:
         self._say("sync", f"{rec.n_frames} frames, {len(rec.imu)} IMU, {len(rec.gnss)} GNSS samples"
                              f"{', LUT ' + str(lut) if lut else ''}")
         result = run_sync(rec, job.sync, self.folder.root, lut_path=lut, georef=self.twin.georef,
-                          progress=self.progress)
+                          progress=self.progress, road_surface=self.twin.ground_heights)
         self.folder.mark_stage("sync", {"frames": len(result.poses)})
         return result.poses
 

@@ -178,9 +178,13 @@ def write_sensor_data(root: Path, twin, settings, seed: int) -> np.ndarray:
     gt = [np.concatenate([[t], *pose_to_xyz_quat(T)]) for t, T in zip(frame_t, poses)]
 
     root.mkdir(parents=True, exist_ok=True)
-    folder.write_calib(root, camera, invert_pose(T_imu_cam()), noise, 0.0,
-                       extra={"time_origin_utc": settings.start_time_utc,
-                              "synthetic": {"twin": str(getattr(twin, "path", "")), "seed": seed}})
+    extra = {"time_origin_utc": settings.start_time_utc,
+             "synthetic": {"twin": str(getattr(twin, "path", "")), "seed": seed}}
+    if not getattr(twin, "relief", False):
+        # the rig's camera height above the road (sync's road-height constraint); not on a map
+        # with relief, where this drive still keeps the camera at a constant height
+        extra["vehicle"] = {"camera_height_m": float(settings.camera_height_m)}
+    folder.write_calib(root, camera, invert_pose(T_imu_cam()), noise, 0.0, extra=extra)
     folder.write_imu(root, imu)
     folder.write_gnss(root, gnss, ["t", "lat", "lon", "alt", "heading_deg", "h_std_m"])
     folder.write_groundtruth(root, gt)

@@ -4,6 +4,7 @@ calib.yaml (all optional; the defaults below are the priors when a key is absent
 
     vehicle:
       mount_std_deg: [2.0, 5.0, 2.0]  # roll, pitch, yaw of the vehicle frame in the IMU frame
+      camera_height_m: 1.45            # camera centre above the road (with a twin: road-height constraint)
     gnss:
       latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency
       latency_std_s: 0.0             # > 0 estimates it (e.g. 0.05)
@@ -37,6 +38,7 @@ class CalibPriors:
     latency_std_s: float = 0.0
     lever_arm_v: np.ndarray = None  # vehicle frame
     lever_arm_std_m: float = 0.0
+    camera_height_m: float | None = None  # camera centre above the road surface
 
 
 def _vec(section: dict, key: str, n: int, default, where: str) -> np.ndarray:
@@ -68,7 +70,13 @@ def read_priors(rec) -> CalibPriors:
     lever_std = _vec(gnss, "lever_arm_std_m", 1, 0.0, where + " gnss")[0]
     if np.any(mount < 0) or lat_std < 0 or lever_std < 0:
         raise UserError("standard deviations must not be negative", where=where)
-    return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std))
+    cam_h = None
+    if veh.get("camera_height_m") is not None:
+        cam_h = float(_vec(veh, "camera_height_m", 1, 0.0, where + " vehicle")[0])
+        if not 0.0 < cam_h < 10.0:
+            raise UserError(f"camera_height_m: expected metres above the road in (0, 10), got {cam_h}",
+                            where=where + " vehicle")
+    return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h)
 
 
 def nominal_vehicle_frame(forward_b: np.ndarray, up_b: np.ndarray) -> np.ndarray:

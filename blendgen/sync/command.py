@@ -16,6 +16,9 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--georef", type=float, nargs=3, metavar=("LAT", "LON", "ALT"), default=None,
                    help="ENU origin when there is no LUT (default: the first GNSS fix)")
+    p.add_argument("--twin", type=Path, default=None,
+                   help="twin YAML: its road surface holds the vehicle's height (road-height constraint; "
+                        "calib.yaml vehicle.camera_height_m) and its georeference is the default --georef")
     p.add_argument("--orb-features", type=int, default=None, help="VO features per frame (default 1500)")
     p.add_argument("--vo-method", choices=("klt", "orb"), default=None,
                    help="VO front end: klt (track-then-detect, default) or orb (detect + match)")
@@ -60,8 +63,15 @@ def _run(args: argparse.Namespace) -> int:
     if args.lut is not None and not args.lut.is_file():
         raise UserError("LUT file not found", where=str(args.lut))
     rec = read_recording(args.recording)
-    res = run_sync(rec, settings, args.out, lut_path=args.lut,
-                   georef=tuple(args.georef) if args.georef else None, progress=not args.quiet)
+    georef, road = (tuple(args.georef) if args.georef else None), None
+    if args.twin is not None:
+        from blendgen.scene.twin import load_twin
+
+        twin = load_twin(args.twin)
+        georef = georef if georef is not None else twin.georef
+        road = twin.ground_heights
+    res = run_sync(rec, settings, args.out, lut_path=args.lut, georef=georef, progress=not args.quiet,
+                   road_surface=road)
     s = res.summary
     vo = s.get("vo_status", {})
     good = sum(v for k, v in vo.items() if k in ("ok", "rotation", "stationary", "repeated"))
@@ -78,4 +88,9 @@ def _run(args: argparse.Namespace) -> int:
         from blendgen.sync.calibration import describe
 
         print("sync: " + describe(s["calibration"]))
+    if s.get("road_height"):
+        r = s["road_height"]
+        print(f"sync: road height: {r['point']} {r['height_m']:.3f} +- {r['height_std_m']:.3f} m above the twin's road"
+              f" ({'calib.yaml' if r['height_std_m'] == 0 else 'estimated from the fixes'}), "
+              f"{s['updates'].get('road', 0)} used / {s['rejected'].get('road', 0)} rejected")
     return 0

@@ -311,6 +311,29 @@ class ErrorStateEkf:
         r = np.asarray(z, dtype=float) - pred
         return self._update(kind, r, H, np.diag(np.asarray(std_xyz, dtype=float) ** 2))
 
+    def update_height(self, z, std: float, point_b=None, slope_xy=(0.0, 0.0), kind: str = "road",
+                      max_residual: float | None = None) -> bool:
+        """Height of a body point (`point_b`, body frame; default: the antenna lever arm state)
+        above a surface: z measured, the surface rising by slope_xy (dz/dx, dz/dy) where the
+        point moves horizontally (so a position error along a slope is not a height error).
+        max_residual: gate in metres instead of chi-square (a physical constraint that must
+        pull an overconfident vertical channel back; beyond it the surface is the wrong one)."""
+        antenna = point_b is None
+        la = self.lever if antenna else np.asarray(point_b, dtype=float)
+        q = self.p + self.R @ la
+        H = np.zeros((1, N))
+        g = np.array([-slope_xy[0], -slope_xy[1], 1.0])
+        H[0, IP] = g
+        H[0, ITH] = g @ (-self.R @ so3.hat(la))
+        if antenna:
+            H[0, ILA] = g @ self.R
+        r = np.array([float(z) - q[2]])
+        if max_residual is not None and not abs(r[0]) <= max_residual:
+            self._flush()
+            self.stats.count(kind, False)
+            return False
+        return self._update(kind, r, H, np.array([[std**2]]), gate=max_residual is None)
+
     def update_zero_velocity(self, std: float = 0.02) -> bool:
         H = np.zeros((3, N))
         H[:, IV] = np.eye(3)

@@ -22,7 +22,7 @@ from blendgen import atomic
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
 from blendgen.recording.model import Recording
-from blendgen.sync import calibration, so3
+from blendgen.sync import calibration, road_height, so3
 from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
@@ -151,13 +151,15 @@ def _stationary_imu(imu: np.ndarray, cfg: EkfConfig, window_s: float = 0.5) -> n
 # ----------------------------------------------------------------------------- main
 
 def run_sync(rec: Recording, settings, out_dir: Path, *, lut_path: Path | None = None,
-             georef: tuple[float, float, float] | None = None, progress: bool = True) -> SyncResult:
-    """Estimate T_world_cam for every frame (or at settings.pose_rate_hz without frames)."""
+             georef: tuple[float, float, float] | None = None, progress: bool = True,
+             road_surface=None) -> SyncResult:
+    """Estimate T_world_cam for every frame (or at settings.pose_rate_hz without frames).
+    road_surface: the twin's road height, (N, 2) xy -> (N,) z (`Twin.ground_heights`)."""
     with single_thread_blas():
-        return _run_sync(rec, settings, Path(out_dir), lut_path, georef, progress)
+        return _run_sync(rec, settings, Path(out_dir), lut_path, georef, progress, road_surface)
 
 
-def _run_sync(rec, settings, out_dir, lut_path, georef, progress) -> SyncResult:
+def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=None) -> SyncResult:
     t_wall = time.perf_counter()
     out_dir = Path(out_dir)
     use_imu = bool(settings.use_imu and len(rec.imu) >= 2)
@@ -194,7 +196,7 @@ def _run_sync(rec, settings, out_dir, lut_path, georef, progress) -> SyncResult:
         result = _vo_only(rec, settings, ids, out_t_cam, R_bc, progress)
     else:
         result = _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside,
-                         g_yaw, g_std, R_bc, p_bc, progress)
+                         g_yaw, g_std, R_bc, p_bc, progress, road_surface)
         if use_gnss and settings.reanchor_every_s:
             n_anch = reanchor(result, gt_t - (shift if rec.n_frames else 0.0), g_xyz, g_inside,
                               g_std, settings.reanchor_every_s, T_imu_cam)
@@ -241,7 +243,7 @@ def _quality(vo: VoResult | None, flags: list[str]) -> dict:
 
 
 def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw,
-            g_std, R_bc, p_bc, progress) -> SyncResult:
+            g_std, R_bc, p_bc, progress, road_surface=None) -> SyncResult:
     noise = rec.imu_noise
     cfg = EkfConfig(acc_noise=noise.accelerometer_noise_density, gyro_noise=noise.gyroscope_noise_density,
                     acc_walk=noise.accelerometer_random_walk, gyro_walk=noise.gyroscope_random_walk)
@@ -275,12 +277,16 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     p0 = g_xyz[0].copy() if use_gnss else np.zeros(3)
     # the vehicle frame: forward along the camera's optical axis made level, up from gravity;
     # the filter estimates how the IMU is really mounted in it (road vehicles only)
-    calib = None
+    calib, road = None, None
     if use_imu and use_gnss and getattr(settings, "road_vehicle", True):
         pri = calibration.read_priors(rec)
         R_bv0 = calibration.nominal_vehicle_frame(fwd, R0.T @ np.array([0.0, 0.0, 1.0]))
         calib = (R_bv0, pri.mount_std, pri.latency_s, pri.latency_std_s, R_bv0 @ pri.lever_arm_v,
                  pri.lever_arm_std_m)
+        # the car stays on the road: with a twin, its height follows the road surface
+        # (blendgen.sync.road_height), not the fixes' vertical noise
+        road = road_height.build(gt_t, g_xyz, _height_error_correlation_s(gt_t, g_xyz), road_surface,
+                                 pri.camera_height_m)
     # the levelling above cannot see the car's own longitudinal acceleration: start with a
     # loose tilt prior, then (with the smoother) run again from the smoothed initial state
     P0 = np.concatenate([np.full(3, 4.0 if use_gnss else 1e-4), np.full(3, 4.0),
@@ -298,7 +304,8 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                            R_bc, out_t, cfg.gyro_noise)
     args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
             R_bc, p_bc, fwd, imu, vo_cache, calib, trust)
-    res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress)
+    res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress,
+                                   road=road)
     res.summary["passes"] = 1
     if smooth and use_imu:
         # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior
@@ -310,7 +317,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                                 np.zeros(3)])
         P1 = np.maximum(var0[:15] * 4.0, floor)
         P1[12:15] = ACC_BIAS_PRIOR**2
-        res2, _, _ = _filter_pass(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P1, *args, False)
+        res2, _, _ = _filter_pass(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P1, *args, False, road=road)
         # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
         z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
         if z2 <= max(z1, 3.0):
@@ -362,7 +369,7 @@ def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: floa
 
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
                  gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, trust: TrustReport | None,
-                 progress):
+                 progress, road=None):
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
@@ -375,7 +382,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     marks = [ekf.mark()] if smooth else []
 
     stationary = _stationary_imu(imu, cfg) if use_imu else np.zeros(0, bool)
-    next_nhc_t = -np.inf
+    next_nhc_t = next_road_t = -np.inf
     # GNSS height errors can be slow (comma2k19: 15 m swings over 10 s): with the car held on
     # the road surface (vehicle-frame constraint), fixes within their correlation time z_corr_s
     # (measured on the fixes) count as one height measurement, else the height -- and
@@ -427,7 +434,12 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
         elif kind == 1:
             advance(t)
             s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
-            ok = ekf.update_position(g_xyz[i], (s, s, s * z_scale), kind="gnss")
+            # an antenna height estimated from the fixes is their vertical information: no double count
+            sz = 1e3 if road is not None and road.replaces_fix_heights else s * z_scale
+            ok = ekf.update_position(g_xyz[i], (s, s, sz), kind="gnss")
+            if road is not None and t >= next_road_t:
+                pending.append("road" if road_height.apply(ekf, road, p_bc) else "road_rejected")
+                next_road_t = t + road_height.EVERY_S
             pending.append("gnss" if ok else "gnss_rejected")
             speed = float(np.linalg.norm(ekf.v[:2]))
             if calib is not None and speed > NHC_MIN_SPEED and t >= next_nhc_t:
@@ -531,6 +543,8 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     if calib is not None:
         # constant states: the last filtered estimate is the smoothed one
         summary["gnss_height_corr_s"] = round(z_corr_s, 2)
+        if road is not None:
+            summary["road_height"] = road.summary()
         summary["calibration"] = calibration.report((ekf.R_bv, ekf.tau, ekf.lever), np.diag(ekf.P)[CALIB], R_bc)
     return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary), x0_s, var0
 

@@ -165,12 +165,9 @@ class OrbVo:
         """Relative motion from the previous image to this one (first call: status 'first')."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         prev = self.prev
-        if prev is not None and prev[0].shape == gray.shape and _same_image(prev[0], gray):
-            if len(prev[1]) < self.cfg.min_features:
-                # two identical featureless frames (black, lens cap): nothing seen, not a
-                # good "repeated" pair (the summary counted them as good)
-                return VoResult("few_features", n_features=len(prev[1]))
-            return VoResult("repeated", n_features=len(prev[1]))
+        rep = _repeated(prev[0], len(prev[1]), gray, self.cfg.min_features) if prev is not None else None
+        if rep is not None:
+            return rep
         px, desc = self._features(gray)
         b = self._bearings(px)
         self.prev = (gray, px, b, desc)
@@ -320,10 +317,9 @@ class KltVo:
     def track(self, image: np.ndarray) -> VoResult:
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         prev = self.prev
-        if prev is not None and prev[0].shape == gray.shape and _same_image(prev[0], gray):
-            if len(prev[2]) < self.cfg.min_features:
-                return VoResult("few_features", n_features=len(prev[2]))
-            return VoResult("repeated", n_features=len(prev[2]))
+        rep = _repeated(prev[0], len(prev[2]), gray, self.cfg.min_features) if prev is not None else None
+        if rep is not None:
+            return rep
         small = self._small(gray)
         # (OpenCV's Python binding cannot take prebuilt pyramids: each LK call builds its own)
         pyr = small
@@ -574,6 +570,14 @@ def _refine_rt(R: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray):
 def _same_image(a: np.ndarray, b: np.ndarray) -> bool:
     # a duplicated frame (encoder repeat) is identical up to compression noise
     return float(cv2.norm(a, b, cv2.NORM_L1)) / a.size < 0.5
+
+
+def _repeated(prev: np.ndarray, n_prev: int, gray: np.ndarray, min_features: int) -> VoResult | None:
+    """The result for a frame that repeats the previous one, or None. Two identical featureless
+    frames (black, lens cap) saw nothing: not a good "repeated" pair."""
+    if prev.shape != gray.shape or not _same_image(prev, gray):
+        return None
+    return VoResult("few_features" if n_prev < min_features else "repeated", n_features=n_prev)
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:

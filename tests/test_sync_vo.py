@@ -125,3 +125,15 @@ def test_klt_tracks_then_detects_only_where_tracks_were_lost(scene):
     # no corner appears twice: new corners keep klt_min_dist from the tracked ones
     d = np.linalg.norm(kept[n_tracked:, None, :] - kept[None, :n_tracked, :], axis=2)
     assert d.size == 0 or d.min() >= cfg.klt_min_dist * 0.99
+
+
+def test_auto_front_end_follows_the_frame_rate():
+    """KLT at video rates; ORB below 10 fps, where the ground ahead grows too much between frames."""
+    from types import SimpleNamespace
+
+    from blendgen.sync.pipeline import vo_method
+
+    auto = SimpleNamespace(vo_method="auto")
+    assert vo_method(auto, SimpleNamespace(frames_t=np.arange(50) / 25.0)) == "klt"
+    assert vo_method(auto, SimpleNamespace(frames_t=np.arange(50) / 5.0)) == "orb"
+    assert vo_method(SimpleNamespace(vo_method="klt"), SimpleNamespace(frames_t=np.arange(50) / 5.0)) == "klt"

@@ -62,7 +62,8 @@ class Synthetic(Section):
 class Sync(Section):
     lut: Path | None = None  # default: the twin's exported LUT
     orb_features: Annotated[int, Field(ge=50, le=20000)] = 1500  # VO features per frame (KLT tracks or ORB keypoints)
-    vo_method: Literal["klt", "orb"] = "klt"  # klt: track-then-detect (>= 60 fps at 960x540); orb: detect + match
+    # klt: track-then-detect (>= 60 fps at 960x540); orb: detect + match; auto: klt at >= 10 fps
+    vo_method: Literal["auto", "klt", "orb"] = "auto"
     reanchor_every_s: Annotated[float, Field(gt=0)] | None = 5.0  # None disables re-anchoring
     use_imu: bool = True
     use_gnss: bool = True

@@ -20,8 +20,8 @@ def register(subparsers) -> None:
                    help="twin YAML: its road surface holds the vehicle's height (road-height constraint; "
                         "calib.yaml vehicle.camera_height_m) and its georeference is the default --georef")
     p.add_argument("--orb-features", type=int, default=None, help="VO features per frame (default 1500)")
-    p.add_argument("--vo-method", choices=("klt", "orb"), default=None,
-                   help="VO front end: klt (track-then-detect, default) or orb (detect + match)")
+    p.add_argument("--vo-method", choices=("auto", "klt", "orb"), default=None,
+                   help="VO front end: klt (track-then-detect), orb (detect + match) or auto (default: klt at >= 10 fps)")
     p.add_argument("--reanchor-every", type=float, default=None, metavar="S",
                    help="re-anchoring interval in seconds (0 disables; default 5)")
     p.add_argument("--no-imu", action="store_true", help="ignore imu.csv")

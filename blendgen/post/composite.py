@@ -17,6 +17,7 @@ import time
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from blendgen.errors import UserError
 from blendgen.job.schema import Post
@@ -151,8 +152,6 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
     """Relight, colour-transfer, sensor-match and alpha-blend each object into ``out`` (in
     place), each on its own crop (box + background ring), so the cost follows object size.
     ``obj_any`` and ``shadowed`` are the window's; outside it there is neither."""
-    from scipy import ndimage
-
     H, W = real_bgr.shape[:2]
     t0 = time.perf_counter()
     wx0, wy0, wx1, wy1 = win

@@ -313,12 +313,16 @@ def _edge_fade(catcher: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.nda
     """At the pixels ``at`` (rows, cols): 0 at the edge of each catcher patch (pixels != 1.0)
     rising to 1 at CONTACT_FADE of its inradius: a contact shadow's weight, so it fades into
     the road instead of stopping."""
-    # != 1.0 in any channel, on the float bits (numpy's any() over a 3-channel axis is slow)
-    bits = np.ascontiguousarray(catcher, dtype=np.float32).reshape(catcher.shape[:2] + (-1,)).view(np.uint32)
-    diff = bits[..., 0] ^ ONE_F32_BITS
-    for c in range(1, bits.shape[2]):
-        diff |= bits[..., c] ^ ONE_F32_BITS
-    covered = (diff != 0).view(np.uint8)
+    # != 1.0 in any channel, on the float bits; cvtColor of 255/0 bytes ORs the channels
+    # (numpy's any() over a 3-channel axis is slow)
+    ne = (np.ascontiguousarray(catcher, dtype=np.float32).view(np.uint32) != ONE_F32_BITS).view(np.uint8)
+    covered = cv2.cvtColor(ne * np.uint8(255), cv2.COLOR_BGR2GRAY) if ne.shape[2] == 3 else ne[..., 0] * np.uint8(255)
+    # Only the patches' box (+1 px of zeros, so edge distances stay as they are) is transformed.
+    x, y, w, h = cv2.boundingRect(covered)
+    H, W = covered.shape
+    y0, x0, y1, x1 = max(0, y - 1), max(0, x - 1), min(H, y + h + 1), min(W, x + w + 1)
+    covered = covered[y0:y1, x0:x1]
+    at = (at[0] - y0, at[1] - x0)
     dist = cv2.distanceTransform(covered, cv2.DIST_L2, 3)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(covered, connectivity=8)
     inradius = np.zeros(n, np.float32)

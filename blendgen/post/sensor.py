@@ -55,15 +55,15 @@ def noise_sigma(gray: np.ndarray) -> float:
     resp = np.abs(cv2.filter2D(g, -1, m, borderType=cv2.BORDER_REFLECT))[1:-1, 1:-1]
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0)[1:-1, 1:-1]
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1)[1:-1, 1:-1]
-    edge = np.abs(gx) + np.abs(gy)
+    edge = cv2.add(np.abs(gx), np.abs(gy))
     # Exclude edges and texture, but not the noise itself: a tight threshold would keep only
     # the quietest pixels and underestimate sigma.
     flat = edge < max(2.0 * np.median(edge), 1e-3)
-    sat = (gray[1:-1, 1:-1] < 3) | (gray[1:-1, 1:-1] > 252)  # clipped pixels carry no noise
-    sel = flat & ~sat
-    if sel.sum() < 64:
+    inner = gray[1:-1, 1:-1]
+    sel = (flat & (inner >= 3) & (inner <= 252)).view(np.uint8)  # clipped pixels carry no noise
+    if cv2.countNonZero(sel) < 64:
         return 0.0
-    return float(np.sqrt(np.pi / 2) * resp[sel].mean() / 6.0)
+    return float(np.sqrt(np.pi / 2) * cv2.mean(resp, mask=sel)[0] / 6.0)
 
 
 def blur_metric(gray: np.ndarray, mask: np.ndarray | None = None) -> float:

@@ -13,7 +13,17 @@ and shadow pixel by construction (checked below), so over the measured pixels it
 full-frame reference.
 A noisy reference makes the measured PSNR a lower bound (its own noise adds to the error).
 
-Configurations: samples 4..128, denoise on/off, bounces, for
+The fair baseline (issue 17): a naive full-frame render with Blender's defaults (the whole
+road as shadow catcher, no border region, Cycles' default light paths, adaptive sampling and
+OIDN denoising as a new Blender 5.0 scene has them), at the lowest sample count that reaches
+blendgen's own PSNR at its default settings: the samples are searched (doubling, then
+bisection), not picked; CPU seconds of both from the same run.
+
+Clusters (issue 17): two cars side by side (one border region) and the same two cars at
+opposite edges of the frame (two regions, one per cluster, pasted), CPU seconds, and the
+PSNR of the pasted passes against one region around both.
+
+Sweep (--sweep): samples 4..128, denoise on/off, bounces, for
 - "effects": this driver's decisions (border region, shadow catcher only on patches where
   shadows can fall, adaptive sampling),
 - "full frame": the same without the border region,
@@ -23,7 +33,7 @@ the fastest "effects" configuration reaching it.
 
 Memory: RSS over 300 frames in one session (objects moving, one replaced every 10 frames).
 
-    .venv/bin/python benchmarks/bench_render.py [--quick] [--ref-samples N]
+    .venv/bin/python benchmarks/bench_render.py [--quick] [--ref-samples N] [--sweep] [--memory-frames N]
 """
 
 from __future__ import annotations
@@ -105,6 +115,56 @@ def cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def use_blender_defaults(sess) -> dict:
+    """Make a session sample like a new Blender scene: Cycles' own defaults for light paths,
+    adaptive sampling, light tree and denoiser quality, read from Blender's RNA (not typed in
+    here); only the sample count and denoise on/off come from the Render settings."""
+    import bpy
+
+    rna = bpy.types.CyclesRenderSettings.bl_rna.properties
+    names = ("use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "max_bounces",
+             "diffuse_bounces", "glossy_bounces", "transmission_bounces", "transparent_max_bounces",
+             "volume_bounces", "caustics_reflective", "caustics_refractive", "sample_clamp_direct",
+             "sample_clamp_indirect", "use_light_tree", "denoising_prefilter", "denoising_quality",
+             "denoising_input_passes", "denoiser")
+    defaults = {n: rna[n].default for n in names}
+
+    def set_sampling(s: dict):
+        cy = sess.scene.cycles
+        cy.samples = s["samples"]
+        cy.use_denoising = s["denoise"]
+        for n, v in defaults.items():
+            setattr(cy, n, v)
+
+    sess._set_sampling = set_sampling
+    return {k: (v if isinstance(v, (int, float, bool, str)) else str(v)) for k, v in defaults.items()}
+
+
+def search_samples(measure, target_db: float, lo: int = 1, hi: int = 256):
+    """Lowest sample count whose PSNR reaches ``target_db``: doubling from ``lo`` until one
+    does, then bisection between the last miss and the first hit. ``measure(samples)`` renders
+    and returns a row with ``psnr_db``. Returns (row of the lowest hit or None, all rows)."""
+    tried = {}
+
+    def at(n):
+        if n not in tried:
+            tried[n] = measure(n)
+        return tried[n]
+
+    miss, hit = 0, lo
+    while at(hit)["psnr_db"] < target_db:
+        miss, hit = hit, hit * 2
+        if hit > hi:
+            return None, [tried[k] for k in sorted(tried)]
+    while hit - miss > 1:
+        mid = (miss + hit) // 2
+        if at(mid)["psnr_db"] >= target_db:
+            hit = mid
+        else:
+            miss = mid
+    return tried[hit], [tried[k] for k in sorted(tried)]
+
+
 def run_config(sess, plan, render: Render, out: Path, repeats: int = 1):
     sess.render = render
     times, cpus = [], []
@@ -182,16 +242,8 @@ def plot_results(rows, rss, W, H, ref_samples, png: Path) -> None:
     plt.close(fig)
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="640x360, fewer configurations, 60 memory frames")
-    ap.add_argument("--ref-samples", type=int, default=None, help="reference samples (default 256; quick 128)")
-    ap.add_argument("--replot", type=Path, default=None, help="redraw the plot from a results JSON and exit")
-    args = ap.parse_args()
-    if args.replot is not None:
-        d = json.loads(args.replot.read_text())
-        plot_results(d["rows"], d["rss_mb"], *d["resolution"], d["reference_samples"], args.replot.with_suffix(".png"))
-        return
+def sweep(args):
+    """The samples/denoise/bounces sweep against the no-denoise naive render, and memory."""
     from blendgen.render.session import RenderSession
 
     W, H = (640, 360) if args.quick else (1280, 720)
@@ -332,6 +384,190 @@ def main():
     write_text(DOC if not args.quick else DOC.with_name("render_quick.md"), md)
     shutil.rmtree(tmp, ignore_errors=True)
     print("\n" + md)
+
+
+# ---------------------------------------------------------------- issue 17: fair baseline, clusters
+PAIR_DIMS = (4.5, 1.8, 1.5)
+
+
+def pair_plans() -> dict[str, FramePlan]:
+    """Two cars 14 m ahead: side by side (one region), at opposite edges of the frame."""
+    side = [PlacedObject(11, "car", (14.0, 1.2, 0.0), 0.0, PAIR_DIMS, variant={"seed": 1}),
+            PlacedObject(12, "car", (14.0, -1.2, 0.0), 0.0, PAIR_DIMS, variant={"seed": 5})]
+    edges = [PlacedObject(11, "car", (14.0, 8.0, 0.0), 0.0, PAIR_DIMS, variant={"seed": 1}),
+             PlacedObject(12, "car", (14.0, -8.0, 0.0), 0.0, PAIR_DIMS, variant={"seed": 5})]
+    return {"side by side": FramePlan("side", 0.0, T.tolist(), side, SUN),
+            "opposite edges": FramePlan("edges", 0.0, T.tolist(), edges, SUN)}
+
+
+def region_area(info) -> int:
+    return sum((r[2] - r[0]) * (r[3] - r[1]) for r in (info.get("regions") or []))
+
+
+def fair(args):
+    from blendgen.render import effects as fx
+    from blendgen.render.session import RenderSession
+
+    W, H = (640, 360) if args.quick else (1280, 720)
+    ref_samples = args.ref_samples or (128 if args.quick else 256)
+    cam = Camera.from_hfov(W, H, 70)
+    build, build_name = builder()
+    plan = FramePlan("bench", 0.0, T.tolist(), scene_objects(), SUN)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_render_"))
+    t_start = time.perf_counter()
+    reps = args.repeats
+
+    # ---- 1. the reference: naive scene (whole road as catcher), many samples, own seed
+    sess = RenderSession(None, None, Render(), cam, object_builder=build, catch_shadows_on="ground")
+    sess.render = Render(samples=1, denoise=False)
+    sess.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+    print(f"{W}x{H}, objects: {build_name}; reference {ref_samples} samples ...", flush=True)
+    sess.scene.cycles.seed = 7919
+    t_ref, info_ref, ref = run_config(sess, plan, Render(samples=ref_samples, denoise=False, adaptive_threshold=0),
+                                      tmp / "ref.exr")
+    sess.close()
+    ref_img = display(ref)
+    mask = (ref["rgba"][..., 3] > 0.02) | (ref["shadow_catcher"].min(axis=2) < 0.98)
+    x0, y0, x1, y1 = info_ref["region"]
+    inside = np.zeros_like(mask)
+    inside[y0:y1, x0:x1] = True
+    assert not np.any(mask & ~inside), "object/shadow pixels outside the region"
+    print(f"reference: {t_ref:.0f} s wall, {int(mask.sum())} object+shadow pixels ({mask.mean():.1%})", flush=True)
+
+    def row(name, r, t, info, p, extra=None):
+        q = psnr(display(p), ref_img, mask)
+        d = {"config": name, "samples": r.samples, "denoise": r.denoise, "time_s": t, "cpu_s": info["cpu_s"],
+             "psnr_db": q, "regions": len(info.get("regions") or []) or "full", **(extra or {})}
+        print(f"{name:28s} spp {r.samples:4d}  {t:7.2f} s  cpu {info['cpu_s']:7.2f} s  {q:6.2f} dB", flush=True)
+        return d
+
+    # ---- 2. blendgen at its defaults (Render()), and the clusters
+    sess = RenderSession(None, None, Render(), cam, object_builder=build)
+    sess.render = Render(samples=1, denoise=False)
+    sess.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+    t, info, p = run_config(sess, plan, Render(), tmp / "b.exr", reps)
+    blend = row("blendgen defaults", Render(), t, info, p, {"repeats": reps})
+    target = blend["psnr_db"]
+
+    pairs = pair_plans()
+    cl = {}
+    default_over = fx.REGION_OVERHEAD_PX
+    for name, pp in pairs.items():
+        sess.render = Render(samples=1, denoise=False)
+        sess.render_frame(pp, tmp / "warm.exr", OUTPUTS)  # build / move the two cars
+        for mode, over in (("clustered", default_over), ("one region", 1e12)):
+            if name == "side by side" and mode == "one region":
+                continue  # side by side is one region either way
+            fx.REGION_OVERHEAD_PX = over
+            t, info, p = run_config(sess, pp, Render(), tmp / f"pair_{mode}.exr", reps)
+            cl[(name, mode)] = {"time_s": t, "cpu_s": info["cpu_s"], "regions": info["regions"],
+                                "area": region_area(info), "passes": p}
+            print(f"{name:15s} {mode:10s} regions {info['regions']}  cpu {info['cpu_s']:.2f} s", flush=True)
+    fx.REGION_OVERHEAD_PX = default_over
+    a, b = cl[("opposite edges", "clustered")]["passes"], cl[("opposite edges", "one region")]["passes"]
+    seen = (b["rgba"][..., 3] > 0.02) | (b["shadow_catcher"].min(axis=2) < 0.98)
+    paste_db = psnr(display(a), display(b), seen)
+    index_same = bool(np.array_equal(a["index"], b["index"]))
+    # The fixed cost of one more render, in pixels: a far-off small object (a region of a few
+    # hundred pixels) against the side-by-side pair's region.
+    tiny = FramePlan("tiny", 0.0, T.tolist(), [PlacedObject(21, "person", (60.0, 0.0, 0.0), 0.0, (0.5, 0.6, 1.8))],
+                     SUN)
+    sess.render = Render(samples=1, denoise=False)
+    sess.render_frame(tiny, tmp / "warm.exr", OUTPUTS)
+    _, info_t, _ = run_config(sess, tiny, Render(), tmp / "tiny.exr", reps)
+    sess.close()
+    side = cl[("side by side", "clustered")]
+    per_px = max(side["cpu_s"] - info_t["cpu_s"], 1e-6) / max(side["area"] - region_area(info_t), 1)
+    overhead_px = info_t["cpu_s"] / per_px
+
+    # ---- 3. the fair baseline: full frame, whole road as catcher, Blender's defaults + OIDN
+    sess = RenderSession(None, None, Render(), cam, object_builder=build, catch_shadows_on="ground")
+    defaults = use_blender_defaults(sess)
+    sess.render = Render(samples=1, denoise=False)
+    sess.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+
+    def naive_at(n):
+        r = Render(samples=n, denoise=True, region=False)
+        t, info, p = run_config(sess, plan, r, tmp / "n.exr")
+        return row("naive, Blender defaults", r, t, info, p)
+
+    found, tried = search_samples(naive_at, target, 1, args.max_samples)
+    final = None
+    if found is not None:
+        r = Render(samples=found["samples"], denoise=True, region=False)
+        t, info, p = run_config(sess, plan, r, tmp / "n.exr", reps)
+        final = row("naive at the found samples", r, t, info, p, {"repeats": reps})
+    sess.close()
+    total = time.perf_counter() - t_start
+
+    # ---- report
+    cmd = (".venv/bin/python benchmarks/bench_render.py" + (" --quick" if args.quick else "") +
+           (f" --repeats {reps}" if reps != 3 else ""))
+    ratio = (final["cpu_s"] / blend["cpu_s"]) if final else None
+    lines = [f"# Render cost: the fair baseline and clusters{' (quick)' if args.quick else ''}", "",
+             f"Command: `{cmd}` (under `nice -n 5`; 2 CPU cores shared with other sessions' jobs, Cycles CPU; "
+             f"{total / 60:.0f} min; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}). CPU seconds = user + "
+             "system time of the process (Blender renders in it, all its threads) around `render_frame`.", "",
+             f"Frame {W}x{H}, 5 objects ({build_name}) with sun shadows on a ground-plane road; outputs "
+             f"{sorted(OUTPUTS)}. PSNR over the {int(mask.sum())} object and shadow pixels ({mask.mean():.1%} of "
+             f"the frame) of the composite over grey against a {ref_samples}-sample naive reference (no denoise, "
+             f"own seed; {t_ref:.0f} s wall).", "",
+             "## blendgen against the fair baseline", "",
+             "Naive = full frame, the whole road as shadow catcher, Cycles' defaults for everything but the "
+             "sample count (read from Blender's RNA: " + ", ".join(f"{k} {v}" for k, v in defaults.items()) +
+             "), OIDN on. Its samples are searched: doubling from 1, then bisection, for the lowest count whose "
+             f"PSNR reaches blendgen's ({target:.2f} dB).", "",
+             "| configuration | samples | CPU (s) | wall (s) | PSNR (dB) | runs |", "|---|---|---|---|---|---|",
+             f"| blendgen defaults (region clusters, catcher patches, adaptive, OIDN) | {blend['samples']} | "
+             f"{blend['cpu_s']:.2f} | {blend['time_s']:.2f} | {blend['psnr_db']:.2f} | median of {reps} |"]
+    for r in tried:
+        lines.append(f"| naive search step | {r['samples']} | {r['cpu_s']:.2f} | {r['time_s']:.2f} | "
+                     f"{r['psnr_db']:.2f} | 1 |")
+    if final:
+        lines.append(f"| **naive at the found count** | {final['samples']} | {final['cpu_s']:.2f} | "
+                     f"{final['time_s']:.2f} | {final['psnr_db']:.2f} | median of {reps} |")
+    lines += ["", (f"- Lowest naive sample count reaching {target:.2f} dB: **{final['samples']}**; blendgen is "
+                   f"**{ratio:.1f}x cheaper in CPU seconds** ({final['cpu_s']:.2f} -> {blend['cpu_s']:.2f} s; "
+                   f"wall {final['time_s'] / blend['time_s']:.1f}x)." if final else
+                   f"- No naive sample count up to {args.max_samples} reached {target:.2f} dB."),
+              "", "## Clusters: two cars side by side vs at opposite edges", "",
+              "| layout | regions | pixels rendered | CPU (s) | vs side by side |", "|---|---|---|---|---|"]
+    for (name, mode), c in cl.items():
+        lines.append(f"| {name}, {mode} | {len(c['regions'])} ({', '.join(str(r) for r in c['regions'])}) | "
+                     f"{c['area']} | {c['cpu_s']:.2f} | {c['cpu_s'] / side['cpu_s'] - 1:+.0%} |")
+    lines += ["", f"- Opposite edges, clustered vs one region around both: PSNR of the pasted passes "
+              f"{paste_db:.1f} dB over their object and shadow pixels, index pass "
+              f"{'identical' if index_same else 'different'}.",
+              f"- One more render's fixed cost: {info_t['cpu_s']:.2f} CPU s (a {region_area(info_t)}-pixel region), "
+              f"{per_px * 1e6:.2f} CPU us per region pixel -> {overhead_px:.0f} pixels "
+              f"(`effects.REGION_OVERHEAD_PX` = {default_over}). Medians of {reps} runs.", ""]
+    md = "\n".join(lines)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    write_text(RESULTS / ("render_fair_quick.json" if args.quick else "render_fair.json"), json.dumps({
+        "resolution": [W, H], "reference_samples": ref_samples, "blendgen": blend, "naive_tried": tried,
+        "naive_final": final, "ratio_cpu": ratio, "defaults": defaults,
+        "clusters": {f"{k[0]}, {k[1]}": {kk: vv for kk, vv in v.items() if kk != "passes"} for k, v in cl.items()},
+        "paste_psnr_db": paste_db, "overhead_px": overhead_px}, indent=1, default=str))
+    write_text(DOC.with_name("render_fair_quick.md" if args.quick else "render_fair.md"), md + "\n")
+    shutil.rmtree(tmp, ignore_errors=True)
+    print("\n" + md)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="640x360 (sweep: fewer configurations, 60 memory frames)")
+    ap.add_argument("--ref-samples", type=int, default=None, help="reference samples (default 256; quick 128)")
+    ap.add_argument("--repeats", type=int, default=3, help="runs per measured configuration (median)")
+    ap.add_argument("--max-samples", type=int, default=256, help="upper end of the naive sample search")
+    ap.add_argument("--sweep", action="store_true",
+                    help="the older samples/denoise/bounces sweep and the memory run instead (docs/benchmarks/render.md)")
+    ap.add_argument("--replot", type=Path, default=None, help="redraw the sweep plot from a results JSON and exit")
+    args = ap.parse_args()
+    if args.replot is not None:
+        d = json.loads(args.replot.read_text())
+        plot_results(d["rows"], d["rss_mb"], *d["resolution"], d["reference_samples"], args.replot.with_suffix(".png"))
+        return
+    (sweep if args.sweep else fair)(args)
 
 
 if __name__ == "__main__":

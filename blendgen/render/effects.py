@@ -26,8 +26,8 @@ BLUR_PX = 0.5
 REGION_MARGIN_PX = 4      # pixel filter (1.5 px) and rounding
 FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth the border logic
 # The fixed cost of one more border render (Cycles' render call, denoiser set-up, EXR write and
-# read), in pixels of region: measured in benchmarks/bench_render.py (docs/render.md).
-REGION_OVERHEAD_PX = 20000
+# read), in pixels of region: ~1200-?? px measured in benchmarks/bench_render.py (docs/render.md).
+REGION_OVERHEAD_PX = 2000
 # Used when a plan carries no lighting estimate: a clear-sky late morning.
 DEFAULT_LIGHTING = {
     "sun_direction": [0.35, 0.25, 0.90], "sun_strength": 3.0, "sun_color": [1.0, 0.97, 0.92],

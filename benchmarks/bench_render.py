@@ -145,7 +145,9 @@ def use_blender_defaults(sess) -> dict:
 def search_samples(measure, target_db: float, lo: int = 1, hi: int = 256):
     """Lowest sample count whose PSNR reaches ``target_db``: doubling from ``lo`` until one
     does, then bisection between the last miss and the first hit. ``measure(samples)`` renders
-    and returns a row with ``psnr_db``. Returns (row of the lowest hit or None, all rows)."""
+    and returns a row with ``psnr_db``. Returns (row of the lowest hit or None, all rows). With
+    PSNR noisy in the samples the hit found has a miss one sample below it, which is not
+    always the lowest count that would ever reach the target (the tried rows are reported)."""
     tried = {}
 
     def at(n):

@@ -213,7 +213,7 @@ def plot_results(rows, rss, W, H, ref_samples, png: Path) -> None:
               ("effects", True): ("s", "tab:green", "effects + denoise"),
               ("full frame", True): ("^", "tab:orange", "full frame + denoise"),
               ("naive", False): ("x", "tab:red", "naive full frame"),
-              ("default", True): ("*", "black", "job default (64 spp, denoise)")}
+              ("default", True): ("*", "black", f"job default ({Render().samples} spp, denoise)")}
     for (fam, dn), (m, c, lab) in styles.items():
         pts = [r for r in rows if r["family"] == fam and r["denoise"] == dn and r["bounces"] == 4]
         if pts:
@@ -313,7 +313,7 @@ def sweep(args):
     eff.render_frame(plan, tmp / "warm.exr", OUTPUTS)
     for family, kw in configs:
         record(family, kw, eff)
-    default = record("default", {}, eff, repeats=3)  # job defaults (64 spp, denoise), median of 3
+    default = record("default", {}, eff, repeats=3)  # job defaults (Render()), median of 3
     eff.close()
 
     frames = 60 if args.quick else 300
@@ -368,7 +368,8 @@ def sweep(args):
                      f"{'border' if r['region'] else 'full'} | {r['bounces']} | {r['time_s']:.2f} | {r['cpu_s']:.2f} | "
                      f"{r['psnr_db']:.2f} |")
     lines += ["",
-              f"- Time per frame at the job default (64 samples, denoise, region): **{default['time_s']:.2f} s** "
+              f"- Time per frame at the job default ({Render().samples} samples, denoise, region): "
+              f"**{default['time_s']:.2f} s** "
               f"(median of 3), {default['psnr_db']:.1f} dB.",
               f"  CPU time {default['cpu_s']:.2f} s (two threads: about half that in wall time on two "
               f"dedicated cores).",
@@ -455,20 +456,20 @@ def fair(args):
 
     pairs = pair_plans()
     cl = {}
-    default_over = fx.REGION_OVERHEAD_PX
+    default_over = fx.REGION_OVERHEAD_FRACTION
     for name, pp in pairs.items():
         sess.render = Render(samples=1, denoise=False)
         sess.render_frame(pp, tmp / "warm.exr", OUTPUTS)  # build / move the two cars
         for mode, over in (("clustered", default_over), ("one region", 1e12)):
             if name == "side by side" and mode == "one region":
                 continue  # side by side is one region either way
-            fx.REGION_OVERHEAD_PX = over
+            fx.REGION_OVERHEAD_FRACTION = over
             t, info, p = run_config(sess, pp, Render(), tmp / f"pair_{mode}.exr", reps)
             content = int(((p["rgba"][..., 3] > 0.02) | (p["shadow_catcher"].min(axis=2) < 0.98)).sum())
             cl[(name, mode)] = {"time_s": t, "cpu_s": info["cpu_s"], "regions": info["regions"],
                                 "area": region_area(info), "content_px": content, "passes": p}
             print(f"{name:15s} {mode:10s} regions {info['regions']}  cpu {info['cpu_s']:.2f} s", flush=True)
-    fx.REGION_OVERHEAD_PX = default_over
+    fx.REGION_OVERHEAD_FRACTION = default_over
     a, b = cl[("opposite edges", "clustered")]["passes"], cl[("opposite edges", "one region")]["passes"]
     seen = (b["rgba"][..., 3] > 0.02) | (b["shadow_catcher"].min(axis=2) < 0.98)
     paste_db = psnr(display(a), display(b), seen)
@@ -556,8 +557,9 @@ def fair(args):
               f"{paste_db:.1f} dB over their object and shadow pixels, index pass "
               f"{'identical' if index_same else 'different'}.",
               f"- One more render's fixed cost: {info_t['cpu_s']:.2f} CPU s (a {region_area(info_t)}-pixel region), "
-              f"{per_px * 1e6:.2f} CPU us per region pixel -> {overhead_px:.0f} pixels "
-              f"(`effects.REGION_OVERHEAD_PX` = {default_over}). Medians of {reps} runs.", ""]
+              f"{per_px * 1e6:.2f} CPU us per region pixel -> {overhead_px:.0f} pixels, {overhead_px / (W * H):.4f} of "
+              f"the frame (`effects.REGION_OVERHEAD_FRACTION` = {default_over}). Medians of {reps} runs.", "",
+              f"- blendgen's 5-object frame rendered as {blend['regions']} region(s)."]
     md = "\n".join(lines)
     RESULTS.mkdir(parents=True, exist_ok=True)
     write_text(RESULTS / ("render_fair_quick.json" if args.quick else "render_fair.json"), json.dumps({

@@ -322,9 +322,9 @@ def test_clustered_regions_match_one_region(tmp_path, monkeypatch):
     outputs = {"rgba", "index", "shadow_catcher"}
     s = session(cam, samples=16)
     try:
-        monkeypatch.setattr(fx, "REGION_OVERHEAD_PX", 0)  # at this small size: cost by area only
+        monkeypatch.setattr(fx, "REGION_OVERHEAD_FRACTION", 0.0)  # cost by area only
         two = s.render_frame(plan, tmp_path / "two.exr", outputs)
-        monkeypatch.setattr(fx, "REGION_OVERHEAD_PX", 1e9)  # every cluster merges: one region
+        monkeypatch.setattr(fx, "REGION_OVERHEAD_FRACTION", 1e9)  # every cluster merges: one region
         one = s.render_frame(plan, tmp_path / "one.exr", outputs)
     finally:
         s.close()

@@ -26,8 +26,9 @@ BLUR_PX = 0.5
 REGION_MARGIN_PX = 4      # pixel filter (1.5 px) and rounding
 FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth the border logic
 # The fixed cost of one more border render (Cycles' render call, denoiser set-up, EXR write and
-# read), in pixels of region: ~1200-?? px measured in benchmarks/bench_render.py (docs/render.md).
-REGION_OVERHEAD_PX = 2000
+# read) as a fraction of the frame's pixels: it grows with the frame, 0.07 CPU s = 1200 region
+# pixels at 640x360, 0.21 CPU s = 4300 at 1280x720 (benchmarks/bench_render.py, docs/render.md).
+REGION_OVERHEAD_FRACTION = 0.0045
 # Used when a plan carries no lighting estimate: a clear-sky late morning.
 DEFAULT_LIGHTING = {
     "sun_direction": [0.35, 0.25, 0.90], "sun_strength": 3.0, "sun_color": [1.0, 0.97, 0.92],
@@ -312,7 +313,7 @@ def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | N
         return Decision(None, "no object or shadow projects into the frame")
     B = np.array(per_object)
     x0, y0, x1, y1 = int(B[:, 0].min()), int(B[:, 1].min()), int(B[:, 2].max()), int(B[:, 3].max())
-    clusters = cluster_boxes(per_object)
+    clusters = cluster_boxes(per_object, REGION_OVERHEAD_FRACTION * W * H)
     area = sum((c[2] - c[0]) * (c[3] - c[1]) for c in clusters)
     frac = area / float(W * H)
     what = "objects and their shadows" if sun_dir is not None else "objects (no sun shadow)"
@@ -323,12 +324,12 @@ def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | N
                     {"clusters": [list(c) for c in clusters]})
 
 
-def cluster_boxes(boxes, overhead_px: float | None = None) -> list[tuple[int, int, int, int]]:
+def cluster_boxes(boxes, overhead_px: float) -> list[tuple[int, int, int, int]]:
     """Group pixel boxes into the render regions that cost least: greedily merge the pair
-    whose union costs less than the two apart (cost = area + the fixed cost of one more
-    render, REGION_OVERHEAD_PX), the largest saving first. Two objects side by side share one
-    region; two at opposite edges get one each, not the empty frame between them."""
-    over = REGION_OVERHEAD_PX if overhead_px is None else overhead_px
+    whose union costs less than the two apart (cost = area + ``overhead_px``, the fixed cost
+    of one more render), the largest saving first. Two objects side by side share one region;
+    two at opposite edges get one each, not the empty frame between them."""
+    over = overhead_px
     bs = [tuple(int(v) for v in b) for b in boxes]
 
     def cost(b):

@@ -453,6 +453,12 @@ def fair(args):
     t, info, p = run_config(sess, plan, Render(), tmp / "b.exr", reps)
     blend = row("blendgen defaults", Render(), t, info, p, {"repeats": reps})
     target = blend["psnr_db"]
+    # the same frame with one region around all objects (before issue 17)
+    over0 = fx.REGION_OVERHEAD_FRACTION
+    fx.REGION_OVERHEAD_FRACTION = 1e12
+    t, info, p = run_config(sess, plan, Render(), tmp / "b1.exr", reps)
+    fx.REGION_OVERHEAD_FRACTION = over0
+    blend_one = row("blendgen, one region", Render(), t, info, p, {"repeats": reps})
 
     pairs = pair_plans()
     cl = {}
@@ -530,7 +536,9 @@ def fair(args):
              f"PSNR reaches blendgen's ({target:.2f} dB).", "",
              "| configuration | samples | CPU (s) | wall (s) | PSNR (dB) | runs |", "|---|---|---|---|---|---|",
              f"| blendgen defaults (region clusters, catcher patches, adaptive, OIDN) | {blend['samples']} | "
-             f"{blend['cpu_s']:.2f} | {blend['time_s']:.2f} | {blend['psnr_db']:.2f} | median of {reps} |"]
+             f"{blend['cpu_s']:.2f} | {blend['time_s']:.2f} | {blend['psnr_db']:.2f} | median of {reps} |",
+             f"| blendgen, one region around all objects (before issue 17) | {blend_one['samples']} | "
+             f"{blend_one['cpu_s']:.2f} | {blend_one['time_s']:.2f} | {blend_one['psnr_db']:.2f} | median of {reps} |"]
     for r in tried:
         lines.append(f"| naive search step | {r['samples']} | {r['cpu_s']:.2f} | {r['time_s']:.2f} | "
                      f"{r['psnr_db']:.2f} | 1 |")
@@ -559,11 +567,14 @@ def fair(args):
               f"- One more render's fixed cost: {info_t['cpu_s']:.2f} CPU s (a {region_area(info_t)}-pixel region), "
               f"{per_px * 1e6:.2f} CPU us per region pixel -> {overhead_px:.0f} pixels, {overhead_px / (W * H):.4f} of "
               f"the frame (`effects.REGION_OVERHEAD_FRACTION` = {default_over}). Medians of {reps} runs.", "",
-              f"- blendgen's 5-object frame rendered as {blend['regions']} region(s)."]
+              f"- blendgen's 5-object frame rendered as {blend['regions']} region(s): {blend['cpu_s']:.2f} CPU s, "
+              f"against {blend_one['cpu_s']:.2f} with one region around all objects "
+              f"({blend['cpu_s'] / blend_one['cpu_s'] - 1:+.0%})."]
     md = "\n".join(lines)
     RESULTS.mkdir(parents=True, exist_ok=True)
     write_text(RESULTS / ("render_fair_quick.json" if args.quick else "render_fair.json"), json.dumps({
-        "resolution": [W, H], "reference_samples": ref_samples, "blendgen": blend, "naive_tried": tried,
+        "resolution": [W, H], "reference_samples": ref_samples, "blendgen": blend, "blendgen_one_region": blend_one,
+        "naive_tried": tried,
         "naive_final": final, "ratio_cpu": ratio, "defaults": defaults,
         "clusters": {f"{k[0]}, {k[1]}": {kk: vv for kk, vv in v.items() if kk != "passes"} for k, v in cl.items()},
         "paste_psnr_db": paste_db, "overhead_px": overhead_px}, indent=1, default=str))

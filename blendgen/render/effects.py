@@ -305,8 +305,10 @@ def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | N
                 boxes.append(b)
         if boxes:
             B = np.array(boxes)
-            box = (int(np.clip(np.floor(B[:, 0].min() - m), 0, W)), int(np.clip(np.floor(B[:, 1].min() - m), 0, H)),
-                   int(np.clip(np.ceil(B[:, 2].max() + m + 1), 0, W)), int(np.clip(np.ceil(B[:, 3].max() + m + 1), 0, H)))
+            box = (int(np.clip(np.floor(B[:, 0].min() - m), 0, W)),
+                   int(np.clip(np.floor(B[:, 1].min() - m), 0, H)),
+                   int(np.clip(np.ceil(B[:, 2].max() + m + 1), 0, W)),
+                   int(np.clip(np.ceil(B[:, 3].max() + m + 1), 0, H)))
             if box[2] > box[0] and box[3] > box[1]:
                 per_object.append(box)
     if not per_object:

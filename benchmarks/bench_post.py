@@ -19,6 +19,13 @@ Second part: objects of all seven classes composited into the real photos in
 docs/images/post_real_examples.png.
 
     .venv/bin/python benchmarks/bench_post.py [--quick]
+
+Timing only (issue 17): the post stage before and after a change, same run, interleaved, on
+1280x720 renders with 3-4 objects (benchmarks/_post_frames.py) composited into the six
+Udacity photos upscaled to 1280x720; median ms per frame (estimate + composite), and the
+PSNR of the after-frames against the before-frames:
+
+    .venv/bin/python benchmarks/bench_post.py --timing [--before REV] [--repeats N] [--threads N] [--workdir DIR]
 """
 
 from __future__ import annotations
@@ -32,8 +39,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
+if "--threads" in sys.argv[:-1]:  # BLAS reads its thread count when numpy is first imported
+    os.environ["OPENBLAS_NUM_THREADS"] = os.environ["OMP_NUM_THREADS"] = sys.argv[sys.argv.index("--threads") + 1]
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -272,12 +282,126 @@ def real_photo_figure(work: Path, quick: bool):
     return infos
 
 
+BEFORE_REV = "3ba98b7"  # the post stage before the issue-17 crop window (what --timing compares against)
+TIMING_DOC = ROOT / "docs" / "benchmarks" / "post_timing.md"
+
+
+def load_post_at(rev: str, dest: Path):
+    """blendgen.post as it was at git ``rev``, importable as ``_before.post`` (its own imports
+    of blendgen.post rewritten; everything else is today's blendgen)."""
+    import importlib
+    import io
+    import tarfile
+
+    tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "blendgen/post"], capture_output=True, check=True)
+    pkg = dest / "_before"
+    with tarfile.open(fileobj=io.BytesIO(tar.stdout)) as t:
+        for m in t.getmembers():
+            if m.isfile():
+                f = pkg / Path(m.name).relative_to("blendgen")
+                f.parent.mkdir(parents=True, exist_ok=True)
+                f.write_text(t.extractfile(m).read().decode().replace("blendgen.post", "_before.post"))
+    (pkg / "__init__.py").write_text("")
+    sys.path.insert(0, str(dest))
+    return (importlib.import_module("_before.post.composite").composite_frame,
+            importlib.import_module("_before.post.illumination").estimate_illumination)
+
+
+def psnr_u8(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return float("inf") if mse == 0 else float(10 * np.log10(255.0 ** 2 / mse))
+
+
+def timing_benchmark(args, work: Path):
+    """Before vs after on the same frames, interleaved so that both see the same load."""
+    frames_dir = work / "post_frames"
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": os.environ.get("HOME", "/tmp")}
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "_post_frames.py"), str(frames_dir)], env=env,
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"rendering the timing frames failed:\n{r.stdout[-2000:]}\n{r.stderr[-3000:]}")
+    before_cf, before_est = load_post_at(args.before, work)
+    renders = [read_passes(p) for p in sorted(frames_dir.glob("frame*.exr"))]
+    photos = sorted(DATA.glob("*.jpg"))
+    if not photos:
+        raise SystemExit(f"needs the Udacity photos in {DATA}")
+    reals = [cv2.resize(cv2.imread(str(p)), (1280, 720), interpolation=cv2.INTER_LINEAR) for p in photos]
+    n_obj = [len(np.unique(p["index"])) - 1 for p in renders]
+    sides = {"before": (before_est, before_cf), "after": (estimate_illumination, composite_frame)}
+    wall = {k: [] for k in sides}
+    cpu = {k: [] for k in sides}
+    psnrs, crop_diff, crop_psnr = [], [], []
+    for rep in range(args.repeats):
+        for k, real in enumerate(reals):
+            passes = renders[k % len(renders)]
+            outs = {}
+            for side in (("before", "after") if rep % 2 == 0 else ("after", "before")):
+                est_fn, cf = sides[side]
+                t, c = time.perf_counter(), time.process_time()
+                est = est_fn(real)
+                outs[side], _ = cf(real, passes, settings=Post(), illumination=est, seed=k)
+                wall[side].append(time.perf_counter() - t)
+                cpu[side].append(time.process_time() - c)
+            if rep == 0:
+                psnrs.append(psnr_u8(outs["after"], outs["before"]))
+                full, _ = composite_frame(real, passes, settings=Post(), illumination=estimate_illumination(real),
+                                          seed=k, crop=False)
+                crop_diff.append(int(np.abs(full.astype(np.int16) - outs["after"]).max()))
+                crop_psnr.append(psnr_u8(outs["after"], full))
+    return {"wall": wall, "cpu": cpu, "psnr": psnrs, "crop_diff": crop_diff, "crop_psnr": crop_psnr,
+            "n_frames": len(reals), "n_obj": n_obj, "ref_ms": reference_ms()}
+
+
+def write_timing(res: dict, args) -> None:
+    med = {k: (1e3 * np.median(res["wall"][k]), 1e3 * np.median(res["cpu"][k])) for k in res["wall"]}
+    load = os.getloadavg()[0]
+    cmd = (f".venv/bin/python benchmarks/bench_post.py --timing --before {args.before} --repeats {args.repeats}"
+           + (f" --threads {args.threads}" if args.threads is not None else ""))
+    lines = [
+        "# Post stage timing: before vs after (issue 17)", "",
+        f"Produced by `{cmd}` ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}), shared 2-core CPU machine, "
+        f"1-min load average {load:.1f} at the end (other sessions' jobs). {res['n_frames']} real frames (the "
+        f"Udacity highway photos upscaled to 1280x720), each with one of {len(res['n_obj'])} 1280x720 renders "
+        f"(objects per render: {res['n_obj']}; sun shadows; rgba, index, shadow catcher, lighting passes; "
+        "`benchmarks/_post_frames.py`), default post settings (illumination estimate, relight, shadows, sensor "
+        f"matching). {args.repeats} repeats per frame, before and after interleaved (alternating order) in one "
+        "process; per frame = estimate_illumination + composite_frame. Before = blendgen/post at git "
+        f"`{args.before}`.", "",
+        "| | median ms / frame (wall) | median CPU ms / frame | n |", "|---|---|---|---|"]
+    for k in ("before", "after"):
+        lines.append(f"| {k} | {med[k][0]:.1f} | {med[k][1]:.1f} | {len(res['wall'][k])} |")
+    lines += ["", f"- Speed-up: {med['before'][0] / med['after'][0]:.2f}x wall, "
+              f"{med['before'][1] / med['after'][1]:.2f}x CPU (CPU time counts all threads: with free cores OpenCV's "
+              "worker threads make it exceed wall time, on a loaded machine waiting makes wall exceed it).",
+              f"- After vs before, whole frame: PSNR min {min(res['psnr']):.1f} dB, median "
+              f"{np.median(res['psnr']):.1f} dB (only object and shadow pixels can differ).",
+              f"- Crop window vs full-frame post (`crop=False`), same code: max abs difference "
+              f"{max(res['crop_diff'])} level(s), PSNR min {min(res['crop_psnr']):.1f} dB.",
+              f"- Reference 3x3 box blur of a 1280x720 float image: {res['ref_ms']:.2f} ms (machine load gauge)."]
+    md = "\n".join(lines) + "\n"
+    write_text(TIMING_DOC, md)
+    print(md)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="10 lightings, smaller renders (~2 min)")
     ap.add_argument("--no-real", action="store_true", help="skip the real-photo figure")
     ap.add_argument("--workdir", type=Path, help="keep renders here and reuse them (default: a temp folder)")
+    ap.add_argument("--timing", action="store_true", help="only the before/after timing on 1280x720 frames")
+    ap.add_argument("--before", default=BEFORE_REV, help=f"git revision of the 'before' post stage ({BEFORE_REV})")
+    ap.add_argument("--repeats", type=int, default=5, help="--timing: repeats per frame")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="--timing: OpenCV and BLAS threads (1: CPU time = wall time, one core per worker)")
     args = ap.parse_args()
+    if args.threads is not None:
+        cv2.setNumThreads(args.threads)
+    if args.timing:
+        with tempfile.TemporaryDirectory(prefix="bench_post_") as tmp:
+            work = Path(tmp) if args.workdir is None else args.workdir
+            work.mkdir(parents=True, exist_ok=True)
+            write_timing(timing_benchmark(args, work), args)
+        return
     cmd = "python benchmarks/bench_post.py" + (" --quick" if args.quick else "")
     with tempfile.TemporaryDirectory(prefix="bench_post_") as tmp:
         work = Path(tmp) if args.workdir is None else args.workdir

@@ -1,5 +1,7 @@
-"""The render benchmark as a pytest (excluded by default: -m benchmark)."""
+"""The render benchmark: its sample search (fast), and the whole quick run as a pytest
+(excluded by default: -m benchmark)."""
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -9,12 +11,39 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_render", ROOT / "benchmarks" / "bench_render.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_sample_search_finds_the_lowest_count_reaching_the_target():
+    search = _bench().search_samples
+    calls = []
+
+    def measure(n):  # PSNR rising with samples: 12 gives 34.8 dB, 13 gives 35.2 dB
+        calls.append(n)
+        return {"samples": n, "psnr_db": 30.0 + 0.4 * n}
+
+    row, tried = search(measure, 35.0, 1, 256)
+    assert row["samples"] == 13
+    assert len(calls) == len(set(calls)) <= 8  # doubling to 16, then bisection: no repeats
+    assert [r["samples"] for r in tried] == sorted(calls)
+    # Noisy PSNR (a dip at 14): the answer is a hit with a miss one sample below it.
+    row, tried = search(lambda n: {"samples": n, "psnr_db": {14: 34.9}.get(n, 30.0 + 0.4 * n)}, 35.0, 1, 256)
+    by_n = {r["samples"]: r["psnr_db"] for r in tried}
+    assert row["psnr_db"] >= 35.0 and by_n[row["samples"] - 1] < 35.0
+    row, _ = search(lambda n: {"samples": n, "psnr_db": 20.0}, 35.0, 1, 64)
+    assert row is None
+
+
 @pytest.mark.benchmark
 @pytest.mark.bpy
 def test_bench_render_quick():
     pytest.importorskip("bpy")
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_render.py"), "--quick"],
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_render.py"), "--quick", "--repeats", "1"],
                        capture_output=True, text=True, timeout=1800, cwd=ROOT)
     assert r.returncode == 0, r.stderr[-3000:]
-    md = (ROOT / "docs" / "benchmarks" / "render_quick.md").read_text()
-    assert "Speedup over the naive full-frame render" in md and "largest growth after frame 10" in md
+    md = (ROOT / "docs" / "benchmarks" / "render_fair_quick.md").read_text()
+    assert "cheaper in CPU seconds" in md and "opposite edges, clustered" in md

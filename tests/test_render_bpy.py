@@ -335,3 +335,34 @@ def test_pitched_and_rolled_object_matches_its_3d_box(tmp_path):
         np.testing.assert_allclose(np.asarray(box["R_cam_obj"]), T[:3, :3].T @ obj.R_world_obj(), atol=1e-9)
     finally:
         s.close()
+
+
+def test_clustered_regions_match_one_region(tmp_path, monkeypatch):
+    """Objects at opposite edges render as two border regions pasted into one frame: the same
+    passes as one region around both (issue 17)."""
+    from blendgen.render import effects as fx
+
+    cam = Camera.from_hfov(320, 180, 70)
+    objs = [PlacedObject(1, "car", (12.0, 6.0, 0.0), 0.0, (4.4, 1.8, 1.5)),
+            PlacedObject(2, "car", (12.0, -6.0, 0.0), 0.0, (4.4, 1.8, 1.5))]
+    plan = FramePlan("f2", 0.0, T.tolist(), objs, SUN)
+    outputs = {"rgba", "index", "shadow_catcher"}
+    s = session(cam, samples=16)
+    try:
+        monkeypatch.setattr(fx, "REGION_OVERHEAD_FRACTION", 0.0)  # cost by area only
+        two = s.render_frame(plan, tmp_path / "two.exr", outputs)
+        monkeypatch.setattr(fx, "REGION_OVERHEAD_FRACTION", 1e9)  # every cluster merges: one region
+        one = s.render_frame(plan, tmp_path / "one.exr", outputs)
+    finally:
+        s.close()
+    assert len(two["regions"]) == 2 and len(one["regions"]) == 1
+    a, b = read_passes(tmp_path / "two.exr"), read_passes(tmp_path / "one.exr")
+    assert np.array_equal(a["index"], b["index"])
+    seen = (b["rgba"][..., 3] > 0) | (b["shadow_catcher"].min(axis=2) < 0.999)
+    assert seen.sum() > 500
+    for k in ("rgba", "shadow_catcher"):
+        mse = float(np.mean((np.clip(a[k][seen], 0, 1) - np.clip(b[k][seen], 0, 1)) ** 2))
+        assert mse == 0 or 10 * np.log10(1 / mse) >= 40, k
+    # the empty frame between them is not rendered
+    area = lambda r: (r[2] - r[0]) * (r[3] - r[1])  # noqa: E731
+    assert sum(area(r) for r in two["regions"]) < 0.7 * area(one["regions"][0])

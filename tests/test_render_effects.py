@@ -254,3 +254,34 @@ def test_rider_shadow_is_caught_on_the_road_not_at_the_pegs():
         assert np.allclose(patch[:, 2], 0.4, atol=1e-3)
     _, shadow = fx.object_points(rider, fx.sun_direction(SUN))
     assert np.allclose(shadow[:, 2], 0.4, atol=1e-3)
+
+
+def test_cluster_boxes_merge_neighbours_not_opposite_edges():
+    # side by side: one region; opposite edges: one each; overlapping: one
+    assert fx.cluster_boxes([(100, 100, 200, 200), (205, 100, 300, 200)], 20000) == [(100, 100, 300, 200)]
+    far = [(0, 150, 100, 250), (540, 150, 640, 250)]
+    assert fx.cluster_boxes(far, 20000) == far
+    assert fx.cluster_boxes([(0, 0, 50, 50), (10, 10, 60, 60)], 0) == [(0, 0, 60, 60)]
+    # two close ones merge, the far one stays alone
+    got = fx.cluster_boxes([(0, 0, 60, 60), (70, 0, 130, 60), (500, 300, 560, 360)], 20000)
+    assert got == [(0, 0, 130, 60), (500, 300, 560, 360)]
+    # a very high per-render cost merges everything
+    assert fx.cluster_boxes(far, 1e9) == [(0, 150, 640, 250)]
+
+
+def test_region_clusters_objects_at_opposite_edges():
+    left, right = car(1, 12, 6.5), car(2, 12, -6.5)
+    eff = fx.decide_effects(plan_of(left, right), CAM, Render(), {"rgba", "index"})
+    clusters = eff.regions
+    assert len(clusters) == 2 and eff.region.value is not None
+    union = eff.region.value
+    assert sum((c[2] - c[0]) * (c[3] - c[1]) for c in clusters) < 0.6 * (union[2] - union[0]) * (union[3] - union[1])
+    for o in (left, right):  # each object's projection lies inside one cluster
+        uv, _ = CAM.project_world(T, o.box_corners_world())
+        uv = np.clip(uv, 0, [CAM.width, CAM.height])  # the part in the frame
+        assert any(c[0] <= uv[:, 0].min() and uv[:, 0].max() <= c[2] and c[1] <= uv[:, 1].min()
+                   and uv[:, 1].max() <= c[3] for c in clusters)
+    side = fx.decide_effects(plan_of(car(1, 12, 1.1), car(2, 12, -1.1)), CAM, Render(),
+                             {"rgba", "index"})
+    assert len(side.regions) == 1
+    assert "clusters" in eff.to_dict()["region"]["extra"] and "extra" not in eff.to_dict()["passes"]

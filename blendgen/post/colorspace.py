@@ -31,7 +31,24 @@ def srgb_u8_to_linear(img_u8: np.ndarray) -> np.ndarray:
     return SRGB_U8_TO_LINEAR[img_u8]
 
 
+# sRGB [0, 1] <-> linear [0, 1] on a 2^16 grid (float tables): the error is below 1e-4 of
+# full scale (< 0.03 of an 8-bit level at the steepest part of either curve), ~10x faster
+# than the pow per pixel.
+_SRGB_TO_LINEAR = np.where(_LIN <= 0.04045, _LIN / 12.92, ((_LIN + 0.055) / 1.055) ** 2.4).astype(np.float32)
+_LINEAR_TO_SRGB = np.where(_LIN <= 0.0031308, _LIN * 12.92, 1.055 * _LIN ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+def _lut16(x: np.ndarray, table: np.ndarray) -> np.ndarray:
+    q = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0) * np.float32(65535.0) + np.float32(0.5)
+    return table[q.astype(np.uint16)]
+
+
 def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    """sRGB-encoded [0, 1] (clipped; NaN -> 0) -> linear, through a 2^16 lookup table."""
+    return _lut16(finite(np.asarray(x, dtype=np.float32), 0.0, 1.0), _SRGB_TO_LINEAR)
+
+
+def srgb_to_linear_exact(x: np.ndarray) -> np.ndarray:
     x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
@@ -46,7 +63,12 @@ def finite(a: np.ndarray, fill: float = 0.0, big: float | None = None) -> np.nda
 
 
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
-    """Linear -> sRGB in [0, 1]; values above 1 (HDR) clip, NaN becomes 0."""
+    """Linear -> sRGB in [0, 1] through a 2^16 lookup table; values above 1 (HDR) clip, NaN
+    becomes 0, +inf 1."""
+    return _lut16(finite(np.asarray(x, dtype=np.float32), 0.0, 1.0), _LINEAR_TO_SRGB)
+
+
+def linear_to_srgb_exact(x: np.ndarray) -> np.ndarray:
     x = np.clip(finite(np.asarray(x, dtype=np.float32), 0.0, 1.0), 0.0, 1.0)
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
 

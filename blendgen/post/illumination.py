@@ -160,7 +160,8 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     sky_frac = float(sky.mean())
     if sky_frac > 0.01:
         rows = np.where(sky.any(axis=1))[0]
-        col_bottom = np.array([np.max(np.nonzero(sky[:, c])[0]) if sky[:, c].any() else -1 for c in range(w)])
+        # lowest sky row of each column (-1: none), as one argmax over the flipped rows
+        col_bottom = np.where(sky.any(axis=0), h - 1 - np.argmax(sky[::-1], axis=0), -1)
         horizon = float(np.median(col_bottom[col_bottom >= 0])) if rows.size else 0.45 * h
     elif pitch is not None:
         # No sky seen: place the horizon from the camera pitch (assumed 60 deg horizontal FOV).

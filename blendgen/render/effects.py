@@ -25,6 +25,10 @@ SOFT_MARGIN_M = 1.0       # without a sun: the sky/street-light shadow fades ove
 BLUR_PX = 0.5
 REGION_MARGIN_PX = 4      # pixel filter (1.5 px) and rounding
 FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth the border logic
+# The fixed cost of one more border render (Cycles' render call, denoiser set-up, EXR write and
+# read) as a fraction of the frame's pixels: it grows with the frame, 0.07 CPU s = 1200 region
+# pixels at 640x360, 0.21 CPU s = 4300 at 1280x720 (benchmarks/bench_render.py, docs/render.md).
+REGION_OVERHEAD_FRACTION = 0.0045
 # Used when a plan carries no lighting estimate: a clear-sky late morning.
 DEFAULT_LIGHTING = {
     "sun_direction": [0.35, 0.25, 0.90], "sun_strength": 3.0, "sun_color": [1.0, 0.97, 0.92],
@@ -36,6 +40,7 @@ DEFAULT_LIGHTING = {
 class Decision:
     value: Any
     reason: str
+    extra: dict = field(default_factory=dict)  # e.g. the region's clusters; omitted when empty
 
 
 @dataclass
@@ -49,8 +54,18 @@ class FrameEffects:
     skip_render: Decision        # bool: nothing visible, Blender is not called
     blur_px: dict[int, float] = field(default_factory=dict)
 
+    @property
+    def regions(self) -> list[tuple[int, int, int, int]] | None:
+        """The boxes to render one by one (None: full frame)."""
+        if self.region.value is None:
+            return None
+        return self.region.extra.get("clusters") or [self.region.value]
+
     def to_dict(self) -> dict:
         d = {k: asdict(v) for k, v in self.__dict__.items() if isinstance(v, Decision)}
+        for v in d.values():
+            if not v["extra"]:
+                del v["extra"]
         return d
 
 
@@ -265,14 +280,19 @@ def catcher_patches(objects, sun_dir: np.ndarray | None, margin_m: float | None 
 # ---------------------------------------------------------------- region
 def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | None,
                   enabled: bool, extra_margin_px: float = 0.0) -> Decision:
-    """Border render box from the projected boxes and shadows of the kept objects."""
+    """Border render boxes from the projected boxes and shadows of the kept objects.
+
+    Value: the union box (x0, y0, x1, y1) or None (full frame); ``extra["clusters"]``: the
+    boxes rendered one by one (cluster_boxes)."""
     W, H = cam.width, cam.height
     if not enabled:
         return Decision(None, "render.region is off: full frame")
     if not objects:
         return Decision(None, "no objects")
-    boxes = []
+    m = REGION_MARGIN_PX + extra_margin_px
+    per_object = []
     for obj in objects:
+        boxes = []
         corners, shadow = object_points(obj, sun_dir)
         for pts in (corners, shadow):
             if len(pts) == 0:
@@ -283,21 +303,54 @@ def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | N
             b = _project_box(cam, Xc)
             if b is not None:
                 boxes.append(b)
-    if not boxes:
+        if boxes:
+            B = np.array(boxes)
+            box = (int(np.clip(np.floor(B[:, 0].min() - m), 0, W)),
+                   int(np.clip(np.floor(B[:, 1].min() - m), 0, H)),
+                   int(np.clip(np.ceil(B[:, 2].max() + m + 1), 0, W)),
+                   int(np.clip(np.ceil(B[:, 3].max() + m + 1), 0, H)))
+            if box[2] > box[0] and box[3] > box[1]:
+                per_object.append(box)
+    if not per_object:
         return Decision(None, "no object or shadow projects into the frame")
-    B = np.array(boxes)
-    m = REGION_MARGIN_PX + extra_margin_px
-    x0 = int(np.clip(np.floor(B[:, 0].min() - m), 0, W))
-    y0 = int(np.clip(np.floor(B[:, 1].min() - m), 0, H))
-    x1 = int(np.clip(np.ceil(B[:, 2].max() + m + 1), 0, W))
-    y1 = int(np.clip(np.ceil(B[:, 3].max() + m + 1), 0, H))
-    if x1 <= x0 or y1 <= y0:
-        return Decision(None, "projected bounds fall outside the frame")
-    frac = (x1 - x0) * (y1 - y0) / float(W * H)
+    B = np.array(per_object)
+    x0, y0, x1, y1 = int(B[:, 0].min()), int(B[:, 1].min()), int(B[:, 2].max()), int(B[:, 3].max())
+    clusters = cluster_boxes(per_object, REGION_OVERHEAD_FRACTION * W * H)
+    area = sum((c[2] - c[0]) * (c[3] - c[1]) for c in clusters)
+    frac = area / float(W * H)
     what = "objects and their shadows" if sun_dir is not None else "objects (no sun shadow)"
     if frac >= FULL_FRAME_FRACTION:
         return Decision(None, f"{what} cover {frac:.0%} of the frame: full frame")
-    return Decision((x0, y0, x1, y1), f"{what} project into {frac:.1%} of the frame")
+    return Decision((x0, y0, x1, y1), f"{what} project into {frac:.1%} of the frame, rendered as "
+                    f"{len(clusters)} region{'s' if len(clusters) > 1 else ''}",
+                    {"clusters": [list(c) for c in clusters]})
+
+
+def cluster_boxes(boxes, overhead_px: float) -> list[tuple[int, int, int, int]]:
+    """Group pixel boxes into the render regions that cost least: greedily merge the pair
+    whose union costs less than the two apart (cost = area + ``overhead_px``, the fixed cost
+    of one more render), the largest saving first. Two objects side by side share one region;
+    two at opposite edges get one each, not the empty frame between them."""
+    over = overhead_px
+    bs = [tuple(int(v) for v in b) for b in boxes]
+
+    def cost(b):
+        return (b[2] - b[0]) * (b[3] - b[1]) + over
+
+    while len(bs) > 1:
+        best, pair = 0.0, None
+        for i in range(len(bs)):
+            for j in range(i + 1, len(bs)):
+                a, b = bs[i], bs[j]
+                u = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+                saving = cost(a) + cost(b) - cost(u)
+                if saving >= best:  # ties merge: one render is simpler than two
+                    best, pair = saving, (i, j, u)
+        if pair is None:
+            break
+        i, j, u = pair
+        bs = [b for k, b in enumerate(bs) if k not in (i, j)] + [u]
+    return sorted(bs)
 
 
 def border_fractions(region, width: int, height: int) -> tuple[float, float, float, float]:

@@ -551,28 +551,34 @@ class RenderSession:
         self.scene.render.film_transparent = True
         self._set_passes(keys)
         self._set_sampling(eff.sampling.value)
-        self._set_region(eff.region.value)
         movers = [i for i, px in eff.blur_px.items() if px > 0] if eff.motion_blur.value else []
         if movers:
             self._keyframe_motion(plan, movers, float(self.render.shutter_s))
         timings["scene"] = time.perf_counter() - t1
 
+        # One border render per cluster of objects (effects.cluster_boxes), the scene synced
+        # once: objects far apart do not pay for the empty frame between them.
+        regions = eff.regions
         t2 = time.perf_counter()
-        tmp = self._tmp / "frame.exr"
+        raws = []
         try:
-            self.scene.render.filepath = str(tmp)
-            bpy.ops.render.render(write_still=True)
+            for i, region in enumerate(regions or [None]):
+                tmp = self._tmp / f"frame{i}.exr"
+                self._set_region(region)
+                self.scene.render.filepath = str(tmp)
+                bpy.ops.render.render(write_still=True)
+                raws.append(read_passes(tmp))
+                tmp.unlink(missing_ok=True)
         finally:
             if movers:
                 self._clear_motion(plan, movers)
         timings["render"] = time.perf_counter() - t2
 
         t3 = time.perf_counter()
-        raw = self._uncrop(read_passes(tmp), eff.region.value)
-        passes = self._finish_passes(raw, keys, eff.region.value)
+        raw = self._uncrop(raws, regions)
+        passes = self._finish_passes(raw, keys, regions)
         out_region = self.canvas.region_to_output(eff.region.value) if eff.region.value else None
         write_passes(out_exr, passes, window=out_region)
-        tmp.unlink(missing_ok=True)
         timings["write"] = time.perf_counter() - t3
 
         t4 = time.perf_counter()
@@ -581,28 +587,31 @@ class RenderSession:
         self._frames += 1
         timings["total"] = time.perf_counter() - t0
         info.update(region=list(out_region) if out_region else None,
+                    regions=[list(self.canvas.region_to_output(r) or r) for r in regions] if regions else None,
                     amodal_px=amodal, skipped=False,
                     timings={k: round(v, 4) for k, v in timings.items()}, rss_mb=round(_rss_mb(), 1))
         return info
 
-    def _uncrop(self, raw: dict, region) -> dict:
-        """Blender's cropped region -> canvas-size arrays (0 outside, shadow catcher 1)."""
-        if region is None:
-            return raw
+    def _uncrop(self, raws: list[dict], regions) -> dict:
+        """Blender's cropped regions -> canvas-size arrays (0 outside, shadow catcher 1), each
+        region pasted where it belongs (overlaps: the regions render the same scene)."""
+        if regions is None:
+            return raws[0]
         pin = self.canvas.pinhole
-        x0, y0, x1, y1 = region
         out = {}
-        for k, a in raw.items():
-            if a.shape[:2] != (y1 - y0, x1 - x0):
-                raise StageError(f"Blender rendered a {a.shape[1]}x{a.shape[0]} region for the "
-                                 f"{x1 - x0}x{y1 - y0} border {region} (pass {k})")
-            full = np.full((pin.height, pin.width) + a.shape[2:], 1.0 if k == "shadow_catcher" else 0,
-                           dtype=a.dtype)
-            full[y0:y1, x0:x1] = a
-            out[k] = full
+        for raw, region in zip(raws, regions):
+            x0, y0, x1, y1 = region
+            for k, a in raw.items():
+                if a.shape[:2] != (y1 - y0, x1 - x0):
+                    raise StageError(f"Blender rendered a {a.shape[1]}x{a.shape[0]} region for the "
+                                     f"{x1 - x0}x{y1 - y0} border {region} (pass {k})")
+                if k not in out:
+                    out[k] = np.full((pin.height, pin.width) + a.shape[2:], 1.0 if k == "shadow_catcher" else 0,
+                                     dtype=a.dtype)
+                out[k][y0:y1, x0:x1] = a
         return out
 
-    def _finish_passes(self, raw: dict, keys: list[str], region) -> dict:
+    def _finish_passes(self, raw: dict, keys: list[str], regions) -> dict:
         """Blender's passes -> the contract: requested keys only, outside-region values
         neutral (shadow catcher 1), distortion applied identically to every pass."""
         pin = self.canvas.pinhole
@@ -617,10 +626,9 @@ class RenderSession:
                 # Blender leaves 0 outside the border and where no catcher was hit with
                 # transparent film; multiplicatively that must read "unshadowed".
                 valid = np.zeros(a.shape[:2], bool)
-                if region is None:
+                if regions is None:
                     valid[:] = True
-                else:
-                    x0, y0, x1, y1 = region
+                for x0, y0, x1, y1 in regions or []:
                     valid[y0:y1, x0:x1] = True
                 a = np.where(valid[..., None] & (a.sum(axis=2, keepdims=True) > 0), a, 1.0).astype(np.float32)
             if k == "index":

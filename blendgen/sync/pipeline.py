@@ -340,10 +340,10 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             res.summary["passes"] = 2
         else:
             res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
-    if trust is not None:
-        res.summary["vo_trust"] = trust.summary()
     if use_vo:
         res.summary["vo_method"] = vo_method(settings, rec)
+    if trust is not None:
+        res.summary["vo_trust"] = trust.summary()
         if trust.stabilised:
             # composites must follow the image: the body's camera turned by the stabiliser's correction
             res.poses = [(fid, t, T @ make_pose(C, np.zeros(3))) for (fid, t, T), C in zip(res.poses, trust.correction)]

@@ -354,6 +354,8 @@ def _camera_look(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 HARD_IMU = ImuErrors(noise_scale=2.5, gyro_walk=1e-4, acc_walk=1.5e-2,
                      gyro_scale=(0.004, -0.003, 0.005), acc_scale=(0.003, 0.002, -0.004),
                      gyro_misalign=1e-3, acc_misalign=1e-3)
+HARD_GNSS_STD = 0.5  # m, white, plus HARD_GNSS
+HARD_GNSS = {"gm_std_m": 1.0, "gm_tau_s": 60.0, "burst": None}  # burst set per duration
 HARD_READOUT_S = 0.03
 HARD_SHAKE_DEG = 0.3
 
@@ -366,8 +368,9 @@ def hard_recording(duration: float = 60.0, *, seed: int = 0, **kw):
     of the drive, rolling shutter (30 ms readout), 0.3 deg camera shake (1-6 Hz) and real-camera
     photometry. Returns what synthetic_recording returns."""
     b0 = 0.4 * duration
-    return synthetic_recording("drive", duration, seed=seed, imu_errors=HARD_IMU, gnss_std=0.5,
-                               gnss_errors={"gm_std_m": 1.0, "gm_tau_s": 60.0, "burst": (b0, b0 + 5.0, (4.0, -6.0, 3.0))},
+    gnss = {**HARD_GNSS, "burst": (b0, b0 + 5.0, (4.0, -6.0, 3.0))}
+    return synthetic_recording("drive", duration, seed=seed, imu_errors=HARD_IMU, gnss_std=HARD_GNSS_STD,
+                               gnss_errors=gnss,
                                rolling_shutter_s=HARD_READOUT_S, shake_deg=HARD_SHAKE_DEG, photometric=True, **kw)
 
 

@@ -363,8 +363,8 @@ HARD_SHAKE_DEG = 0.3
 def hard_recording(duration: float = 60.0, *, seed: int = 0, **kw):
     """The easy drive (same path, frame rate, camera) with sensors unlike the filter's model:
     HARD_IMU (white noise 2.5x the assumed density; bias random walks 5x the assumed ones,
-    over 60 s a 1-sigma drift of 0.04 deg/s and 0.12 m/s^2; 0.2-0.5 % scale and 1 mrad axis misalignment), GNSS 0.5 m
-    white + 1 m Gauss-Markov (60 s correlation) with a 5 s multipath burst (+4, -6, +3 m) at 40 %
+    over 60 s a 1-sigma drift of 0.04 deg/s and 0.12 m/s^2; 0.2-0.5 % scale and 1 mrad axis
+    misalignment), GNSS 0.5 m white + 1 m Gauss-Markov (60 s correlation) with a 5 s multipath burst (+4, -6, +3 m) at 40 %
     of the drive, rolling shutter (30 ms readout), 0.3 deg camera shake (1-6 Hz) and real-camera
     photometry. Returns what synthetic_recording returns."""
     b0 = 0.4 * duration

@@ -12,8 +12,8 @@ road_height.EVERY_S (camera z = road z under it + camera height, std road_height
 the road's slope in the Jacobian), and `nhc` -> the no-sideslip / zero-vertical-velocity
 factor on each keyframe above pipeline.NHC_MIN_SPEED (body-frame lateral and vertical
 velocity 0 with pipeline.NHC_LAT_STD / NHC_UP_STD; the IMU is taken as aligned with the
-vehicle: the peer does not estimate the mounting rotation). Optional dependency (`pip install gtsam`); blendgen's
-own sync never imports it.
+vehicle: the peer does not estimate the mounting rotation). Optional dependency (`pip install
+gtsam`); blendgen's own sync never imports it.
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from blendgen.geometry import invert_pose, make_pose
-from blendgen.sync import so3
+from blendgen.sync import road_height, so3
+from blendgen.sync.pipeline import NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
 
 
 def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0),
@@ -72,11 +73,7 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
     j = 1  # next IMU sample
     times = [t_prev]
     T_bc = invert_pose(rec.T_cam_imu)
-    road_model = None
-    if road is not None:
-        from blendgen.sync.road_height import RoadHeight
-
-        road_model = RoadHeight(road[0], "camera", float(road[1]), 0.0)
+    road_model = None if road is None else road_height.RoadHeight(road[0], "camera", float(road[1]), 0.0)
     next_road_t = -np.inf
     for k, tk in enumerate(keys_t, start=1):
         pim = gtsam.PreintegratedImuMeasurements(params, bias)
@@ -96,12 +93,10 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
         graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), gtsam.imuBias.ConstantBias(),
                                                   gtsam.noiseModel.Diagonal.Sigmas(rw * np.sqrt(tk - t_prev))))
         graph.add(gtsam.GPSFactor(X(k), gtsam.Point3(*g_by_t[tk]), gps_noise))
-        if road_model is not None and tk >= next_road_t:
-            f = _road_factor(gtsam, X(k), road_model, T_bc[:3, 3])
-            if f is not None:
-                graph.add(f)
-                next_road_t = tk + _road_every()
-        if nhc and np.linalg.norm(state.velocity()) > _nhc()[2]:
+        if road_model is not None and tk >= next_road_t:  # as often as blendgen's filter applies it
+            graph.add(_road_factor(gtsam, X(k), road_model, T_bc[:3, 3]))
+            next_road_t = tk + road_height.EVERY_S
+        if nhc and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
             graph.add(_nhc_factor(gtsam, X(k), V(k)))
         pred = pim.predict(state, bias)
         values.insert(X(k), pred.pose())
@@ -118,18 +113,6 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
     return _interp_cam(np.array(times), Ts, np.asarray(out_t), invert_pose(rec.T_cam_imu))
 
 
-def _road_every() -> float:
-    from blendgen.sync.road_height import EVERY_S
-
-    return EVERY_S
-
-
-def _nhc():
-    from blendgen.sync.pipeline import NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
-
-    return NHC_LAT_STD, NHC_UP_STD, NHC_MIN_SPEED
-
-
 def _skew(a):
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
@@ -137,7 +120,6 @@ def _skew(a):
 def _road_factor(gtsam, key, road, p_bc):
     """Camera height above the road: r = z_cam - z_road(xy_cam) - h. Pose3's tangent is
     [rotation, translation] in the body frame, so d p_cam = -R [p_bc]x dw + R dv."""
-    from blendgen.sync.road_height import ROUGH_STD
 
     def err(this, values, H):
         T = values.atPose3(this.keys()[0])
@@ -154,12 +136,11 @@ def _road_factor(gtsam, key, road, p_bc):
             H[0] = (J[2] - grad @ J[:2])[None, :]
         return np.array([q[2] - z])
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, ROUGH_STD), [key], err)
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, road_height.ROUGH_STD), [key], err)
 
 
 def _nhc_factor(gtsam, xkey, vkey):
     """Body-frame lateral and vertical velocity zero: r = (R^T v)[1:3]; d/dw = [R^T v]x, d/dv = R^T."""
-    lat, up, _ = _nhc()
 
     def err(this, values, H):
         R = values.atPose3(this.keys()[0]).rotation().matrix()
@@ -170,7 +151,7 @@ def _nhc_factor(gtsam, xkey, vkey):
             H[1] = R.T[1:3]
         return vb[1:3]
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([lat, up])), [xkey, vkey], err)
+    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([NHC_LAT_STD, NHC_UP_STD])), [xkey, vkey], err)
 
 
 def _interp_cam(times, T_wb, out_t, T_bc):

@@ -4,8 +4,16 @@ One keyframe per GNSS fix: ImuFactor (preintegrated) between keyframes, biases a
 a BetweenFactor random walk (GTSAM's ImuFactorsExample layout), a robust GPSFactor on each
 keyframe, incremental ISAM2 updates with QR factorisation (the default Cholesky reported an
 indeterminate system: the IMU information is ~1e9 against unit priors), and the final
-(smoothed) estimate interpolated to the camera times. Optional dependency (`pip install gtsam`); blendgen's
-own sync never imports it.
+(smoothed) estimate interpolated to the camera times.
+
+Given the same vehicle information as blendgen's filter where asked (issue 14): `road` = the
+twin's road surface and calib `vehicle.camera_height_m` -> a camera-height factor every
+road_height.EVERY_S (camera z = road z under it + camera height, std road_height.ROUGH_STD,
+the road's slope in the Jacobian), and `nhc` -> the no-sideslip / zero-vertical-velocity
+factor on each keyframe above pipeline.NHC_MIN_SPEED (body-frame lateral and vertical
+velocity 0 with pipeline.NHC_LAT_STD / NHC_UP_STD; the IMU is taken as aligned with the
+vehicle: the peer does not estimate the mounting rotation). Optional dependency (`pip install
+gtsam`); blendgen's own sync never imports it.
 """
 
 from __future__ import annotations
@@ -13,14 +21,17 @@ from __future__ import annotations
 import numpy as np
 
 from blendgen.geometry import invert_pose, make_pose
-from blendgen.sync import so3
+from blendgen.sync import road_height, so3
+from blendgen.sync.pipeline import NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
 
 
-def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0)):
+def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0),
+              road=None, nhc: bool = False):
     """Camera poses at out_t from IMU + GNSS (world-frame fixes g_xyz at times g_t).
 
     x0 = (p, v, R_world_body) initial guess; prior_sigmas = (pos m, tilt rad, yaw rad, vel m/s).
-    Returns a list of T_world_cam.
+    road = (surface, camera_height_m): surface (N, 2) xy -> (N,) road z. nhc: vehicle
+    velocity constraint. Returns a list of T_world_cam.
     """
     import gtsam
     from gtsam.symbol_shorthand import B, V, X
@@ -61,6 +72,9 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
                                                gtsam.noiseModel.Diagonal.Sigmas(np.array([g_std, g_std, 2 * g_std])))
     j = 1  # next IMU sample
     times = [t_prev]
+    T_bc = invert_pose(rec.T_cam_imu)
+    road_model = None if road is None else road_height.RoadHeight(road[0], "camera", float(road[1]), 0.0)
+    next_road_t = -np.inf
     for k, tk in enumerate(keys_t, start=1):
         pim = gtsam.PreintegratedImuMeasurements(params, bias)
         t = t_prev
@@ -79,6 +93,11 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
         graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), gtsam.imuBias.ConstantBias(),
                                                   gtsam.noiseModel.Diagonal.Sigmas(rw * np.sqrt(tk - t_prev))))
         graph.add(gtsam.GPSFactor(X(k), gtsam.Point3(*g_by_t[tk]), gps_noise))
+        if road_model is not None and tk >= next_road_t:  # as often as blendgen's filter applies it
+            graph.add(_road_factor(gtsam, X(k), road_model, T_bc[:3, 3]))
+            next_road_t = tk + road_height.EVERY_S
+        if nhc and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
+            graph.add(_nhc_factor(gtsam, X(k), V(k)))
         pred = pim.predict(state, bias)
         values.insert(X(k), pred.pose())
         values.insert(V(k), pred.velocity())
@@ -92,6 +111,47 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
     est = isam.calculateEstimate()
     Ts = [est.atPose3(X(k)).matrix() for k in range(len(times))]
     return _interp_cam(np.array(times), Ts, np.asarray(out_t), invert_pose(rec.T_cam_imu))
+
+
+def _skew(a):
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _road_factor(gtsam, key, road, p_bc):
+    """Camera height above the road: r = z_cam - z_road(xy_cam) - h. Pose3's tangent is
+    [rotation, translation] in the body frame, so d p_cam = -R [p_bc]x dw + R dv."""
+
+    def err(this, values, H):
+        T = values.atPose3(this.keys()[0])
+        R, t = T.rotation().matrix(), T.translation()
+        q = t + R @ p_bc
+        tgt = road.target(q[:2])
+        if tgt is None:  # off the twin: no information
+            if H is not None:
+                H[0] = np.zeros((1, 6))
+            return np.zeros(1)
+        z, _, grad = tgt
+        J = np.hstack([-R @ _skew(p_bc), R])
+        if H is not None:
+            H[0] = (J[2] - grad @ J[:2])[None, :]
+        return np.array([q[2] - z])
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, road_height.ROUGH_STD), [key], err)
+
+
+def _nhc_factor(gtsam, xkey, vkey):
+    """Body-frame lateral and vertical velocity zero: r = (R^T v)[1:3]; d/dw = [R^T v]x, d/dv = R^T."""
+
+    def err(this, values, H):
+        R = values.atPose3(this.keys()[0]).rotation().matrix()
+        v = values.atVector(this.keys()[1])
+        vb = R.T @ v
+        if H is not None:
+            H[0] = np.hstack([_skew(vb)[1:3], np.zeros((2, 3))])
+            H[1] = R.T[1:3]
+        return vb[1:3]
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([NHC_LAT_STD, NHC_UP_STD])), [xkey, vkey], err)
 
 
 def _interp_cam(times, T_wb, out_t, T_bc):

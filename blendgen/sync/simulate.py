@@ -5,6 +5,12 @@ IMU samples (specific force and angular rate by differentiating the pose, plus w
 a constant bias), GNSS fixes (noise, optional dropout), and camera images ray-cast through a
 textured street: a ground plane and two building facades at y = +-W, with mip-mapped
 procedural textures so that far surfaces do not alias into fake features.
+
+`hard_recording` is the same drive with sensors that do not match what the filter assumes
+(issue 14): IMU white noise above the assumed density, bias random walks, scale and axis
+misalignment, GNSS errors that are correlated in time (Gauss-Markov) with a multipath burst,
+rolling-shutter frames (each row rendered at its own time) with camera shake, exposure
+flicker, vignetting and JPEG compression.
 """
 
 from __future__ import annotations
@@ -111,27 +117,96 @@ def make_trajectory(kind: str = "drive", duration: float = 60.0, speed: float = 
 
 # ---------------------------------------------------------------------- sensors
 
+def bias_random_walk(t: np.ndarray, density: float, b0=(0.0, 0.0, 0.0),
+                     rng: np.random.Generator | None = None) -> np.ndarray:
+    """(N, 3) bias b(t) = b0 + Wiener process of `density` (units/s/sqrt(Hz) for a gyro in rad/s,
+    Kalibr's *_random_walk): increments over dt are N(0, density^2 dt), so Var b(t) - b0 grows
+    as density^2 (t - t0)."""
+    rng = rng or np.random.default_rng(0)
+    dt = np.diff(np.asarray(t, dtype=float), prepend=t[0])
+    steps = rng.normal(0.0, 1.0, (len(t), 3)) * (density * np.sqrt(dt))[:, None]
+    return np.asarray(b0, dtype=float) + np.cumsum(steps, axis=0)
+
+
+@dataclass
+class ImuErrors:
+    """The IMU's real errors when they differ from the recording's ImuNoise (what the filter assumes).
+
+    noise_scale: white noise = this x the assumed densities. *_walk: bias random-walk densities
+    (Kalibr units; 0 = constant bias). *_scale: scale-factor error per axis (fraction);
+    *_misalign: the sensor axes' non-orthogonality, small angles (rad) off-diagonal."""
+
+    noise_scale: float = 1.0
+    gyro_walk: float = 0.0
+    acc_walk: float = 0.0
+    gyro_scale: tuple = (0.0, 0.0, 0.0)
+    acc_scale: tuple = (0.0, 0.0, 0.0)
+    gyro_misalign: float = 0.0
+    acc_misalign: float = 0.0
+    seed: int = 101
+
+
+def _scale_misalign(scale, misalign: float, rng) -> np.ndarray:
+    """I + diag(scale) + off-diagonal coupling drawn once (a real sensor's factory error)."""
+    M = rng.normal(0.0, misalign, (3, 3)) if misalign > 0 else np.zeros((3, 3))
+    np.fill_diagonal(M, 0.0)
+    return np.eye(3) + np.diag(scale) + M
+
+
 def simulate_imu(traj: Trajectory, rate: float = 200.0, noise: ImuNoise | None = None, seed: int = 0,
-                 bias_g=(0.002, -0.003, 0.001), bias_a=(0.05, -0.03, 0.04)) -> np.ndarray:
+                 bias_g=(0.002, -0.003, 0.001), bias_a=(0.05, -0.03, 0.04),
+                 errors: ImuErrors | None = None) -> np.ndarray:
     noise = noise or ImuNoise()
     rng = np.random.default_rng(seed)
     t = np.arange(traj.t[0] + 0.01, traj.t[-1] - 0.01, 1.0 / rate)
     w, f = traj.imu(t)
     sq = np.sqrt(rate)
-    w = w + np.asarray(bias_g) + rng.normal(0, noise.gyroscope_noise_density * sq, w.shape)
-    f = f + np.asarray(bias_a) + rng.normal(0, noise.accelerometer_noise_density * sq, f.shape)
+    k = errors.noise_scale if errors is not None else 1.0
+    bg, ba = np.asarray(bias_g, float), np.asarray(bias_a, float)
+    if errors is not None:  # own generator: the easy drive's draws stay exactly as they were
+        rng_e = np.random.default_rng(errors.seed)
+        w = w @ _scale_misalign(errors.gyro_scale, errors.gyro_misalign, rng_e).T
+        f = f @ _scale_misalign(errors.acc_scale, errors.acc_misalign, rng_e).T
+        bg = bias_random_walk(t, errors.gyro_walk, bg, rng_e)
+        ba = bias_random_walk(t, errors.acc_walk, ba, rng_e)
+    w = w + bg + rng.normal(0, k * noise.gyroscope_noise_density * sq, w.shape)
+    f = f + ba + rng.normal(0, k * noise.accelerometer_noise_density * sq, f.shape)
     return np.column_stack([t, w, f])
 
 
+def gauss_markov(t: np.ndarray, std: np.ndarray, tau_s: float, rng: np.random.Generator) -> np.ndarray:
+    """(N, len(std)) first-order Gauss-Markov process: stationary std, correlation exp(-dt/tau)."""
+    std = np.asarray(std, dtype=float)
+    x = np.zeros((len(t), len(std)))
+    x[0] = rng.normal(0.0, std)
+    for i in range(1, len(t)):
+        a = np.exp(-(t[i] - t[i - 1]) / tau_s)
+        x[i] = a * x[i - 1] + np.sqrt(1 - a * a) * rng.normal(0.0, std)
+    return x
+
+
 def simulate_gnss(traj: Trajectory, rate: float = 10.0, std_m: float = 1.0, seed: int = 1,
-                  georef=GEOREF, dropout: tuple[float, float] | None = None, lever=None) -> np.ndarray:
-    """t, lat, lon, alt of the body origin (+ lever arm) with white horizontal noise std_m."""
+                  georef=GEOREF, dropout: tuple[float, float] | None = None, lever=None,
+                  gm_std_m: float = 0.0, gm_tau_s: float = 30.0,
+                  burst: tuple[float, float, tuple] | None = None) -> np.ndarray:
+    """t, lat, lon, alt of the body origin (+ lever arm) with white horizontal noise std_m.
+
+    gm_std_m: plus a Gauss-Markov error (horizontal std; vertical 1.5x) of correlation time
+    gm_tau_s, the slow wander of a real receiver. burst = (t0, t1, offset_xyz): multipath, the
+    fixes in [t0, t1) jump by offset_xyz (m) with 3x the white noise."""
     rng = np.random.default_rng(seed)
     t = np.arange(traj.t[0] + 0.05, traj.t[-1] - 0.05, 1.0 / rate)
     p = traj.position(t)
     if lever is not None:
         p = p + np.einsum("nij,j->ni", traj.R(t), lever)
-    p = p + rng.normal(0, 1, p.shape) * np.array([std_m, std_m, 1.5 * std_m])
+    white = rng.normal(0, 1, p.shape) * np.array([std_m, std_m, 1.5 * std_m])
+    if burst is not None:
+        white[(t >= burst[0]) & (t < burst[1])] *= 3.0
+    p = p + white
+    if gm_std_m > 0:  # own generator: the easy drive's draws stay exactly as they were
+        p = p + gauss_markov(t, [gm_std_m, gm_std_m, 1.5 * gm_std_m], gm_tau_s, np.random.default_rng(seed + 1000))
+    if burst is not None:
+        p[(t >= burst[0]) & (t < burst[1])] += np.asarray(burst[2], dtype=float)
     if dropout is not None:
         keep = (t < dropout[0]) | (t >= dropout[1])
         t, p = t[keep], p[keep]
@@ -187,19 +262,30 @@ class StreetScene:
 
     def render(self, camera: Camera, T_world_cam: np.ndarray, noise_std: float = 2.0,
                rng: np.random.Generator | None = None) -> np.ndarray:
-        """Grey uint8 image (H, W) seen by a pinhole camera (distortion ignored)."""
+        """Grey uint8 image (H, W) seen by a pinhole camera (distortion ignored).
+
+        T_world_cam: one pose (4, 4), or one per image row (H, 4, 4): a rolling shutter, row r
+        exposed at its own time (`rolling_shutter_poses`)."""
         H, W = camera.height, camera.width
         u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
         dc = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], -1)
-        R, c = T_world_cam[:3, :3], T_world_cam[:3, 3]
-        d = dc @ R.T
+        T_world_cam = np.asarray(T_world_cam, dtype=float)
+        if T_world_cam.ndim == 3:
+            if T_world_cam.shape[0] != H:
+                raise ValueError(f"{T_world_cam.shape[0]} row poses for an image of {H} rows")
+            d = np.einsum("hij,hwj->hwi", T_world_cam[:, :3, :3], dc)
+            c = T_world_cam[:, None, :3, 3]  # (H, 1, 3): broadcasts over columns
+        else:
+            R, c = T_world_cam[:3, :3], T_world_cam[:3, 3]
+            d = dc @ R.T
+        cy_, cz_ = c[..., 1], c[..., 2]
         inf = np.inf
         with np.errstate(divide="ignore", invalid="ignore"):
-            tg = np.where(d[..., 2] < -1e-9, -c[2] / d[..., 2], inf)
+            tg = np.where(d[..., 2] < -1e-9, -cz_ / d[..., 2], inf)
             wall_y = np.where(d[..., 1] > 0, self.half_width, -self.half_width)
-            tw = np.where(np.abs(d[..., 1]) > 1e-9, (wall_y - c[1]) / d[..., 1], inf)
+            tw = np.where(np.abs(d[..., 1]) > 1e-9, (wall_y - cy_) / d[..., 1], inf)
         tw = np.where(tw > 0, tw, inf)
-        zw = c[2] + tw * d[..., 2]
+        zw = cz_ + tw * d[..., 2]
         tw = np.where((zw >= 0) & (zw <= self.wall_h), tw, inf)
         use_g = tg <= tw
         tt = np.where(use_g, tg, tw)
@@ -237,12 +323,65 @@ class StreetScene:
         return np.clip(out, 0, 255).astype(np.uint8)
 
 
+def rolling_shutter_poses(traj: Trajectory, t: float, rows: int, readout_s: float,
+                          T_body_cam: np.ndarray) -> np.ndarray:
+    """(rows, 4, 4) T_world_cam of each image row: row r is exposed at t + r * readout_s / rows."""
+    tr = t + np.arange(rows) * (readout_s / rows)
+    R_wb, p_wb = traj.R(tr), np.atleast_2d(traj.position(tr))
+    T = np.zeros((rows, 4, 4))
+    T[:, :3, :3] = R_wb @ T_body_cam[:3, :3]
+    T[:, :3, 3] = p_wb + R_wb @ T_body_cam[:3, 3]
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def _camera_look(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A real camera's photometry on a rendered frame: exposure/gain flicker (+-8 %, auto
+    exposure hunting), vignetting (radial falloff to ~70 % in the corners), gamma, and JPEG
+    compression at quality 75 (block artefacts and ringing that corner detectors see)."""
+    H, W = img.shape
+    yy, xx = np.mgrid[0:H, 0:W]
+    r2 = ((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / ((W / 2) ** 2 + (H / 2) ** 2)
+    vig = (1.0 / (1.0 + 0.2 * r2)) ** 2
+    x = (img.astype(np.float32) / 255.0) * vig * (1.0 + 0.08 * rng.uniform(-1, 1))
+    x = np.clip(x, 0, 1) ** (1 / 1.1) * 255.0
+    ok, buf = cv2.imencode(".jpg", x.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 75])
+    return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+
+
+# The hard variant's error levels (issue 14): against the recording's ImuNoise defaults
+# (accel 2e-3 m/s^2/sqrt(Hz), gyro 1.7e-4 rad/s/sqrt(Hz), walks 3e-3 and 2e-5).
+HARD_IMU = ImuErrors(noise_scale=2.5, gyro_walk=1e-4, acc_walk=1.5e-2,
+                     gyro_scale=(0.004, -0.003, 0.005), acc_scale=(0.003, 0.002, -0.004),
+                     gyro_misalign=1e-3, acc_misalign=1e-3)
+HARD_GNSS_STD = 0.5  # m, white, plus HARD_GNSS
+HARD_GNSS = {"gm_std_m": 1.0, "gm_tau_s": 60.0, "burst": None}  # burst set per duration
+HARD_READOUT_S = 0.03
+HARD_SHAKE_DEG = 0.3
+
+
+def hard_recording(duration: float = 60.0, *, seed: int = 0, **kw):
+    """The easy drive (same path, frame rate, camera) with sensors unlike the filter's model:
+    HARD_IMU (white noise 2.5x the assumed density; bias random walks 5x the assumed ones,
+    over 60 s a 1-sigma drift of 0.04 deg/s and 0.12 m/s^2; 0.2-0.5 % scale and 1 mrad axis
+    misalignment), GNSS 0.5 m white + 1 m Gauss-Markov (60 s correlation) with a 5 s multipath burst (+4, -6, +3 m) at 40 %
+    of the drive, rolling shutter (30 ms readout), 0.3 deg camera shake (1-6 Hz) and real-camera
+    photometry. Returns what synthetic_recording returns."""
+    b0 = 0.4 * duration
+    gnss = {**HARD_GNSS, "burst": (b0, b0 + 5.0, (4.0, -6.0, 3.0))}
+    return synthetic_recording("drive", duration, seed=seed, imu_errors=HARD_IMU, gnss_std=HARD_GNSS_STD,
+                               gnss_errors=gnss,
+                               rolling_shutter_s=HARD_READOUT_S, shake_deg=HARD_SHAKE_DEG, photometric=True, **kw)
+
+
 def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: float = 5.0,
                         resolution=(480, 270), hfov_deg: float = 70.0, speed: float = 8.0,
                         imu: bool = True, gnss: bool = True, gnss_std: float = 1.0, frames: bool = True,
                         dropout=None, imu_gap=None, dark_frames=None, seed: int = 0,
                         scene: StreetScene | None = None, imu_mount_rpy_deg=(0.0, 0.0, 0.0),
-                        shake_deg: float = 0.0, stabilise_s: float | None = None, margin: float = 0.12):
+                        shake_deg: float = 0.0, stabilise_s: float | None = None, margin: float = 0.12,
+                        imu_errors: ImuErrors | None = None, gnss_errors: dict | None = None,
+                        rolling_shutter_s: float = 0.0, photometric: bool = False):
     """An in-memory Recording (images kept in `rec.extra['images']`) and its ground truth.
 
     imu_mount_rpy_deg: the IMU rotated (roll, pitch, yaw; about the vehicle's x, y, z) in the
@@ -255,6 +394,11 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     Gaussian of this std in seconds), then cropped: the image rotates with the smoothed body,
     not the body. `rec.extra['image_groundtruth']` holds T_world_cam of the image (the true
     position, the smoothed orientation) and `rec.extra['stabiliser_correction']` the C per frame.
+    imu_errors: the IMU's real errors (ImuErrors) where they differ from `rec.imu_noise`.
+    gnss_errors: extra simulate_gnss arguments (gm_std_m, gm_tau_s, burst).
+    rolling_shutter_s: readout time; row r of a frame stamped t is exposed at t + r * readout / H
+    (ground truth: the pose at t, the first row's). photometric: per-frame exposure flicker,
+    vignetting and JPEG compression (quality 75), as from a real camera.
     Returns (rec, traj, T_cam_imu). `rec.groundtruth` holds T_world_cam per frame (the body's camera).
     """
     traj = make_trajectory(kind, duration + 1.0, speed=speed)
@@ -279,14 +423,14 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     cam = Camera.from_hfov(resolution[0], resolution[1], hfov_deg)
     rec = Recording(root=None, camera=cam if frames else None, T_cam_imu=T_cam_imu)
     if imu:
-        data = simulate_imu(traj, seed=seed)
+        data = simulate_imu(traj, seed=seed, errors=imu_errors)
         data[:, 1:4] = data[:, 1:4] @ R_body_imu  # body -> IMU axes (R^T x, row-wise)
         data[:, 4:7] = data[:, 4:7] @ R_body_imu
         if imu_gap is not None:
             data = data[(data[:, 0] < imu_gap[0]) | (data[:, 0] >= imu_gap[1])]
         rec.imu = data
     if gnss:
-        rec.gnss = simulate_gnss(traj, std_m=gnss_std, seed=seed + 1, dropout=dropout)
+        rec.gnss = simulate_gnss(traj, std_m=gnss_std, seed=seed + 1, dropout=dropout, **(gnss_errors or {}))
     t0 = 0.5
     ft = np.arange(t0, t0 + duration, 1.0 / fps) if frames else np.zeros(0)
     rec.frames_t = ft
@@ -296,6 +440,7 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     rng = np.random.default_rng(seed + 7)
     T_body_cam = make_pose(R_body_imu, np.zeros(3)) @ T_imu_cam
     img_gt, corrections = [], []
+    rng_p = np.random.default_rng(seed + 13)
     if traj_smooth is not None and frames:
         mx, my = int(round(margin * cam.width)), int(round(margin * cam.height))
         cam_big = Camera(cam.width + 2 * mx, cam.height + 2 * my, cam.fx, cam.fy, cam.cx + mx, cam.cy + my)
@@ -309,13 +454,17 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
             img_gt.append(T_img)
             corrections.append(C)
         if frames and traj_smooth is not None:
-            big = scene.render(cam_big, T_wc, rng=rng)
+            big = scene.render(cam_big, rolling_shutter_poses(traj, t, cam_big.height, rolling_shutter_s, T_body_cam)
+                               if rolling_shutter_s > 0 else T_wc, rng=rng)
             # output pixel -> ray in the image camera -> C -> ray in the true camera -> big pixel
             M = cam_big.K @ C @ np.linalg.inv(cam.K)
             img = cv2.warpPerspective(big, M, (cam.width, cam.height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                       borderMode=cv2.BORDER_REPLICATE)
         elif frames:
-            img = scene.render(cam, T_wc, rng=rng)
+            img = scene.render(cam, rolling_shutter_poses(traj, t, cam.height, rolling_shutter_s, T_body_cam)
+                               if rolling_shutter_s > 0 else T_wc, rng=rng)
+        if frames and photometric:
+            img = _camera_look(img, rng_p)
         if frames:
             if dark_frames is not None and dark_frames[0] <= i < dark_frames[1]:
                 img = np.clip(rng.normal(3, 1.5, img.shape), 0, 255).astype(np.uint8)  # lens cap

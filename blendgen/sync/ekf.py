@@ -14,7 +14,9 @@ measurement.
 
 Every update uses the Joseph form, is chi-square gated and symmetrised. A measurement the gate
 keeps rejecting stays rejected (counted in the stats): re-accepting it with inflated noise
-let an inconsistent sensor win (97 of 314 VO pairs on a stabilised action-camera clip).
+let an inconsistent sensor win (97 of 314 VO pairs on a stabilised action-camera clip). GNSS,
+the only absolute sensor, is the exception the pipeline makes: when its fixes agree with each
+other for GNSS_REOPEN_S but not with the filter, `reopen` widens the filter instead.
 """
 
 from __future__ import annotations
@@ -194,6 +196,17 @@ class ErrorStateEkf:
             q[9:12] = self._q_bg * dt
             q[12:15] = self._q_ba * dt
         self._apply_F(F, q, Qth)
+
+    def reopen(self, pos_var, vel_var: float) -> None:
+        """Widen the position and velocity uncertainty by `pos_var` (3,) and `vel_var`: the
+        filter drifted away from GNSS fixes that agree with each other, and the gate would keep
+        rejecting the only absolute sensor. Entered as process noise of an identity step, so the
+        smoother sees it."""
+        self._snap()
+        q = np.zeros(NC)
+        q[IP] = pos_var
+        q[IV] = vel_var
+        self._apply_F(np.eye(NC), q)
 
     def _apply_F(self, F: np.ndarray, q: np.ndarray, Qth: np.ndarray | None = None) -> None:
         if self.history is not None:

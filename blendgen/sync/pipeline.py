@@ -384,6 +384,27 @@ def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: floa
     return float(np.clip(lag * dt, dt, max_s))
 
 
+GNSS_REOPEN_S = 10.0   # fixes rejected this long, agreeing with each other: the filter drifted
+
+
+def _gnss_reopen(streak: list, std: float) -> np.ndarray | None:
+    """The latest residual (fix - filter) when the fixes rejected in a row span GNSS_REOPEN_S and
+    those of the last GNSS_REOPEN_S agree with each other (about a straight line in time, within
+    2 sigma horizontally: one consistent story, not multipath scatter); else None."""
+    if len(streak) < 10 or streak[-1][0] - streak[0][0] < GNSS_REOPEN_S:
+        return None
+    t = np.array([a for a, _ in streak])
+    r = np.array([b for _, b in streak])
+    keep = t >= t[-1] - GNSS_REOPEN_S
+    t, r = t[keep], r[keep]
+    if len(t) < 10:
+        return None
+    A = np.column_stack([np.ones(len(t)), t - t[-1]])
+    coef, *_ = np.linalg.lstsq(A, r[:, :2], rcond=None)
+    rms = np.sqrt(np.mean(np.sum((r[:, :2] - A @ coef) ** 2, axis=1)))
+    return r[-1] if rms < 2.0 * std else None
+
+
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
                  gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, trust: TrustReport | None,
                  progress, road=None):
@@ -400,6 +421,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
 
     stationary = _stationary_imu(imu, cfg) if use_imu else np.zeros(0, bool)
     next_nhc_t = next_road_t = -np.inf
+    gnss_streak: list[tuple[float, np.ndarray]] = []  # fixes rejected in a row
     # GNSS height errors can be slow (comma2k19: 15 m swings over 10 s): with the car held on
     # the road surface (vehicle-frame constraint), fixes within their correlation time z_corr_s
     # (measured on the fixes) count as one height measurement, else the height -- and
@@ -454,6 +476,16 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             # an antenna height estimated from the fixes is their vertical information: no double count
             sz = 1e3 if road is not None and road.replaces_fix_heights else s * z_scale
             ok = ekf.update_position(g_xyz[i], (s, s, sz), kind="gnss")
+            if ok:
+                gnss_streak.clear()
+            else:
+                gnss_streak.append((t, g_xyz[i] - ekf.p))
+                r = _gnss_reopen(gnss_streak, s)
+                if r is not None:  # the filter drifted, not the fixes: widen it, take the fix
+                    ekf.reopen(r**2 + s**2, float(r @ r) / GNSS_REOPEN_S**2)
+                    ok = ekf.update_position(g_xyz[i], (s, s, sz), kind="gnss")
+                    pending.append("gnss_reopened")
+                    gnss_streak.clear()
             if road is not None and t >= next_road_t:
                 pending.append("road" if road_height.apply(ekf, road, p_bc) else "road_rejected")
                 next_road_t = t + road_height.EVERY_S

@@ -113,11 +113,13 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "plastic")
         vv, f = box((0.02, 0.52, 0.12), (x + sgn * 0.045, 0, zb + 0.27))  # number plate
         mb.add(vv, f, "plate")
-    # head lamps and grille at the nose, tail lamps wrapping round the rear corners
-    zl = hood - 0.17
+    # head lamps and grille on the nose's front face (below the hood line, where the loft's
+    # section is upright: higher up they sank into the rounded nose and showed as a speck),
+    # tail lamps wrapping round the rear corners
+    zl = hood - 0.24
+    y_lamp = 0.86 * hw - 0.24
     for s in (1, -1):
-        vv, f = box((0.06, 0.34, 0.10), (L / 2 - 0.03 * L + 0.01, s * (hw - 0.26), zl))
-        vv[:, 0] += np.where(vv[:, 0] > L / 2 - 0.03 * L, (0.015 * L) * (1 - np.abs(vv[:, 1]) / hw), 0)
+        vv, f = box((0.03, 0.30, 0.11), (L / 2 + 0.005, s * y_lamp, zl))
         mb.add(vv, f, "lamp_head")
         vv, f = box((0.06, 0.34, 0.10), (-L / 2 + 0.025, s * (hw - 0.23), deck - 0.15))
         mb.add(vv, f, "lamp_tail")
@@ -128,7 +130,7 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "paint")
         vv, f = box((0.01, 0.13, 0.08), (x_ws - 0.195, s * (hw + 0.11), belt + 0.07))
         mb.add(vv, f, "plastic")
-    vv, f = box((0.05, hw * 0.85, 0.15), (L / 2 - 0.012 * L, 0, zl - 0.05))
+    vv, f = box((0.03, 2 * (y_lamp - 0.17), 0.10), (L / 2 + 0.004, 0, zl))  # grille between the lamps
     mb.add(vv, f, "plastic")
 
 

@@ -246,16 +246,21 @@ def plot_results(rows, rss, W, H, ref_samples, png: Path) -> None:
     plt.close(fig)
 
 
+def _setup(args):
+    """Frame size, reference samples, camera, object builder, the benchmark frame and a temp dir."""
+    W, H = (640, 360) if args.quick else (1280, 720)
+    ref_samples = args.ref_samples or (128 if args.quick else 256)
+    build, build_name = builder()
+    plan = FramePlan("bench", 0.0, T.tolist(), scene_objects(), SUN)
+    return (W, H, ref_samples, Camera.from_hfov(W, H, 70), build, build_name, plan,
+            Path(tempfile.mkdtemp(prefix="bench_render_")))
+
+
 def sweep(args):
     """The samples/denoise/bounces sweep against the no-denoise naive render, and memory."""
     from blendgen.render.session import RenderSession
 
-    W, H = (640, 360) if args.quick else (1280, 720)
-    ref_samples = args.ref_samples or (128 if args.quick else 256)
-    cam = Camera.from_hfov(W, H, 70)
-    build, build_name = builder()
-    plan = FramePlan("bench", 0.0, T.tolist(), scene_objects(), SUN)
-    tmp = Path(tempfile.mkdtemp(prefix="bench_render_"))
+    W, H, ref_samples, cam, build, build_name, plan, tmp = _setup(args)
     rows = []
     t_start = time.perf_counter()
 
@@ -413,12 +418,7 @@ def fair(args):
     from blendgen.render import effects as fx
     from blendgen.render.session import RenderSession
 
-    W, H = (640, 360) if args.quick else (1280, 720)
-    ref_samples = args.ref_samples or (128 if args.quick else 256)
-    cam = Camera.from_hfov(W, H, 70)
-    build, build_name = builder()
-    plan = FramePlan("bench", 0.0, T.tolist(), scene_objects(), SUN)
-    tmp = Path(tempfile.mkdtemp(prefix="bench_render_"))
+    W, H, ref_samples, cam, build, build_name, plan, tmp = _setup(args)
     t_start = time.perf_counter()
     reps = args.repeats
 

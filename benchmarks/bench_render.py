@@ -246,6 +246,16 @@ def plot_results(rows, rss, W, H, ref_samples, png: Path) -> None:
     plt.close(fig)
 
 
+def _object_mask(ref, info_ref) -> np.ndarray:
+    """The reference's object and shadow pixels (what PSNR is measured on); all inside its region."""
+    mask = (ref["rgba"][..., 3] > 0.02) | (ref["shadow_catcher"].min(axis=2) < 0.98)
+    x0, y0, x1, y1 = info_ref["region"]
+    inside = np.zeros_like(mask)
+    inside[y0:y1, x0:x1] = True
+    assert not np.any(mask & ~inside), "object/shadow pixels outside the region"
+    return mask
+
+
 def _setup(args):
     """Frame size, reference samples, camera, object builder, the benchmark frame and a temp dir."""
     W, H = (640, 360) if args.quick else (1280, 720)
@@ -278,11 +288,7 @@ def sweep(args):
                                       tmp / "ref.exr")
     naive.scene.cycles.seed = 0
     ref_img = display(ref)
-    mask = (ref["rgba"][..., 3] > 0.02) | (ref["shadow_catcher"].min(axis=2) < 0.98)
-    x0, y0, x1, y1 = info_ref["region"]
-    inside = np.zeros_like(mask)
-    inside[y0:y1, x0:x1] = True
-    assert not np.any(mask & ~inside), "object/shadow pixels outside the region"
+    mask = _object_mask(ref, info_ref)
     print(f"reference: {t_ref:.1f} s, {int(mask.sum())} object+shadow pixels "
           f"({mask.mean():.1%} of the frame)", flush=True)
 
@@ -432,11 +438,7 @@ def fair(args):
                                       tmp / "ref.exr")
     sess.close()
     ref_img = display(ref)
-    mask = (ref["rgba"][..., 3] > 0.02) | (ref["shadow_catcher"].min(axis=2) < 0.98)
-    x0, y0, x1, y1 = info_ref["region"]
-    inside = np.zeros_like(mask)
-    inside[y0:y1, x0:x1] = True
-    assert not np.any(mask & ~inside), "object/shadow pixels outside the region"
+    mask = _object_mask(ref, info_ref)
     print(f"reference: {t_ref:.0f} s wall, {int(mask.sum())} object+shadow pixels ({mask.mean():.1%})", flush=True)
 
     def row(name, r, t, info, p, extra=None):

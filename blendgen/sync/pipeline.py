@@ -350,17 +350,20 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     return res
 
 
+def _vo_step(vo, img) -> VoResult | None:
+    """VO of the pair ending at `img`; a frame that does not decode (None) restarts the tracker."""
+    if img is None:
+        vo.reset()
+        return None
+    return vo.track(img)
+
+
 def _vo_all(rec, settings, n: int, cache: dict, progress: bool) -> None:
     vo = make_vo(rec.camera, _vo_config(settings, rec))
     frames = _frames(rec)
     bar = _bar(progress, n, "VO")
     for i in range(n):
-        _, img = next(frames)
-        if img is None:
-            vo.reset()
-            cache[i] = None
-        else:
-            cache[i] = vo.track(img)
+        cache[i] = _vo_step(vo, next(frames)[1])
         bar.update(1)
     bar.close()
 
@@ -514,12 +517,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             res = None
             if use_vo:
                 if vo is not None:
-                    fi, img = next(frames)
-                    if img is None:
-                        vo.reset()
-                        vo_cache[i] = None
-                    else:
-                        vo_cache[i] = vo.track(img)
+                    vo_cache[i] = _vo_step(vo, next(frames)[1])
                 res = vo_cache[i]
                 if res is None:
                     flags.append("decode_failed")

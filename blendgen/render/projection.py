@@ -65,8 +65,13 @@ class Canvas:
     def remapped(self) -> bool:
         return self.map_x is not None
 
-    def to_output(self, img: np.ndarray, *, nearest: bool = False, border: float = 0.0) -> np.ndarray:
-        """Canvas image -> output image (identity for an undistorted camera)."""
+    def to_output(self, img: np.ndarray, *, nearest: bool = False, border: float = 0.0,
+                  out_box=None) -> np.ndarray:
+        """Canvas image -> output image (identity for an undistorted camera).
+
+        `out_box` (x0, y0, x1, y1): compute only that box of the output (remap is per
+        pixel: the same values as cropping the full result). Ignored without a remap.
+        """
         if not self.remapped:
             return img
         import cv2
@@ -74,10 +79,13 @@ class Canvas:
         interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
         src = img
         if img.ndim == 3 and img.shape[2] > 4:  # cv2.remap handles at most 4 channels at once
-            return np.stack([self.to_output(img[..., c], nearest=nearest, border=border)
+            return np.stack([self.to_output(img[..., c], nearest=nearest, border=border, out_box=out_box)
                              for c in range(img.shape[2])], axis=2)
-        return cv2.remap(src, self.map_x, self.map_y, interp, borderMode=cv2.BORDER_CONSTANT,
-                         borderValue=border)
+        mx, my = self.map_x, self.map_y
+        if out_box is not None:
+            x0, y0, x1, y1 = out_box
+            mx, my = mx[y0:y1, x0:x1], my[y0:y1, x0:x1]
+        return cv2.remap(src, mx, my, interp, borderMode=cv2.BORDER_CONSTANT, borderValue=border)
 
     def region_to_output(self, region):
         """A canvas pixel box (x0, y0, x1, y1) -> the output box that samples from it."""

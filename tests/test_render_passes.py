@@ -122,3 +122,23 @@ def test_write_passes_window_arrays_checked(tmp_path):
         write_passes(tmp_path / "bad.exr", p, window=(2, 3, 9, 8), frame_size=(10, 9))
     with pytest.raises(ValueError, match="inside"):
         write_passes(tmp_path / "bad.exr", p, window=(6, 3, 12, 8), frame_size=(10, 9))
+
+
+def test_write_passes_codecs_lossless(tmp_path):
+    from blendgen.render.exr import COMPRESSIONS
+
+    rng = np.random.default_rng(5)
+    p = {"rgba": rng.normal(size=(30, 40, 4)).astype(np.float32), "index": rng.integers(0, 9, (30, 40)),
+         "shadow_catcher": rng.random((30, 40, 3)).astype(np.float32)}
+    p["rgba"][:10] = 0.0  # runs for RLE
+    want = None
+    for codec in COMPRESSIONS:
+        write_passes(tmp_path / f"{codec}.exr", p, window=(3, 2, 37, 29), compression=codec)
+        got = read_passes(tmp_path / f"{codec}.exr")
+        if want is None:
+            want = got
+        for k in p:
+            assert got[k].tobytes() == want[k].tobytes(), (codec, k)
+    assert (tmp_path / "none.exr").stat().st_size > (tmp_path / "zip.exr").stat().st_size
+    with pytest.raises(ValueError, match="compression"):
+        write_passes(tmp_path / "x.exr", p, compression="dwaa")  # lossy: not offered

@@ -31,6 +31,9 @@ PASS_KEYS = {
 KEY_PASSES = {v: k for k, v in PASS_KEYS.items() if k != "IndexOB"}
 LIGHTING_KEYS = ("diffuse_direct", "diffuse_indirect", "diffuse_color",
                  "glossy_direct", "glossy_indirect", "glossy_color")
+# Lossless codecs write_passes offers (name -> OpenEXR constant).
+COMPRESSIONS = {"zip": "ZIP_COMPRESSION", "zips": "ZIPS_COMPRESSION", "rle": "RLE_COMPRESSION",
+                "piz": "PIZ_COMPRESSION", "none": "NO_COMPRESSION"}
 # Blender writes 1e10 for "no hit" in Depth; we store 0 there so every pass stays finite.
 NO_HIT_DEPTH = 1e9
 
@@ -111,7 +114,8 @@ def read_passes(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
-def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None, *, frame_size=None) -> None:
+def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None, *, frame_size=None,
+                 compression: str = "zip") -> None:
     """Write full-frame {key: array} as one multilayer EXR (atomically) in Blender's naming.
 
     `window` (x0, y0, x1, y1), exclusive ends: store only that part (the EXR data window);
@@ -119,9 +123,14 @@ def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None, *
     it, so storing it would only cost compression time and disk.
     `frame_size` (W, H): the arrays hold only `window` (inside the frame, non-empty), not the
     full frame: the render stage never builds the empty rest.
+    `compression`: a lossless OpenEXR codec, one of COMPRESSIONS. ZIP (default) is the
+    smallest of the widely readable ones; "none" suits a file read back once and deleted
+    (docs/render.md, cost section: time and size of each).
     """
     import OpenEXR
 
+    if compression not in COMPRESSIONS:
+        raise ValueError(f"EXR compression {compression!r}: expected one of {sorted(COMPRESSIONS)}")
     if frame_size is not None:
         W, H = int(frame_size[0]), int(frame_size[1])
         x0, y0, x1, y1 = (int(v) for v in window)
@@ -148,7 +157,7 @@ def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None, *
         if a.ndim == 2:
             name += ".X" if key == "index" else ".Z" if key == "depth" else ".V"
         channels[name] = a
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+    header = {"compression": getattr(OpenEXR, COMPRESSIONS[compression]), "type": OpenEXR.scanlineimage,
               "dataWindow": (np.array([x0, y0], np.int32), np.array([x1 - 1, y1 - 1], np.int32)),
               "displayWindow": (np.array([0, 0], np.int32), np.array([W - 1, H - 1], np.int32))}
     with atomic_path(path) as tmp:

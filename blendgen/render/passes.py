@@ -96,7 +96,8 @@ def finish(raw: dict, keys, regions, canvas: Canvas, box=None, out_box=None, *, 
     return out
 
 
-def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=None, out_region=None) -> None:
+def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=None, out_region=None, *,
+                compression: str = "zip") -> None:
     """Paste the region renders, finish the passes and write the frame EXR.
 
     `union`: the canvas box of all `regions`; `out_region`: the output box it samples (the
@@ -112,9 +113,9 @@ def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=Non
     if regions is None or out_region is None or not inside:
         raw = uncrop(raws, regions, hw)
         passes = finish(raw, keys, regions, canvas, consume=True)
-        write_passes(path, passes, window=out_region)
+        write_passes(path, passes, window=out_region, compression=compression)
         return
     box = None if canvas.remapped else tuple(union)
     raw = uncrop(raws, regions, hw, box)
     passes = finish(raw, keys, regions, canvas, box, tuple(out_region), consume=True)
-    write_passes(path, passes, window=out_region, frame_size=(out.width, out.height))
+    write_passes(path, passes, window=out_region, frame_size=(out.width, out.height), compression=compression)

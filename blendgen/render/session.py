@@ -502,7 +502,9 @@ class RenderSession:
         if RenderSession._current is not self:
             raise StageError("this RenderSession was closed or replaced by a newer one in this process")
 
-    def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str]) -> dict:
+    def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str], *, compression: str = "zip") -> dict:
+        """See docs/render.md. `compression`: the EXR codec (exr.COMPRESSIONS, lossless); "none"
+        when the caller reads the file once and deletes it."""
         self._check_current()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
@@ -524,7 +526,7 @@ class RenderSession:
             t1 = time.perf_counter()
             kept = set()
             self._sync_objects(plan, kept)  # hide culled objects that exist
-            write_passes(out_exr, empty_passes(W, H, keys), window=(0, 0, 1, 1))
+            write_passes(out_exr, empty_passes(W, H, keys), window=(0, 0, 1, 1), compression=compression)
             timings["write"] = time.perf_counter() - t1
             timings["total"] = time.perf_counter() - t0
             info.update(region=None, amodal_px={}, skipped=True,
@@ -577,7 +579,8 @@ class RenderSession:
 
         t3 = time.perf_counter()
         out_region = self.canvas.region_to_output(eff.region.value) if eff.region.value else None
-        passes_mod.write_frame(out_exr, raws, keys, regions, self.canvas, eff.region.value, out_region)
+        passes_mod.write_frame(out_exr, raws, keys, regions, self.canvas, eff.region.value, out_region,
+                              compression=compression)
         timings["write"] = time.perf_counter() - t3
 
         t4 = time.perf_counter()

@@ -12,6 +12,18 @@ KEYS = ["rgba", "index", "depth", "shadow_catcher", "diffuse_direct", "diffuse_i
         "glossy_direct", "glossy_indirect", "glossy_color"]
 
 
+def _old_to_output(canvas, img, nearest=False, border=0.0):
+    """Canvas.to_output before issue 17: float maps over the whole canvas."""
+    if not canvas.remapped:
+        return img
+    import cv2
+
+    if img.ndim == 3 and img.shape[2] > 4:
+        return np.stack([_old_to_output(canvas, img[..., c], nearest, border) for c in range(img.shape[2])], axis=2)
+    return cv2.remap(img, canvas.map_x, canvas.map_y, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=border)
+
+
 def _reference_write(path, raws, keys, regions, canvas, union, out_region):
     """RenderSession._uncrop / _finish_passes / write_passes before issue 17 (full frame)."""
     pin = canvas.pinhole
@@ -39,11 +51,11 @@ def _reference_write(path, raws, keys, regions, canvas, union, out_region):
                 valid[y0:y1, x0:x1] = True
             a = np.where(valid[..., None] & (a.sum(axis=2, keepdims=True) > 0), a, 1.0).astype(np.float32)
         if k == "index":
-            a = canvas.to_output(a.astype(np.float32), nearest=True)
+            a = _old_to_output(canvas, a.astype(np.float32), nearest=True)
         elif k == "shadow_catcher":
-            a = canvas.to_output(a, border=1.0)
+            a = _old_to_output(canvas, a, border=1.0)
         else:
-            a = canvas.to_output(a)
+            a = _old_to_output(canvas, a)
         out[k] = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
     write_passes(path, out, window=out_region)
 

@@ -4,8 +4,7 @@ Only the union box of the render regions holds data: outside it every pass is a 
 (0, the shadow catcher 1) that `write_passes` does not store and `read_passes` restores.
 So the per-pass work (pasting, catcher validity, NaN clean-up) runs on that box only; on
 the full 1280x720 frame it cost ~0.1 s of NumPy per frame for eleven passes. With lens
-distortion the remap still reads a full canvas, but computes only the output pixels of
-the stored box.
+distortion the remap reads the box and computes only the output pixels of the stored box.
 """
 
 from __future__ import annotations
@@ -56,17 +55,16 @@ def finish(raw: dict, keys, regions, canvas: Canvas, box=None, out_box=None, *, 
 
     `raw` covers `box` of the canvas (from `uncrop`; None: the whole canvas). The result
     covers `out_box` of the output image (None: all of it); without distortion `out_box`
-    must equal `box`. With distortion `raw` must cover the whole canvas (the remap reads
-    anywhere). Values outside the boxes are the constants `read_passes` fills in.
+    must equal `box`. With distortion the remap reads the box and the constants around it
+    (Canvas.to_output's src_box). Values outside the boxes are the constants `read_passes`
+    fills in.
     `consume`: `raw`'s arrays are the caller's to lose (cleaned in place, no copies).
     """
     pin, outc = canvas.pinhole, canvas.output
     bx0, by0, bx1, by1 = box if box is not None else (0, 0, pin.width, pin.height)
-    if canvas.remapped:
-        if (bx0, by0, bx1, by1) != (0, 0, pin.width, pin.height):
-            raise ValueError("with lens distortion the passes must cover the whole canvas")
-    elif (out_box or (0, 0, outc.width, outc.height)) != (bx0, by0, bx1, by1):
+    if not canvas.remapped and (out_box or (0, 0, outc.width, outc.height)) != (bx0, by0, bx1, by1):
         raise ValueError(f"without distortion out_box {out_box} must equal box {box}")
+    src_box = None if box is None else tuple(box)
     ox0, oy0, ox1, oy1 = out_box if out_box is not None else (0, 0, outc.width, outc.height)
     out = {}
     for k in keys:
@@ -85,11 +83,11 @@ def finish(raw: dict, keys, regions, canvas: Canvas, box=None, out_box=None, *, 
                 valid[max(0, y0 - by0):max(0, y1 - by0), max(0, x0 - bx0):max(0, x1 - bx0)] = True
             a = np.where(valid[..., None] & (a.sum(axis=2, keepdims=True) > 0), a, 1.0).astype(np.float32)
         if k == "index":
-            a = canvas.to_output(a.astype(np.float32), nearest=True, out_box=out_box)
+            a = canvas.to_output(a.astype(np.float32), nearest=True, out_box=out_box, src_box=src_box)
         elif k == "shadow_catcher":
-            a = canvas.to_output(a, border=1.0, out_box=out_box)
+            a = canvas.to_output(a, border=1.0, out_box=out_box, src_box=src_box)
         else:
-            a = canvas.to_output(a, out_box=out_box)
+            a = canvas.to_output(a, out_box=out_box, src_box=src_box)
         if a is raw[k] and not consume:
             a = a.copy()  # do not clean the caller's array in place
         out[k] = _nan_to_zero(a)
@@ -101,8 +99,7 @@ def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=Non
     """Paste the region renders, finish the passes and write the frame EXR.
 
     `union`: the canvas box of all `regions`; `out_region`: the output box it samples (the
-    EXR's data window; None: the full frame). Only that box is processed; with distortion
-    the canvas is assembled whole for the remap, which computes the output box only.
+    EXR's data window; None: the full frame). Only those boxes are processed.
     """
     pin, out = canvas.pinhole, canvas.output
     hw = (pin.height, pin.width)
@@ -115,7 +112,7 @@ def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=Non
         passes = finish(raw, keys, regions, canvas, consume=True)
         write_passes(path, passes, window=out_region, compression=compression)
         return
-    box = None if canvas.remapped else tuple(union)
+    box = tuple(union)
     raw = uncrop(raws, regions, hw, box)
     passes = finish(raw, keys, regions, canvas, box, tuple(out_region), consume=True)
     write_passes(path, passes, window=out_region, frame_size=(out.width, out.height), compression=compression)

@@ -2,7 +2,7 @@
 
 Usage (from a checkout root; measures the blendgen that PYTHONPATH puts first):
   PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/render_python_cost.py [--frames 7] [--samples 1]
-      [--compression zip] [--save out.exr] [--json out.json]
+      [--compression zip] [--k1 -0.2] [--save out.exr] [--json out.json]
 
 Per frame: wall seconds from render_frame's own timings, CPU seconds (user + system, all
 threads: resource.getrusage) of the write stage (paste, finish, EXR write), the amodal
@@ -34,6 +34,7 @@ def main():
     ap.add_argument("--samples", type=int, default=1)
     ap.add_argument("--denoise", action="store_true")
     ap.add_argument("--compression", default=None, help="EXR codec (checkouts with the option only)")
+    ap.add_argument("--k1", type=float, default=0.0, help="radial lens distortion (0: the benchmark's pinhole)")
     ap.add_argument("--save", type=Path, help="keep the first measured frame's EXR here")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
@@ -62,6 +63,10 @@ def main():
     S.RenderSession._amodal = timed("amodal", S.RenderSession._amodal)
 
     W, H, _ref, cam, build, build_name, plan, tmp = B._setup(argparse.Namespace(quick=False, ref_samples=None))
+    if args.k1:
+        from blendgen.geometry import Camera
+
+        cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, [args.k1, 0.0, 0.0, 0.0, 0.0])
     sess = S.RenderSession(None, None, Render(), cam, object_builder=build)
     sess.render = Render(samples=args.samples, denoise=args.denoise)
     kw = {"compression": args.compression} if args.compression else {}
@@ -83,7 +88,7 @@ def main():
             if args.json:
                 args.json.with_suffix(".info.json").write_text(json.dumps(info, indent=1, default=str))
     med = {k: statistics.median(r[k] for r in rows) for k in rows[0]}
-    print(f"{W}x{H}, {build_name}, {args.samples} spp, denoise {args.denoise}, {args.frames} frames, "
+    print(f"{W}x{H}, k1 {args.k1}, {build_name}, {args.samples} spp, denoise {args.denoise}, {args.frames} frames, "
           f"regions {info.get('regions')}")
     for k, v in med.items():
         print(f"  {k:12s} {v:7.3f}")

@@ -76,10 +76,10 @@ def fill_triangles(mask: np.ndarray, P: np.ndarray) -> None:
     OpenCV's polygon fill also marks pixels an edge merely touches, which overcounts
     by about half a pixel along every silhouette. Triangles are grouped by their
     bounding box rounded up to powers of two per side and each group is tested in
-    vectorised batches on that fixed grid: a Python loop per triangle cost ~0.2 s for
-    the ~2000 large triangles of five cars at 1280x720. The edge functions are the
-    same expressions in the same order for every pixel, so the result does not depend
-    on the grouping.
+    vectorised batches on that fixed grid (a Python loop over the ~2300 triangles
+    larger than 8 px of five cars at 1280x720 cost ~0.15 CPU s per frame, now ~0.04).
+    Every pixel gets the same floating-point edge values as a per-pixel evaluation, so
+    the mask does not depend on the grouping (tests/test_raster_exact.py).
     """
     H, W = mask.shape
     P = P[np.all(np.isfinite(P), axis=(1, 2))]

@@ -366,3 +366,34 @@ def test_clustered_regions_match_one_region(tmp_path, monkeypatch):
     # the empty frame between them is not rendered
     area = lambda r: (r[2] - r[0]) * (r[3] - r[1])  # noqa: E731
     assert sum(area(r) for r in two["regions"]) < 0.7 * area(one["regions"][0])
+
+
+def test_frame_exr_codec_and_box(tmp_path):
+    """Two clusters under a distorted lens: the EXR stores the union box only, and the
+    uncompressed file (what the frame processor writes when it deletes it) reads back the
+    same passes as the default ZIP file."""
+    import OpenEXR
+
+    cam = Camera(320, 180, 230.0, 230.0, 160.3, 90.2, [-0.2, 0.05, 0.0, 0.0, 0.0])
+    s = session(cam, samples=2)
+    try:
+        objs = [card(1, 10.005, 3.0, 1.5, 0.6), card(2, 10.005, -3.2, 1.2, 0.6)]  # opposite edges
+        plan = FramePlan("c", 0.0, T.tolist(), objs, SUN)
+        outs = {"rgba", "index", "shadow_catcher", "lighting"}
+        info = s.render_frame(plan, tmp_path / "z.exr", outs)
+        info_n = s.render_frame(plan, tmp_path / "n.exr", outs, compression="none")
+        assert len(info["regions"]) == 2 and info["region"] == info_n["region"]
+        a, b = read_passes(tmp_path / "z.exr"), read_passes(tmp_path / "n.exr")
+        assert sorted(a) == sorted(b) and "diffuse_color" in a
+        for k in a:
+            assert a[k].shape[:2] == (180, 320) and a[k].tobytes() == b[k].tobytes(), k
+        assert (tmp_path / "n.exr").stat().st_size > 2 * (tmp_path / "z.exr").stat().st_size
+        x0, y0, x1, y1 = info["region"]
+        lo, hi = OpenEXR.File(str(tmp_path / "z.exr")).parts[0].header["dataWindow"]
+        assert (lo.tolist(), hi.tolist()) == ([x0, y0], [x1 - 1, y1 - 1])
+        outside = np.ones((180, 320), bool)
+        outside[y0:y1, x0:x1] = False
+        assert np.all(a["rgba"][outside] == 0) and np.all(a["shadow_catcher"][outside] == 1)
+        assert np.count_nonzero(a["index"] == 1) > 50 and np.count_nonzero(a["index"] == 2) > 50
+    finally:
+        s.close()

@@ -32,7 +32,7 @@ def plan_of(*objs, lighting=SUN):
 
 def test_bpy_free_modules_do_not_import_bpy():
     code = ("import sys, blendgen.render.exr, blendgen.render.effects, blendgen.render.projection, "
-            "blendgen.render.raster; assert 'bpy' not in sys.modules, 'bpy imported'")
+            "blendgen.render.raster, blendgen.render.passes; assert 'bpy' not in sys.modules, 'bpy imported'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
 
 

@@ -31,6 +31,9 @@ PASS_KEYS = {
 KEY_PASSES = {v: k for k, v in PASS_KEYS.items() if k != "IndexOB"}
 LIGHTING_KEYS = ("diffuse_direct", "diffuse_indirect", "diffuse_color",
                  "glossy_direct", "glossy_indirect", "glossy_color")
+# Lossless codecs write_passes offers (name -> OpenEXR constant).
+COMPRESSIONS = {"zip": "ZIP_COMPRESSION", "zips": "ZIPS_COMPRESSION", "rle": "RLE_COMPRESSION",
+                "piz": "PIZ_COMPRESSION", "none": "NO_COMPRESSION"}
 # Blender writes 1e10 for "no hit" in Depth; we store 0 there so every pass stays finite.
 NO_HIT_DEPTH = 1e9
 
@@ -111,31 +114,50 @@ def read_passes(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
-def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None) -> None:
+def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None, *, frame_size=None,
+                 compression: str = "zip") -> None:
     """Write full-frame {key: array} as one multilayer EXR (atomically) in Blender's naming.
 
     `window` (x0, y0, x1, y1), exclusive ends: store only that part (the EXR data window);
     `read_passes` restores the full frame. Rendering a border region leaves nothing outside
     it, so storing it would only cost compression time and disk.
+    `frame_size` (W, H): the arrays hold only `window` (inside the frame, non-empty), not the
+    full frame: the render stage never builds the empty rest.
+    `compression`: a lossless OpenEXR codec, one of COMPRESSIONS. ZIP (default) is the
+    smallest of the widely readable ones; "none" suits a file read back once and deleted
+    (docs/render.md, cost section: time and size of each).
     """
     import OpenEXR
 
-    H, W = next(iter(passes.values())).shape[:2]
-    x0, y0, x1, y1 = window if window is not None else (0, 0, W, H)
-    x0, y0, x1, y1 = max(0, int(x0)), max(0, int(y0)), min(W, int(x1)), min(H, int(y1))
-    if x1 <= x0 or y1 <= y0:
-        x0, y0, x1, y1 = 0, 0, 1, 1  # EXR needs a non-empty data window
+    if compression not in COMPRESSIONS:
+        raise ValueError(f"EXR compression {compression!r}: expected one of {sorted(COMPRESSIONS)}")
+    if frame_size is not None:
+        W, H = int(frame_size[0]), int(frame_size[1])
+        x0, y0, x1, y1 = (int(v) for v in window)
+        if not (0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H):
+            raise ValueError(f"window {window} must be a non-empty box inside the {W}x{H} frame")
+        for key, arr in passes.items():
+            if np.shape(arr)[:2] != (y1 - y0, x1 - x0):
+                raise ValueError(f"pass {key!r}: {np.shape(arr)[:2]} is not the window's {(y1 - y0, x1 - x0)}")
+        ox, oy = x0, y0  # array index = frame pixel - (ox, oy)
+    else:
+        H, W = next(iter(passes.values())).shape[:2]
+        x0, y0, x1, y1 = window if window is not None else (0, 0, W, H)
+        x0, y0, x1, y1 = max(0, int(x0)), max(0, int(y0)), min(W, int(x1)), min(H, int(y1))
+        if x1 <= x0 or y1 <= y0:
+            x0, y0, x1, y1 = 0, 0, 1, 1  # EXR needs a non-empty data window
+        ox = oy = 0
 
     channels = {}
     for key, arr in passes.items():
         if key not in KEY_PASSES:
             raise ValueError(f"unknown pass key {key!r}; expected one of {sorted(KEY_PASSES)}")
         name = f"ViewLayer.{KEY_PASSES[key]}"
-        a = np.ascontiguousarray(np.asarray(arr)[y0:y1, x0:x1], dtype=np.float32)
+        a = np.ascontiguousarray(np.asarray(arr)[y0 - oy:y1 - oy, x0 - ox:x1 - ox], dtype=np.float32)
         if a.ndim == 2:
             name += ".X" if key == "index" else ".Z" if key == "depth" else ".V"
         channels[name] = a
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+    header = {"compression": getattr(OpenEXR, COMPRESSIONS[compression]), "type": OpenEXR.scanlineimage,
               "dataWindow": (np.array([x0, y0], np.int32), np.array([x1 - 1, y1 - 1], np.int32)),
               "displayWindow": (np.array([0, 0], np.int32), np.array([W - 1, H - 1], np.int32))}
     with atomic_path(path) as tmp:

@@ -60,24 +60,67 @@ class Canvas:
     pinhole: Camera
     map_x: np.ndarray | None = field(default=None, repr=False)  # output pixel -> canvas x (float32)
     map_y: np.ndarray | None = field(default=None, repr=False)
+    _fixed: dict = field(default_factory=dict, repr=False, compare=False)  # see _box_maps
 
     @property
     def remapped(self) -> bool:
         return self.map_x is not None
 
-    def to_output(self, img: np.ndarray, *, nearest: bool = False, border: float = 0.0) -> np.ndarray:
-        """Canvas image -> output image (identity for an undistorted camera)."""
+    def to_output(self, img: np.ndarray, *, nearest: bool = False, border: float = 0.0,
+                  out_box=None, src_box=None) -> np.ndarray:
+        """Canvas image -> output image (identity for an undistorted camera).
+
+        `out_box` (x0, y0, x1, y1): compute only that box of the output (remap is per
+        pixel: the same values as cropping the full result). `src_box`: `img` is only that
+        box of the canvas and the canvas is `border` everywhere else; the result is the
+        same as remapping the whole canvas (cv2.remap's fixed-point maps, shifted exactly).
+        Both ignored without a remap.
+        """
         if not self.remapped:
             return img
         import cv2
 
         interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        src = img
         if img.ndim == 3 and img.shape[2] > 4:  # cv2.remap handles at most 4 channels at once
-            return np.stack([self.to_output(img[..., c], nearest=nearest, border=border)
-                             for c in range(img.shape[2])], axis=2)
-        return cv2.remap(src, self.map_x, self.map_y, interp, borderMode=cv2.BORDER_CONSTANT,
-                         borderValue=border)
+            return np.stack([self.to_output(img[..., c], nearest=nearest, border=border, out_box=out_box,
+                                            src_box=src_box) for c in range(img.shape[2])], axis=2)
+        # One value per channel: a plain float would be (border, 0, 0, 0) for a colour image.
+        bv = (float(border),) * 4
+        if src_box is not None:
+            m1, m2 = self._box_maps(nearest, tuple(src_box), out_box)
+            return cv2.remap(img, m1, m2, interp, borderMode=cv2.BORDER_CONSTANT, borderValue=bv)
+        mx, my = self.map_x, self.map_y
+        if out_box is not None:
+            x0, y0, x1, y1 = out_box
+            mx, my = mx[y0:y1, x0:x1], my[y0:y1, x0:x1]
+        return cv2.remap(img, mx, my, interp, borderMode=cv2.BORDER_CONSTANT, borderValue=bv)
+
+    def _box_maps(self, nearest: bool, src_box, out_box):
+        """The maps in cv2's own fixed-point form (CV_16SC2 source pixel + 1/32 px fraction
+        index: what cv2.remap converts float maps to on every call, so it interpolates the
+        same), restricted to `out_box` and shifted to `src_box`'s origin. Integer shifts are
+        exact, which float maps minus an offset are not. Cached for the last boxes."""
+        import cv2
+
+        key = (nearest, src_box, None if out_box is None else tuple(out_box))
+        if key in self._fixed:
+            return self._fixed[key]
+        base = self._fixed.get(nearest)
+        if base is None:
+            base = self._fixed[nearest] = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2,
+                                                          nninterpolation=nearest)
+        xy, frac = base
+        if out_box is not None:
+            x0, y0, x1, y1 = out_box
+            xy = xy[y0:y1, x0:x1]
+            frac = None if nearest else frac[y0:y1, x0:x1]
+        # int16 saturates far outside the canvas; clipping keeps those outside any box
+        xy = np.clip(xy.astype(np.int32) - np.array(src_box[:2], np.int32), -32768, 32767).astype(np.int16)
+        maps = (xy, None if nearest else np.ascontiguousarray(frac))
+        for k in [k for k in self._fixed if isinstance(k, tuple) and k[0] == nearest]:
+            del self._fixed[k]  # one frame's boxes at a time
+        self._fixed[key] = maps
+        return maps
 
     def region_to_output(self, region):
         """A canvas pixel box (x0, y0, x1, y1) -> the output box that samples from it."""

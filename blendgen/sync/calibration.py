@@ -116,8 +116,9 @@ def describe(cal: dict) -> str:
     out = (f"camera in vehicle: pitch {p:+.2f} +- {sp:.2f} deg (down), yaw {y:+.2f} +- {sy:.2f} deg (left), "
            f"roll {r:+.2f} +- {sr:.2f} deg")
     tau, st = cal["gnss_latency_s"], cal["gnss_latency_std_s"]
-    out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s" if st > 0 else
-            f"; GNSS latency {tau:.3f} s as given (set gnss.latency_std_s in calib.yaml to estimate it)")
+    how = f" ({cal['gnss_latency_method']})" if cal.get("gnss_latency_method") else ""
+    out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s{how}" if st > 0 else
+            f"; GNSS latency {tau:.3f} s as given (set gnss.latency_s: auto in calib.yaml to estimate it)")
     la, ls = cal["lever_arm_m"], cal["lever_arm_std_m"]
     lever = f"[{la[0]:+.2f}, {la[1]:+.2f}, {la[2]:+.2f}] m"
     return out + (f"; lever arm {lever} +- {max(ls):.2f} m" if max(ls) > 0 else f"; lever arm {lever} as given")

@@ -32,13 +32,13 @@ class LatencyProfile:
                 "profile": [[round(t, 4), round(c, 3)] for t, c in zip(self.taus, self.costs)]}
 
 
-def profile_latency(cost, lo: float, hi: float, *, step: float = 0.05, prior=None) -> LatencyProfile:
+def profile_latency(cost, lo: float, hi: float, *, step: float = 0.1, prior=None) -> LatencyProfile:
     """Minimise cost(tau) (a negative log-likelihood) over [lo, hi].
 
-    A grid of `step`, then the parabola through the best point and its neighbours (least
-    squares over up to 5 points within 2 steps) gives the minimum and the curvature; the
-    minimum is evaluated once more and kept if it is lower. prior = (mean, std) adds
-    0.5 ((tau - mean) / std)^2."""
+    A grid of `step`, the two half-steps beside its best point, then the parabola through the
+    points within one step of the best (least squares) gives the minimum and the curvature;
+    its vertex is evaluated once more and kept if it is lower. prior = (mean, std) adds
+    0.5 ((tau - mean) / std)^2. About 8 evaluations over [0, 0.4] s."""
     def total(t):
         c = float(cost(t))
         if prior is not None and prior[1] > 0:
@@ -46,24 +46,26 @@ def profile_latency(cost, lo: float, hi: float, *, step: float = 0.05, prior=Non
         return c
 
     n = max(int(np.ceil((hi - lo) / step - 1e-9)), 2)
-    taus = list(np.linspace(lo, hi, n + 1))
-    costs = [total(t) for t in taus]
-    k = int(np.argmin(costs))
-    tau, std, at_limit = taus[k], np.inf, k in (0, len(taus) - 1)
-    near = [i for i in range(len(taus)) if abs(taus[i] - taus[k]) <= 2 * step + 1e-9]
+    step = (hi - lo) / n
+    pts = {float(t): total(t) for t in np.linspace(lo, hi, n + 1)}
+    best = min(pts, key=pts.get)
+    for t in (best - step / 2, best + step / 2):
+        if lo - 1e-9 <= t <= hi + 1e-9:
+            pts[float(t)] = total(t)
+    best = min(pts, key=pts.get)
+    at_limit = abs(best - lo) < 1e-9 or abs(best - hi) < 1e-9
+    std = np.inf
+    near = sorted(t for t in pts if abs(t - best) <= step + 1e-9)
     if len(near) >= 3:
-        x = np.array([taus[i] for i in near]) - taus[k]
-        a, b, _ = np.polyfit(x, [costs[i] for i in near], 2)
+        x = np.array(near) - best
+        a, b, _ = np.polyfit(x, [pts[t] for t in near], 2)
         if a > 0:
             std = float(1.0 / np.sqrt(2.0 * a))  # cost = 0.5 (tau - tau0)^2 / std^2 + const
-            t_new = float(np.clip(taus[k] - b / (2 * a), lo, hi))
-            if not at_limit and abs(t_new - taus[k]) > 1e-4:
-                c_new = total(t_new)
-                taus.append(t_new)
-                costs.append(c_new)
-                if c_new <= costs[k]:
-                    tau = t_new
-    order = np.argsort(taus)
-    cmin = min(costs)
-    return LatencyProfile(float(tau), std, at_limit, [float(taus[i]) for i in order],
-                          [float(costs[i] - cmin) for i in order])
+            t_new = float(np.clip(best - b / (2 * a), lo, hi))
+            if not at_limit and min(abs(t_new - t) for t in pts) > 1e-4:
+                pts[t_new] = total(t_new)
+                if pts[t_new] <= pts[best]:
+                    best = t_new
+    taus = sorted(pts)
+    cmin = min(pts.values())
+    return LatencyProfile(float(best), std, at_limit, taus, [pts[t] - cmin for t in taus])

@@ -36,7 +36,7 @@ ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS acceleromet
 # velocity of a car, and how far from level across a road is (crown, banking)
 NHC_LAT_STD, NHC_UP_STD, NHC_EVERY_S = 0.3, 0.1, 0.1
 LEVEL_STD = 0.05  # rad
-LATENCY_STEP_S = 0.05  # grid of the latency profile (then a parabola through the best points)
+LATENCY_STEP_S = 0.1  # grid of the latency profile (then half steps and a parabola about the best)
 # below NHC_MIN_SPEED (pulling away, stopping) they biased the accelerometer (stop-and-go: 0.23 m/s^2)
 NHC_MIN_SPEED = 6.0  # m/s
 
@@ -369,6 +369,8 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         res.summary["calibration"]["gnss_latency_s"] = round(lat_prof.tau_s, 4)
         res.summary["calibration"]["gnss_latency_std_s"] = (round(lat_prof.std_s, 4) if np.isfinite(lat_prof.std_s)
                                                             else float("inf"))
+        res.summary["calibration"]["gnss_latency_method"] = (
+            "profile likelihood" + (", at the search limit" if lat_prof.at_limit else ""))
         res.summary["gnss_latency"] = lat_prof.summary()
     if use_vo:
         res.summary["vo_method"] = vo_method(settings, rec)
@@ -410,7 +412,7 @@ def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road) -> LatencyProf
         prof = profile_latency(cost, 0.0, pri.latency_max_s)
     else:
         lo, hi = pri.latency_s - 3 * pri.latency_std_s, pri.latency_s + 3 * pri.latency_std_s
-        prof = profile_latency(cost, lo, hi, step=min(LATENCY_STEP_S, (hi - lo) / 6),
+        prof = profile_latency(cost, lo, hi, step=min(LATENCY_STEP_S, (hi - lo) / 4),
                                prior=(pri.latency_s, pri.latency_std_s))
     prof.gnss_noise_scale = scale
     return prof

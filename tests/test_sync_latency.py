@@ -81,3 +81,19 @@ def test_synthetic_latency_is_recovered(tmp_path):
     assert err < 0.5 * err_ignored  # 0.21 vs 0.65 m
     res0, _ = _drive_error(tmp_path / "c", 0.0, "auto")
     assert res0.summary["gnss_latency"]["latency_s"] < 0.06
+
+
+def test_gnss_noise_scale_from_the_innovations(tmp_path):
+    """gnss.h_std_scale: auto. The synthetic fixes have 1 m white noise and no h_std_m column
+    (stated 1.5 m): the innovations say 1.0 / 1.5 = 0.67 (measured 0.667 over 60 s)."""
+    rec, _, _ = synthetic_recording("drive", 30, frames=False, seed=3)
+    rec.extra["gnss"] = {"h_std_scale": "auto"}
+    res = run_sync(rec, Sync(), tmp_path, georef=GEOREF, progress=False)
+    cal = res.summary["calibration"]
+    assert cal["gnss_h_std_scale"] == pytest.approx(1.0 / 1.5, rel=0.15)
+    assert cal["gnss_h_std_scale"] == cal["gnss_h_std_scale_measured"]
+    assert "gnss_latency" not in res.summary  # the latency stays as given
+    with pytest.raises(UserError, match="h_std_scale"):
+        read_priors(_rec({"h_std_scale": "often"}))
+    with pytest.raises(UserError, match="h_std_scale"):
+        read_priors(_rec({"h_std_scale": 0.0}))

@@ -10,6 +10,8 @@ calib.yaml (all optional; the defaults below are the priors when a key is absent
                                        # `auto`: estimated (profile likelihood over 0..latency_max_s)
       latency_std_s: 0.0             # > 0 estimates it with this prior about latency_s (e.g. 0.05)
       latency_max_s: 0.4             # search range of `auto`
+      h_std_scale: 1.0                 # times the fixes' stated horizontal noise (gnss.csv h_std_m);
+                                       # `auto`: the scale their innovations show (mean NIS 2 per fix)
       lever_arm_m: [0.0, 0.0, 0.0]     # antenna in the vehicle frame (x forward, y left, z up)
       lever_arm_std_m: 0.0           # > 0 estimates it (e.g. 0.3)
 
@@ -43,6 +45,8 @@ class CalibPriors:
     camera_height_m: float | None = None  # camera centre above the road surface
     latency_auto: bool = False  # `latency_s: auto`: estimated with a flat prior on [0, latency_max_s]
     latency_max_s: float = 0.4
+    h_std_scale: float = 1.0  # times the stated horizontal fix noise
+    h_std_auto: bool = False  # `h_std_scale: auto`: measured from the innovations
 
 
 def _vec(section: dict, key: str, n: int, default, where: str) -> np.ndarray:
@@ -80,6 +84,13 @@ def read_priors(rec) -> CalibPriors:
     lever_std = _vec(gnss, "lever_arm_std_m", 1, 0.0, where + " gnss")[0]
     if np.any(mount < 0) or lat_std < 0 or lever_std < 0:
         raise UserError("standard deviations must not be negative", where=where)
+    sc = gnss.get("h_std_scale", 1.0)
+    h_auto = isinstance(sc, str) and sc.strip().lower() == "auto"
+    if isinstance(sc, str) and not h_auto:
+        raise UserError(f"h_std_scale: expected a number or 'auto', got {sc!r}", where=where + " gnss")
+    h_scale = 1.0 if h_auto else float(_vec(gnss, "h_std_scale", 1, 1.0, where + " gnss")[0])
+    if not 0.01 <= h_scale <= 100.0:
+        raise UserError(f"h_std_scale: expected a factor in [0.01, 100], got {h_scale}", where=where + " gnss")
     cam_h = None
     if veh.get("camera_height_m") is not None:
         cam_h = float(_vec(veh, "camera_height_m", 1, 0.0, where + " vehicle")[0])
@@ -87,7 +98,7 @@ def read_priors(rec) -> CalibPriors:
             raise UserError(f"camera_height_m: expected metres above the road in (0, 10), got {cam_h}",
                             where=where + " vehicle")
     return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h,
-                       latency_auto=auto, latency_max_s=float(lat_max))
+                       latency_auto=auto, latency_max_s=float(lat_max), h_std_scale=h_scale, h_std_auto=h_auto)
 
 
 def nominal_vehicle_frame(forward_b: np.ndarray, up_b: np.ndarray) -> np.ndarray:

@@ -99,6 +99,7 @@ class ErrorStateEkf:
         self.history: list | None = None  # set to [] to record what the RTS smoother needs
         self._acc = None
         self._last_imu = None  # last valid (w, a) for saturated samples
+        self._last_innovation = None  # (r, S) of the last update
         k = cfg.noise_inflation
         self._q_acc, self._q_gyro = (k * cfg.acc_noise) ** 2, (k * cfg.gyro_noise) ** 2
         self._q_ba, self._q_bg = (k * cfg.acc_walk) ** 2, (k * cfg.gyro_walk) ** 2
@@ -276,6 +277,7 @@ class ErrorStateEkf:
             self.stats.count(kind, False)
             return False
         d2 = float(r @ Sinv_r)
+        self._last_innovation = (r, S)
         if not np.isfinite(d2):
             self.stats.count(kind, False)
             return False
@@ -331,7 +333,12 @@ class ErrorStateEkf:
         H[:, ITAU] = -self.v[:, None]
         H[:, ILA] = self.R
         r = np.asarray(z, dtype=float) - pred
-        return self._update(kind, r, H, np.diag(np.asarray(std_xyz, dtype=float) ** 2))
+        ok = self._update(kind, r, H, np.diag(np.asarray(std_xyz, dtype=float) ** 2))
+        if ok:  # the horizontal part alone (chi-square, 2 dof): how consistent the stated noise is
+            r, S = self._last_innovation
+            self.stats.nis[kind + "_h"] = self.stats.nis.get(kind + "_h", 0.0) + float(
+                r[:2] @ np.linalg.solve(S[:2, :2], r[:2]))
+        return ok
 
     def update_height(self, z, std: float, point_b=None, slope_xy=(0.0, 0.0), kind: str = "road",
                       max_residual: float | None = None) -> bool:

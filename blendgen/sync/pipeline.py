@@ -326,17 +326,23 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             R_bc, p_bc, fwd, imu, vo_cache, calib, trust)
     # the GNSS latency by profile likelihood (blendgen.sync.latency): forward passes with it
     # fixed, from the smoothed initial state when there is one (the first pass's loose start
-    # dominates its cost: comma2k19's profile then had its minimum at 0), then it stays fixed
+    # dominates its cost: comma2k19's profile then had its minimum at 0), then it stays fixed.
+    # Both it and gnss.h_std_scale: auto need the fixes' horizontal noise scale their
+    # innovations show (one forward pass at the given latency)
     want_latency = calib is not None and (pri.latency_auto or pri.latency_std_s > 0)
+    want_scale = calib is not None and pri.h_std_auto
+    h_scale = pri.h_std_scale if calib is not None else 1.0
     if want_latency:
-        calib = (calib[0], calib[1], pri.latency_s, 0.0, *calib[4:])
-        args = args[:18] + (calib,) + args[19:]
-    lat_prof = None
+        args = _with_latency(args, pri.latency_s)
+    lat_prof, noise = None, None
     x0 = (p0, v0, R0, np.zeros(3), np.zeros(3))
-    if want_latency and not (smooth and use_imu):
-        lat_prof = _profile_latency(rec, settings, cfg, x0, P0, args, pri, road)
-        args = _with_latency(args, lat_prof.tau_s)
-    res, x0_s, var0 = _filter_pass(rec, settings, cfg, x0, P0, *args, progress, road=road)
+    if (want_latency or want_scale) and not (smooth and use_imu):
+        noise = _innovation_scale(rec, settings, cfg, x0, P0, args, road, h_scale)
+        h_scale = noise if want_scale else h_scale
+        if want_latency:
+            lat_prof = _profile_latency(rec, settings, cfg, x0, P0, args, pri, road, noise)
+            args = _with_latency(args, lat_prof.tau_s)
+    res, x0_s, var0 = _filter_pass(rec, settings, cfg, x0, P0, *args, progress, road=road, h_scale=h_scale)
     res.summary["passes"] = 1
     if smooth and use_imu:
         # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior
@@ -344,26 +350,31 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         # bias allows: starting from the first pass's bias with a tight prior counted the data
         # twice and compounded the pitch / bias ambiguity (comma2k19: -0.47 -> -0.96 m/s^2).
         p, v, R, bg = x0_s[:4]
+        x1 = (p, v, R, bg, np.zeros(3))
         floor = np.concatenate([np.full(6, 1e-4), np.full(3, (ACC_BIAS_PRIOR / 9.81) ** 2), np.full(3, 1e-8),
                                 np.zeros(3)])
         P1 = np.maximum(var0[:15] * 4.0, floor)
         P1[12:15] = ACC_BIAS_PRIOR**2
-        if want_latency:
+        if want_latency or want_scale:
             # position and velocity loose again: their smoothed values were fitted with the
             # prior latency, and a tight start would pull the profile towards it
             P_lat = P1.copy()
             P_lat[0:6] = P0[0:6]
-            lat_prof = _profile_latency(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P_lat, args, pri, road)
-            args = _with_latency(args, lat_prof.tau_s)
-        res2, _, _ = _filter_pass(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P1, *args, False, road=road)
+            noise = _innovation_scale(rec, settings, cfg, x1, P_lat, args, road, h_scale)
+            if want_latency:
+                lat_prof = _profile_latency(rec, settings, cfg, x1, P_lat, args, pri, road, noise)
+                args = _with_latency(args, lat_prof.tau_s)
+            if want_scale:
+                h_scale = noise
+        res2, _, _ = _filter_pass(rec, settings, cfg, x1, P1, *args, False, road=road, h_scale=h_scale)
         # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
         z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
         if z2 <= max(z1, 3.0):
             res = res2
             res.summary["passes"] = 2
         else:
-            if want_latency:  # the first pass again, with the estimated latency
-                res, _, _ = _filter_pass(rec, settings, cfg, x0, P0, *args, False, road=road)
+            if want_latency or want_scale:  # the first pass again, with what was estimated
+                res, _, _ = _filter_pass(rec, settings, cfg, x0, P0, *args, False, road=road, h_scale=h_scale)
             res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
     if lat_prof is not None:
         res.summary["calibration"]["gnss_latency_s"] = round(lat_prof.tau_s, 4)
@@ -372,6 +383,10 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         res.summary["calibration"]["gnss_latency_method"] = (
             "profile likelihood" + (", at the search limit" if lat_prof.at_limit else ""))
         res.summary["gnss_latency"] = lat_prof.summary()
+    if calib is not None:
+        res.summary["calibration"]["gnss_h_std_scale"] = round(float(h_scale), 3)
+        if noise is not None:
+            res.summary["calibration"]["gnss_h_std_scale_measured"] = round(float(noise), 3)
     if use_vo:
         res.summary["vo_method"] = vo_method(settings, rec)
     if trust is not None:
@@ -387,26 +402,32 @@ def _with_latency(args: tuple, tau: float) -> tuple:
     return args[:18] + ((c[0], c[1], float(tau), 0.0, *c[4:]),) + args[19:]
 
 
-def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road) -> LatencyProfile:
+def _forward(rec, settings, cfg, x0, P0, args, road, tau: float, h_scale: float) -> dict:
+    """Summary of one forward pass (no smoother: it does not change the likelihood) with the
+    latency fixed at tau."""
+    a = _with_latency(args[:4] + (False,) + args[5:], tau)
+    return _filter_pass(rec, settings, cfg, x0, P0, *a, False, road=road, h_scale=h_scale)[0].summary
+
+
+def _innovation_scale(rec, settings, cfg, x0, P0, args, road, h_scale: float) -> float:
+    """The factor on the fixes' stated horizontal noise that makes their horizontal innovations
+    consistent (mean NIS 2 per fix) in a forward pass at the given latency: a receiver's own
+    h_std_m is often pessimistic (comma2k19: 2.1 m stated, the innovations say 0.4 m)."""
+    s = _forward(rec, settings, cfg, x0, P0, args, road, args[18][2], h_scale)
+    n = s["updates"].get("gnss", 0)
+    if n < 10:
+        return h_scale
+    return float(np.clip(h_scale * np.sqrt(s["innovation_nis"]["gnss_h"] / (2.0 * n)), 0.05, 10.0))
+
+
+def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road, h_scale: float) -> LatencyProfile:
     """GNSS latency minimising the negative log-likelihood of all innovations of a forward
-    pass (no smoother: it does not change the likelihood) run with the latency fixed.
-
-    The fixes' noise is first scaled to what their innovations show (sum of NIS = 3 per fix):
-    a receiver's own h_std_m is often pessimistic (comma2k19: 2.1 m stated, ~0.3 m real), and
-    with it the profile is flat (its minimum moved between 0 and 0.06 s with the start of the
-    pass); scaled, it has a clear minimum. The scale is used for the profile only."""
-    def run(tau: float, g_scale: float):
-        a = _with_latency(args[:4] + (False,) + args[5:], tau)
-        a = a[:12] + (a[12] * g_scale,) + a[13:]
-        r, _, _ = _filter_pass(rec, settings, cfg, x0, P0, *a, False, road=road)
-        return r.summary
-
-    s0 = run(pri.latency_s, 1.0)
-    n = s0["updates"].get("gnss", 0)
-    scale = float(np.clip(np.sqrt(s0["innovation_nis"].get("gnss", 3.0 * n) / (3.0 * n)), 0.05, 3.0)) if n else 1.0
-
+    pass run with the latency fixed, the fixes' horizontal noise scaled to what their
+    innovations show (`_innovation_scale`): with comma2k19's stated 2.1 m the profile is flat
+    (its minimum moved between 0 and 0.06 s with the start of the pass); scaled, it has a
+    clear minimum."""
     def cost(tau: float) -> float:
-        return float(sum(run(tau, scale)["innovation_nll"].values()))
+        return float(sum(_forward(rec, settings, cfg, x0, P0, args, road, tau, h_scale)["innovation_nll"].values()))
 
     if pri.latency_auto:
         prof = profile_latency(cost, 0.0, pri.latency_max_s)
@@ -414,7 +435,7 @@ def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road) -> LatencyProf
         lo, hi = pri.latency_s - 3 * pri.latency_std_s, pri.latency_s + 3 * pri.latency_std_s
         prof = profile_latency(cost, lo, hi, step=min(LATENCY_STEP_S, (hi - lo) / 4),
                                prior=(pri.latency_s, pri.latency_std_s))
-    prof.gnss_noise_scale = scale
+    prof.gnss_noise_scale = h_scale
     return prof
 
 
@@ -478,7 +499,9 @@ def _gnss_reopen(streak: list, std: float) -> np.ndarray | None:
 
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
                  gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, trust: TrustReport | None,
-                 progress, road=None):
+                 progress, road=None, h_scale: float = 1.0):
+    """One filter pass (+ RTS smoother when `smooth`). h_scale multiplies the fixes'
+    horizontal noise (calib.yaml gnss.h_std_scale)."""
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
@@ -546,6 +569,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
             # an antenna height estimated from the fixes is their vertical information: no double count
             sz = 1e3 if road is not None and road.replaces_fix_heights else s * z_scale
+            s *= h_scale
             ok = ekf.update_position(g_xyz[i], (s, s, sz), kind="gnss")
             if ok:
                 gnss_streak.clear()

@@ -130,6 +130,10 @@ def describe(cal: dict) -> str:
     how = f" ({cal['gnss_latency_method']})" if cal.get("gnss_latency_method") else ""
     out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s{how}" if st > 0 else
             f"; GNSS latency {tau:.3f} s as given (set gnss.latency_s: auto in calib.yaml to estimate it)")
+    if "gnss_h_std_scale_measured" in cal or cal.get("gnss_h_std_scale", 1.0) != 1.0:
+        m = cal.get("gnss_h_std_scale_measured")
+        out += f"; fix noise x{cal.get('gnss_h_std_scale', 1.0):.3f} of gnss.csv's" + (
+            f" (the innovations say x{m:.3f})" if m is not None else "")
     la, ls = cal["lever_arm_m"], cal["lever_arm_std_m"]
     lever = f"[{la[0]:+.2f}, {la[1]:+.2f}, {la[2]:+.2f}] m"
     return out + (f"; lever arm {lever} +- {max(ls):.2f} m" if max(ls) > 0 else f"; lever arm {lever} as given")

@@ -97,3 +97,15 @@ def test_gnss_noise_scale_from_the_innovations(tmp_path):
         read_priors(_rec({"h_std_scale": "often"}))
     with pytest.raises(UserError, match="h_std_scale"):
         read_priors(_rec({"h_std_scale": 0.0}))
+
+
+def test_describe_says_how_the_latency_was_found():
+    cal = {"camera_mount_rpy_deg": [0.9, 3.7, 0.0], "mount_std_deg": [0.5, 0.2, 0.3], "gnss_latency_s": 0.068,
+           "gnss_latency_std_s": 0.014, "gnss_latency_method": "profile likelihood", "lever_arm_m": [0, 0, 0],
+           "lever_arm_std_m": [0, 0, 0], "gnss_h_std_scale": 0.084, "gnss_h_std_scale_measured": 0.084}
+    line = describe(cal)
+    assert "GNSS latency +0.068 +- 0.014 s (profile likelihood)" in line and "fix noise x0.084" in line
+    assert "undetermined" in describe({**cal, "gnss_latency_std_s": None})
+    plain = describe({**cal, "gnss_latency_s": 0.0, "gnss_latency_std_s": 0.0, "gnss_latency_method": None,
+                      "gnss_h_std_scale": 1.0, "gnss_h_std_scale_measured": None})
+    assert "as given" in plain

@@ -128,8 +128,11 @@ def describe(cal: dict) -> str:
            f"roll {r:+.2f} +- {sr:.2f} deg")
     tau, st = cal["gnss_latency_s"], cal["gnss_latency_std_s"]
     how = f" ({cal['gnss_latency_method']})" if cal.get("gnss_latency_method") else ""
-    out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s{how}" if st > 0 else
-            f"; GNSS latency {tau:.3f} s as given (set gnss.latency_s: auto in calib.yaml to estimate it)")
+    if st is None:  # estimated, but the profile was flat
+        out += f"; GNSS latency {tau:+.3f} s, undetermined (flat profile){how}"
+    else:
+        out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s{how}" if st > 0 else
+                f"; GNSS latency {tau:.3f} s as given (set gnss.latency_s: auto in calib.yaml to estimate it)")
     if "gnss_h_std_scale_measured" in cal or cal.get("gnss_h_std_scale", 1.0) != 1.0:
         m = cal.get("gnss_h_std_scale_measured")
         out += f"; fix noise x{cal.get('gnss_h_std_scale', 1.0):.3f} of gnss.csv's" + (

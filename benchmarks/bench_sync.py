@@ -153,6 +153,7 @@ def comma(quick: bool):
     from blendgen.geometry import pose_from_xyz_quat
     from blendgen.recording.folder import read_recording
     from blendgen.recording.importers.comma2k19 import import_comma2k19
+    from blendgen.sync.calibration import describe
 
     out = {}
     with tempfile.TemporaryDirectory() as d:
@@ -162,6 +163,14 @@ def comma(quick: bool):
         t = time.perf_counter()
         res = run_sync(rec, Sync(), Path(d) / "out", georef=georef, progress=False)
         out["blendgen"] = (time.perf_counter() - t, comma_errors(res, rec, georef))
+        # issue 14: GNSS latency by profile likelihood and the fixes' noise from their
+        # innovations (calib.yaml gnss: {latency_s: auto, h_std_scale: auto})
+        rec_a = copy.copy(rec)
+        rec_a.extra = {**rec.extra, "gnss": {"latency_s": "auto", "h_std_scale": "auto"}}
+        t = time.perf_counter()
+        res_a = run_sync(rec_a, Sync(), Path(d) / "out_auto", georef=georef, progress=False)
+        out["blendgen, gnss auto"] = (time.perf_counter() - t, comma_errors(res_a, rec_a, georef))
+        print(f"  comma2k19 gnss auto: {describe(res_a.summary['calibration'])}")
         try:
             from blendgen.sync.peer_gtsam import run_gtsam
 

@@ -66,3 +66,26 @@ def test_udacity_video_vo_tracks_all_frames(tmp_path):
     assert np.degrees(np.arccos(np.clip(fwd[:, 0], -1, 1))).max() < 15.0  # no wild heading swings
     steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
     assert np.all(np.isfinite(P)) and steps.max() < 1.0
+
+
+@pytest.mark.slow
+def test_comma2k19_gnss_latency_and_noise_estimated(tmp_path):
+    """issue 14: calib.yaml gnss: {latency_s: auto, h_std_scale: auto}. The ground truth puts the
+    receiver latency at 0.06-0.08 s (evaluation only); the profile finds 0.068 +- 0.014 s, and
+    with the fixes' noise from their innovations (x0.084 of the stated 2.1 m) the offset-removed,
+    1 s and pitch targets are met (0.180 m, 0.024 m, 0.20 deg; raw 0.50 m)."""
+    if not COMMA.exists():
+        pytest.skip("needs ../shared/data/real/comma2k19_example1_segment40")
+    from blendgen.recording.importers.comma2k19 import import_comma2k19
+
+    rec = read_recording(import_comma2k19(COMMA, tmp_path / "rec", show_progress=False))
+    rec.extra["gnss"] = {"latency_s": "auto", "h_std_scale": "auto"}
+    o = rec.extra["import"]["groundtruth_origin"]
+    georef = (o["lat"], o["lon"], o["alt"])
+    res = run_sync(rec, Sync(), tmp_path / "out", georef=georef, progress=False)
+    cal = res.summary["calibration"]
+    assert 0.04 < cal["gnss_latency_s"] < 0.11 and 0 < cal["gnss_latency_std_s"] < 0.05
+    assert 0.05 < cal["gnss_h_std_scale"] < 0.2
+    s = comma_errors(res, rec, georef)["sync"]
+    assert s["h_rmse_m"] <= 0.2 and s["rel_1s_median_m"] <= 0.03 and s["pitch_median_deg"] <= 0.3
+    assert s["h_rmse_raw_m"] < 0.6  # 1.47 with the latency ignored

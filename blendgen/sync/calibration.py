@@ -6,8 +6,12 @@ calib.yaml (all optional; the defaults below are the priors when a key is absent
       mount_std_deg: [2.0, 5.0, 2.0]  # roll, pitch, yaw of the vehicle frame in the IMU frame
       camera_height_m: 1.45            # camera centre above the road (with a twin: road-height constraint)
     gnss:
-      latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency
-      latency_std_s: 0.0             # > 0 estimates it (e.g. 0.05)
+      latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency;
+                                       # `auto`: estimated (profile likelihood over 0..latency_max_s)
+      latency_std_s: 0.0             # > 0 estimates it with this prior about latency_s (e.g. 0.05)
+      latency_max_s: 0.4             # search range of `auto`
+      h_std_scale: 1.0                 # times the fixes' stated horizontal noise (gnss.csv h_std_m);
+                                       # `auto`: the scale their innovations show (mean NIS 2 per fix)
       lever_arm_m: [0.0, 0.0, 0.0]     # antenna in the vehicle frame (x forward, y left, z up)
       lever_arm_std_m: 0.0           # > 0 estimates it (e.g. 0.3)
 
@@ -39,6 +43,10 @@ class CalibPriors:
     lever_arm_v: np.ndarray = None  # vehicle frame
     lever_arm_std_m: float = 0.0
     camera_height_m: float | None = None  # camera centre above the road surface
+    latency_auto: bool = False  # `latency_s: auto`: estimated with a flat prior on [0, latency_max_s]
+    latency_max_s: float = 0.4
+    h_std_scale: float = 1.0  # times the stated horizontal fix noise
+    h_std_auto: bool = False  # `h_std_scale: auto`: measured from the innovations
 
 
 def _vec(section: dict, key: str, n: int, default, where: str) -> np.ndarray:
@@ -64,19 +72,33 @@ def read_priors(rec) -> CalibPriors:
         out.append(sec)
     veh, gnss = out
     mount = np.radians(_vec(veh, "mount_std_deg", 3, DEFAULT_MOUNT_STD_DEG, where + " vehicle"))
-    lat = _vec(gnss, "latency_s", 1, 0.0, where + " gnss")[0]
+    auto = isinstance(gnss.get("latency_s"), str) and gnss["latency_s"].strip().lower() == "auto"
+    if isinstance(gnss.get("latency_s"), str) and not auto:
+        raise UserError(f"latency_s: expected seconds or 'auto', got {gnss['latency_s']!r}", where=where + " gnss")
+    lat = 0.0 if auto else _vec(gnss, "latency_s", 1, 0.0, where + " gnss")[0]
     lat_std = _vec(gnss, "latency_std_s", 1, 0.0, where + " gnss")[0]
+    lat_max = _vec(gnss, "latency_max_s", 1, 0.4, where + " gnss")[0]
+    if not 0.0 < lat_max <= 2.0:
+        raise UserError(f"latency_max_s: expected seconds in (0, 2], got {lat_max}", where=where + " gnss")
     lever = _vec(gnss, "lever_arm_m", 3, [0.0, 0.0, 0.0], where + " gnss")
     lever_std = _vec(gnss, "lever_arm_std_m", 1, 0.0, where + " gnss")[0]
     if np.any(mount < 0) or lat_std < 0 or lever_std < 0:
         raise UserError("standard deviations must not be negative", where=where)
+    sc = gnss.get("h_std_scale", 1.0)
+    h_auto = isinstance(sc, str) and sc.strip().lower() == "auto"
+    if isinstance(sc, str) and not h_auto:
+        raise UserError(f"h_std_scale: expected a number or 'auto', got {sc!r}", where=where + " gnss")
+    h_scale = 1.0 if h_auto else float(_vec(gnss, "h_std_scale", 1, 1.0, where + " gnss")[0])
+    if not 0.01 <= h_scale <= 100.0:
+        raise UserError(f"h_std_scale: expected a factor in [0.01, 100], got {h_scale}", where=where + " gnss")
     cam_h = None
     if veh.get("camera_height_m") is not None:
         cam_h = float(_vec(veh, "camera_height_m", 1, 0.0, where + " vehicle")[0])
         if not 0.0 < cam_h < 10.0:
             raise UserError(f"camera_height_m: expected metres above the road in (0, 10), got {cam_h}",
                             where=where + " vehicle")
-    return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h)
+    return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h,
+                       latency_auto=auto, latency_max_s=float(lat_max), h_std_scale=h_scale, h_std_auto=h_auto)
 
 
 def nominal_vehicle_frame(forward_b: np.ndarray, up_b: np.ndarray) -> np.ndarray:
@@ -105,8 +127,16 @@ def describe(cal: dict) -> str:
     out = (f"camera in vehicle: pitch {p:+.2f} +- {sp:.2f} deg (down), yaw {y:+.2f} +- {sy:.2f} deg (left), "
            f"roll {r:+.2f} +- {sr:.2f} deg")
     tau, st = cal["gnss_latency_s"], cal["gnss_latency_std_s"]
-    out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s" if st > 0 else
-            f"; GNSS latency {tau:.3f} s as given (set gnss.latency_std_s in calib.yaml to estimate it)")
+    how = f" ({cal['gnss_latency_method']})" if cal.get("gnss_latency_method") else ""
+    if st is None:  # estimated, but the profile was flat
+        out += f"; GNSS latency {tau:+.3f} s, undetermined (flat profile){how}"
+    else:
+        out += (f"; GNSS latency {tau:+.3f} +- {st:.3f} s{how}" if st > 0 else
+                f"; GNSS latency {tau:.3f} s as given (set gnss.latency_s: auto in calib.yaml to estimate it)")
+    if "gnss_h_std_scale_measured" in cal or cal.get("gnss_h_std_scale", 1.0) != 1.0:
+        m = cal.get("gnss_h_std_scale_measured")
+        out += f"; fix noise x{cal.get('gnss_h_std_scale', 1.0):.3f} of gnss.csv's" + (
+            f" (the innovations say x{m:.3f})" if m is not None else "")
     la, ls = cal["lever_arm_m"], cal["lever_arm_std_m"]
     lever = f"[{la[0]:+.2f}, {la[1]:+.2f}, {la[2]:+.2f}] m"
     return out + (f"; lever arm {lever} +- {max(ls):.2f} m" if max(ls) > 0 else f"; lever arm {lever} as given")

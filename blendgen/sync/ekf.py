@@ -61,6 +61,10 @@ class EkfStats:
     saturated: int = 0
     updates: dict = field(default_factory=dict)
     rejected: dict = field(default_factory=dict)
+    # per kind: negative log-likelihood of the innovations, 0.5 (r' S^-1 r + log det S) without
+    # the constant (the prediction-error decomposition; profiled over fixed calibrations)
+    nll: dict = field(default_factory=dict)
+    nis: dict = field(default_factory=dict)  # per kind: sum of r' S^-1 r of the accepted ones
 
     def count(self, kind: str, accepted: bool) -> None:
         d = self.updates if accepted else self.rejected
@@ -95,6 +99,7 @@ class ErrorStateEkf:
         self.history: list | None = None  # set to [] to record what the RTS smoother needs
         self._acc = None
         self._last_imu = None  # last valid (w, a) for saturated samples
+        self._last_innovation = None  # (r, S) of the last update
         k = cfg.noise_inflation
         self._q_acc, self._q_gyro = (k * cfg.acc_noise) ** 2, (k * cfg.gyro_noise) ** 2
         self._q_ba, self._q_bg = (k * cfg.acc_walk) ** 2, (k * cfg.gyro_walk) ** 2
@@ -272,12 +277,18 @@ class ErrorStateEkf:
             self.stats.count(kind, False)
             return False
         d2 = float(r @ Sinv_r)
+        self._last_innovation = (r, S)
         if not np.isfinite(d2):
             self.stats.count(kind, False)
             return False
-        if gate and d2 > chi2.ppf(self.cfg.chi2_prob, len(r)):
+        if gate and d2 > (g := chi2.ppf(self.cfg.chi2_prob, len(r))):
+            # a rejected one costs what the gate allows (a robust, continuous cost in the
+            # calibration a profile is taken over)
+            self.stats.nll[kind] = self.stats.nll.get(kind, 0.0) + 0.5 * (g + float(np.linalg.slogdet(S)[1]))
             self.stats.count(kind, False)
             return False
+        self.stats.nll[kind] = self.stats.nll.get(kind, 0.0) + 0.5 * (d2 + float(np.linalg.slogdet(S)[1]))
+        self.stats.nis[kind] = self.stats.nis.get(kind, 0.0) + d2
         K = np.linalg.solve(S, PHt.T).T
         dx = K @ r
         IKH = np.eye(N) - K @ H
@@ -322,7 +333,12 @@ class ErrorStateEkf:
         H[:, ITAU] = -self.v[:, None]
         H[:, ILA] = self.R
         r = np.asarray(z, dtype=float) - pred
-        return self._update(kind, r, H, np.diag(np.asarray(std_xyz, dtype=float) ** 2))
+        ok = self._update(kind, r, H, np.diag(np.asarray(std_xyz, dtype=float) ** 2))
+        if ok:  # the horizontal part alone (chi-square, 2 dof): how consistent the stated noise is
+            r, S = self._last_innovation
+            self.stats.nis[kind + "_h"] = self.stats.nis.get(kind + "_h", 0.0) + float(
+                r[:2] @ np.linalg.solve(S[:2, :2], r[:2]))
+        return ok
 
     def update_height(self, z, std: float, point_b=None, slope_xy=(0.0, 0.0), kind: str = "road",
                       max_residual: float | None = None) -> bool:

@@ -24,6 +24,7 @@ from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
 from blendgen.recording.model import Recording
 from blendgen.sync import calibration, road_height, so3
 from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
+from blendgen.sync.latency import LatencyProfile, profile_latency
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
@@ -35,6 +36,7 @@ ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS acceleromet
 # velocity of a car, and how far from level across a road is (crown, banking)
 NHC_LAT_STD, NHC_UP_STD, NHC_EVERY_S = 0.3, 0.1, 0.1
 LEVEL_STD = 0.05  # rad
+LATENCY_STEP_S = 0.1  # grid of the latency profile (then half steps and a parabola about the best)
 # below NHC_MIN_SPEED (pulling away, stopping) they biased the accelerometer (stop-and-go: 0.23 m/s^2)
 NHC_MIN_SPEED = 6.0  # m/s
 
@@ -198,7 +200,10 @@ def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=N
         result = _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside,
                          g_yaw, g_std, R_bc, p_bc, progress, road_surface)
         if use_gnss and settings.reanchor_every_s:
-            n_anch = reanchor(result, gt_t - (shift if rec.n_frames else 0.0), g_xyz, g_inside,
+            # a fix stamped t is where the antenna was at t - latency: compare it there (with
+            # the latency ignored, re-anchoring pulled a 0.25 s latency's 4 m back onto the fixes)
+            tau = float(result.summary.get("calibration", {}).get("gnss_latency_s", 0.0))
+            n_anch = reanchor(result, gt_t - tau - (shift if rec.n_frames else 0.0), g_xyz, g_inside,
                               g_std, settings.reanchor_every_s, T_imu_cam)
             result.summary["reanchor_segments"] = n_anch
     result.summary.update({
@@ -319,8 +324,25 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                            R_bc, out_t, cfg.gyro_noise)
     args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
             R_bc, p_bc, fwd, imu, vo_cache, calib, trust)
-    res, x0_s, var0 = _filter_pass(rec, settings, cfg, (p0, v0, R0, np.zeros(3), np.zeros(3)), P0, *args, progress,
-                                   road=road)
+    # the GNSS latency by profile likelihood (blendgen.sync.latency): forward passes with it
+    # fixed, from the smoothed initial state when there is one (the first pass's loose start
+    # dominates its cost: comma2k19's profile then had its minimum at 0), then it stays fixed.
+    # Both it and gnss.h_std_scale: auto need the fixes' horizontal noise scale their
+    # innovations show (one forward pass at the given latency)
+    want_latency = calib is not None and (pri.latency_auto or pri.latency_std_s > 0)
+    want_scale = calib is not None and pri.h_std_auto
+    h_scale = pri.h_std_scale if calib is not None else 1.0
+    if want_latency:
+        args = _with_latency(args, pri.latency_s)
+    lat_prof, noise = None, None
+    x0 = (p0, v0, R0, np.zeros(3), np.zeros(3))
+    if (want_latency or want_scale) and not (smooth and use_imu):
+        noise = _innovation_scale(rec, settings, cfg, x0, P0, args, road, h_scale)
+        h_scale = noise if want_scale else h_scale
+        if want_latency:
+            lat_prof = _profile_latency(rec, settings, cfg, x0, P0, args, pri, road, noise)
+            args = _with_latency(args, lat_prof.tau_s)
+    res, x0_s, var0 = _filter_pass(rec, settings, cfg, x0, P0, *args, progress, road=road, h_scale=h_scale)
     res.summary["passes"] = 1
     if smooth and use_imu:
         # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior
@@ -328,18 +350,44 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         # bias allows: starting from the first pass's bias with a tight prior counted the data
         # twice and compounded the pitch / bias ambiguity (comma2k19: -0.47 -> -0.96 m/s^2).
         p, v, R, bg = x0_s[:4]
+        x1 = (p, v, R, bg, np.zeros(3))
         floor = np.concatenate([np.full(6, 1e-4), np.full(3, (ACC_BIAS_PRIOR / 9.81) ** 2), np.full(3, 1e-8),
                                 np.zeros(3)])
         P1 = np.maximum(var0[:15] * 4.0, floor)
         P1[12:15] = ACC_BIAS_PRIOR**2
-        res2, _, _ = _filter_pass(rec, settings, cfg, (p, v, R, bg, np.zeros(3)), P1, *args, False, road=road)
+        if want_latency or want_scale:
+            # position and velocity loose again: their smoothed values were fitted with the
+            # prior latency, and a tight start would pull the profile towards it
+            P_lat = P1.copy()
+            P_lat[0:6] = P0[0:6]
+            noise = _innovation_scale(rec, settings, cfg, x1, P_lat, args, road, h_scale)
+            if want_latency:
+                lat_prof = _profile_latency(rec, settings, cfg, x1, P_lat, args, pri, road, noise)
+                args = _with_latency(args, lat_prof.tau_s)
+            if want_scale:
+                h_scale = noise
+        res2, _, _ = _filter_pass(rec, settings, cfg, x1, P1, *args, False, road=road, h_scale=h_scale)
         # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
         z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
         if z2 <= max(z1, 3.0):
             res = res2
             res.summary["passes"] = 2
         else:
+            if want_latency or want_scale:  # the first pass again, with what was estimated
+                res, _, _ = _filter_pass(rec, settings, cfg, x0, P0, *args, False, road=road, h_scale=h_scale)
             res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
+    if lat_prof is not None:
+        res.summary["calibration"]["gnss_latency_s"] = round(lat_prof.tau_s, 4)
+        # None: the profile had no curvature (the drive says nothing about the latency)
+        res.summary["calibration"]["gnss_latency_std_s"] = (round(lat_prof.std_s, 4) if np.isfinite(lat_prof.std_s)
+                                                            else None)
+        res.summary["calibration"]["gnss_latency_method"] = (
+            "profile likelihood" + (", at the search limit" if lat_prof.at_limit else ""))
+        res.summary["gnss_latency"] = lat_prof.summary()
+    if calib is not None:
+        res.summary["calibration"]["gnss_h_std_scale"] = round(float(h_scale), 3)
+        if noise is not None:
+            res.summary["calibration"]["gnss_h_std_scale_measured"] = round(float(noise), 3)
     if use_vo:
         res.summary["vo_method"] = vo_method(settings, rec)
     if trust is not None:
@@ -348,6 +396,49 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             # composites must follow the image: the body's camera turned by the stabiliser's correction
             res.poses = [(fid, t, T @ make_pose(C, np.zeros(3))) for (fid, t, T), C in zip(res.poses, trust.correction)]
     return res
+
+
+def _with_latency(args: tuple, tau: float) -> tuple:
+    c = args[18]
+    return args[:18] + ((c[0], c[1], float(tau), 0.0, *c[4:]),) + args[19:]
+
+
+def _forward(rec, settings, cfg, x0, P0, args, road, tau: float, h_scale: float) -> dict:
+    """Summary of one forward pass (no smoother: it does not change the likelihood) with the
+    latency fixed at tau."""
+    a = _with_latency(args[:4] + (False,) + args[5:], tau)
+    return _filter_pass(rec, settings, cfg, x0, P0, *a, False, road=road, h_scale=h_scale)[0].summary
+
+
+def _innovation_scale(rec, settings, cfg, x0, P0, args, road, h_scale: float) -> float:
+    """The factor on the fixes' stated horizontal noise that makes their horizontal innovations
+    consistent (mean NIS 2 per fix) in a forward pass at the given latency: a receiver's own
+    h_std_m is often pessimistic (comma2k19: 2.1 m stated, the innovations say 0.18 m; against
+    the ground truth the fixes scatter 0.28 m about their mean offset, partly slow wander)."""
+    s = _forward(rec, settings, cfg, x0, P0, args, road, args[18][2], h_scale)
+    n = s["updates"].get("gnss", 0)
+    if n < 10:
+        return h_scale
+    return float(np.clip(h_scale * np.sqrt(s["innovation_nis"]["gnss_h"] / (2.0 * n)), 0.05, 10.0))
+
+
+def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road, h_scale: float) -> LatencyProfile:
+    """GNSS latency minimising the negative log-likelihood of all innovations of a forward
+    pass run with the latency fixed, the fixes' horizontal noise scaled to what their
+    innovations show (`_innovation_scale`): with comma2k19's stated 2.1 m the profile is flat
+    (its minimum moved between 0 and 0.06 s with the start of the pass); scaled, it has a
+    clear minimum."""
+    def cost(tau: float) -> float:
+        return float(sum(_forward(rec, settings, cfg, x0, P0, args, road, tau, h_scale)["innovation_nll"].values()))
+
+    if pri.latency_auto:
+        prof = profile_latency(cost, 0.0, pri.latency_max_s)
+    else:
+        lo, hi = pri.latency_s - 3 * pri.latency_std_s, pri.latency_s + 3 * pri.latency_std_s
+        prof = profile_latency(cost, lo, hi, step=min(LATENCY_STEP_S, (hi - lo) / 4),
+                               prior=(pri.latency_s, pri.latency_std_s))
+    prof.gnss_noise_scale = h_scale
+    return prof
 
 
 def _vo_step(vo, img) -> VoResult | None:
@@ -410,7 +501,9 @@ def _gnss_reopen(streak: list, std: float) -> np.ndarray | None:
 
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
                  gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, trust: TrustReport | None,
-                 progress, road=None):
+                 progress, road=None, h_scale: float = 1.0):
+    """One filter pass (+ RTS smoother when `smooth`). h_scale multiplies the fixes'
+    horizontal noise (calib.yaml gnss.h_std_scale)."""
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
@@ -478,6 +571,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
             # an antenna height estimated from the fixes is their vertical information: no double count
             sz = 1e3 if road is not None and road.replaces_fix_heights else s * z_scale
+            s *= h_scale
             ok = ekf.update_position(g_xyz[i], (s, s, sz), kind="gnss")
             if ok:
                 gnss_streak.clear()
@@ -585,6 +679,8 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                "cov_asym": float(np.abs(P - P.T).max()), "imu_steps": st.imu_steps, "imu_gaps": st.imu_gaps,
                "imu_saturated": st.saturated,
                "updates": dict(st.updates), "rejected": dict(st.rejected),
+               "innovation_nll": {k: round(v, 3) for k, v in st.nll.items()},
+               "innovation_nis": {k: round(v, 3) for k, v in st.nis.items()},
                "gyro_bias": ekf.bg.round(5).tolist(), "accel_bias": ekf.ba.round(4).tolist(),
                "vo_status": _count(q["vo_status"] for q in quality)}
     if calib is not None:

@@ -188,17 +188,19 @@ def gauss_markov(t: np.ndarray, std: np.ndarray, tau_s: float, rng: np.random.Ge
 def simulate_gnss(traj: Trajectory, rate: float = 10.0, std_m: float = 1.0, seed: int = 1,
                   georef=GEOREF, dropout: tuple[float, float] | None = None, lever=None,
                   gm_std_m: float = 0.0, gm_tau_s: float = 30.0,
-                  burst: tuple[float, float, tuple] | None = None) -> np.ndarray:
+                  burst: tuple[float, float, tuple] | None = None, latency_s: float = 0.0) -> np.ndarray:
     """t, lat, lon, alt of the body origin (+ lever arm) with white horizontal noise std_m.
+
+    latency_s: receiver latency, a fix stamped t is the position at t - latency_s.
 
     gm_std_m: plus a Gauss-Markov error (horizontal std; vertical 1.5x) of correlation time
     gm_tau_s, the slow wander of a real receiver. burst = (t0, t1, offset_xyz): multipath, the
     fixes in [t0, t1) jump by offset_xyz (m) with 3x the white noise."""
     rng = np.random.default_rng(seed)
     t = np.arange(traj.t[0] + 0.05, traj.t[-1] - 0.05, 1.0 / rate)
-    p = traj.position(t)
+    p = traj.position(t - latency_s)
     if lever is not None:
-        p = p + np.einsum("nij,j->ni", traj.R(t), lever)
+        p = p + np.einsum("nij,j->ni", traj.R(t - latency_s), lever)
     white = rng.normal(0, 1, p.shape) * np.array([std_m, std_m, 1.5 * std_m])
     if burst is not None:
         white[(t >= burst[0]) & (t < burst[1])] *= 3.0
@@ -395,7 +397,7 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     not the body. `rec.extra['image_groundtruth']` holds T_world_cam of the image (the true
     position, the smoothed orientation) and `rec.extra['stabiliser_correction']` the C per frame.
     imu_errors: the IMU's real errors (ImuErrors) where they differ from `rec.imu_noise`.
-    gnss_errors: extra simulate_gnss arguments (gm_std_m, gm_tau_s, burst).
+    gnss_errors: extra simulate_gnss arguments (gm_std_m, gm_tau_s, burst, latency_s).
     rolling_shutter_s: readout time; row r of a frame stamped t is exposed at t + r * readout / H
     (ground truth: the pose at t, the first row's). photometric: per-frame exposure flicker,
     vignetting and JPEG compression (quality 75), as from a real camera.

@@ -34,7 +34,7 @@ def test_comma2k19_imu_gnss_beats_raw_gnss(tmp_path):
     assert g["rel_1s_median_m"] == pytest.approx(0.13, abs=0.02)
     assert g["heading_median_deg"] == pytest.approx(0.9, abs=0.1)
     # the filter beats it on all three and meets the targets
-    assert s["h_rmse_m"] < g["h_rmse_m"] and s["h_rmse_m"] <= 0.27  # 0.237 before the mount states
+    assert s["h_rmse_m"] < g["h_rmse_m"]
     assert s["rel_1s_median_m"] < g["rel_1s_median_m"] and s["rel_1s_median_m"] <= 0.10
     assert s["heading_median_deg"] <= 1.0
     # issue 14: the camera's pitch was 5.2 deg off (accelerometer bias taken for pitch); with the
@@ -42,6 +42,15 @@ def test_comma2k19_imu_gnss_beats_raw_gnss(tmp_path):
     assert s["pitch_median_deg"] <= 0.4
     cal = res.summary["calibration"]
     assert 3.0 < cal["camera_mount_rpy_deg"][1] < 4.5 and cal["mount_std_deg"][1] < 0.5  # truth ~3.8
+    # The importer asks for the GNSS latency (profile likelihood) and the fixes' noise from their
+    # innovations. The ground truth puts the latency at 0.06-0.08 s (evaluation only); found
+    # 0.068 +- 0.014 s and x0.084 of the stated 2.1 m: offset-removed, 1 s and pitch targets met
+    # (0.180 m, 0.024 m, 0.20 deg), raw 0.50 m (1.47 with the latency ignored).
+    assert rec.extra["gnss"] == {"latency_s": "auto", "h_std_scale": "auto"}
+    assert 0.04 < cal["gnss_latency_s"] < 0.11 and 0 < cal["gnss_latency_std_s"] < 0.05
+    assert 0.05 < cal["gnss_h_std_scale"] < 0.2
+    assert s["h_rmse_m"] <= 0.2 and s["rel_1s_median_m"] <= 0.03 and s["pitch_median_deg"] <= 0.3
+    assert s["h_rmse_raw_m"] < 0.6
     assert np.all(np.isfinite(res.cov))
 
 
@@ -66,26 +75,3 @@ def test_udacity_video_vo_tracks_all_frames(tmp_path):
     assert np.degrees(np.arccos(np.clip(fwd[:, 0], -1, 1))).max() < 15.0  # no wild heading swings
     steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
     assert np.all(np.isfinite(P)) and steps.max() < 1.0
-
-
-@pytest.mark.slow
-def test_comma2k19_gnss_latency_and_noise_estimated(tmp_path):
-    """issue 14: calib.yaml gnss: {latency_s: auto, h_std_scale: auto}. The ground truth puts the
-    receiver latency at 0.06-0.08 s (evaluation only); the profile finds 0.068 +- 0.014 s, and
-    with the fixes' noise from their innovations (x0.084 of the stated 2.1 m) the offset-removed,
-    1 s and pitch targets are met (0.180 m, 0.024 m, 0.20 deg; raw 0.50 m)."""
-    if not COMMA.exists():
-        pytest.skip("needs ../shared/data/real/comma2k19_example1_segment40")
-    from blendgen.recording.importers.comma2k19 import import_comma2k19
-
-    rec = read_recording(import_comma2k19(COMMA, tmp_path / "rec", show_progress=False))
-    rec.extra["gnss"] = {"latency_s": "auto", "h_std_scale": "auto"}
-    o = rec.extra["import"]["groundtruth_origin"]
-    georef = (o["lat"], o["lon"], o["alt"])
-    res = run_sync(rec, Sync(), tmp_path / "out", georef=georef, progress=False)
-    cal = res.summary["calibration"]
-    assert 0.04 < cal["gnss_latency_s"] < 0.11 and 0 < cal["gnss_latency_std_s"] < 0.05
-    assert 0.05 < cal["gnss_h_std_scale"] < 0.2
-    s = comma_errors(res, rec, georef)["sync"]
-    assert s["h_rmse_m"] <= 0.2 and s["rel_1s_median_m"] <= 0.03 and s["pitch_median_deg"] <= 0.3
-    assert s["h_rmse_raw_m"] < 0.6  # 1.47 with the latency ignored

@@ -124,6 +124,9 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
         notes=notes, groundtruth_origin={"lat": lat0, "lon": lon0, "alt": alt0},
         gnss_source=f"live_gnss_{gnss_source}")
     extra["import"] = meta
+    # A raw phone-grade receiver: its fixes lag the IMU clock and its reported accuracy is far
+    # more cautious than its scatter; both are estimated from the drive (docs/sync.md, GNSS latency).
+    extra["gnss"] = {"latency_s": "auto", "h_std_scale": "auto"}
     folder.write_calib(dst, EON_CAMERA, make_pose(R_CAM_DEVICE, np.zeros(3)), ImuNoise(update_rate=rate),
                        extra=extra)
     return dst

@@ -49,13 +49,14 @@ LIGHT_PASSES = ("diffuse_direct", "diffuse_indirect", "diffuse_color", "glossy_d
 
 def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None = None,
                     illumination: Illumination | None = None, seed: int = 0,
-                    crop: bool = True) -> tuple[np.ndarray, dict]:
+                    crop: bool = True, sensor_profile: sensor.SensorProfile | None = None) -> tuple[np.ndarray, dict]:
     """Composite the render's objects into ``real_bgr`` (uint8 HxWx3). Returns (image, info).
 
     All per-pixel work runs on one window: the union of the object pixels and the shadow
     catcher's patches, padded by WINDOW_PAD and aligned to a WINDOW_GRID-px grid; the rest of
     the frame is the real frame, copied. ``crop=False`` makes the window the whole frame (the
-    reference the crop is tested against: the results agree to < 0.5 level)."""
+    reference the crop is tested against: the results agree to < 0.5 level). ``sensor_profile``:
+    the camera's (sensor.SensorCache in a recording); None measures this frame."""
     t0 = time.perf_counter()
     settings = settings or Post()
     _check_frame(real_bgr)
@@ -110,7 +111,7 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
     timings = {}
     if obj_any.any():
         timings = _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed, settings,
-                                     illumination, seed, info)
+                                     illumination, seed, info, sensor_profile)
     t3 = time.perf_counter()
     info["timings_ms"] = {k: round(1e3 * v, 3) for k, v in {
         "prepare": t1 - t0, "shadows": t2 - t1, **timings, "objects": t3 - t2, "total": t3 - t0}.items()}
@@ -148,7 +149,7 @@ def _work_window(idx: np.ndarray, catcher: np.ndarray | None, H: int, W: int):
 
 
 def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed, settings, illumination, seed,
-                       info) -> dict:
+                       info, sensor_profile) -> dict:
     """Relight, colour-transfer, sensor-match and alpha-blend each object into ``out`` (in
     place), each on its own crop (box + background ring), so the cost follows object size.
     ``obj_any`` and ``shadowed`` are the window's; outside it there is neither."""
@@ -163,7 +164,8 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
     strength = 0.0 if settings.color_transfer == "none" else settings.color_strength \
         if settings.color_strength is not None else \
         STRENGTH_AFTER_ENV_LIGHT if env_lit else STRENGTH_WITHOUT_ENV_LIGHT
-    profile = sensor.measure(_centre_crop(real_bgr)) if settings.sensor_match else None
+    profile = None if not settings.sensor_match else \
+        sensor_profile if sensor_profile is not None else sensor.measure_frame(real_bgr)
     if profile is not None:
         info["sensor"] = {"measured": {k: (round(v, 4) if isinstance(v, float) else v)
                                        for k, v in profile.to_dict().items()}, "applied": {}}
@@ -336,14 +338,6 @@ def _bbox(mask: np.ndarray, pad: int, H: int, W: int) -> tuple[slice, slice]:
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     return (slice(max(0, rows[0] - pad), min(H, rows[-1] + 1 + pad)),
             slice(max(0, cols[0] - pad), min(W, cols[-1] + 1 + pad)))
-
-
-def _centre_crop(img: np.ndarray, size: int = 384) -> np.ndarray:
-    """A central crop on the 8x8 grid: sensor statistics are global, this keeps them fast."""
-    h, w = img.shape[:2]
-    ch, cw = min(h, size) // 8 * 8 or h, min(w, size) // 8 * 8 or w
-    y0, x0 = (h - ch) // 2 // 8 * 8, (w - cw) // 2 // 8 * 8
-    return img[y0:y0 + ch, x0:x0 + cw]
 
 
 def _check_frame(real_bgr) -> None:

@@ -129,19 +129,32 @@ def noise_sigma(gray: np.ndarray) -> float:
 
 def blur_metric(gray: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Crete et al. re-blur metric in [0, 1] (0: sharp)."""
-    g = gray.astype(np.float32)
-    if min(g.shape) < 10:
+    if min(gray.shape) < 10:
         return 0.0
-    k = np.ones((1, 9), np.float32) / 9
-    bv = cv2.filter2D(g, -1, k.T)
-    bh = cv2.filter2D(g, -1, k)
-    # absolute neighbour differences on the common (h-1)x(w-1) grid, with OpenCV (numpy's
-    # diff + abs + masked gathers made this the post stage's costliest measurement)
+    if gray.dtype == np.uint8:
+        # Exact integer arithmetic (2.5x faster than float, called 3-4 times per object): 9x
+        # the box means are integer box sums, so 9 * max(d_f - d_b, 0) = 9 d_f - |S diff|,
+        # clamped at 0 by the unsigned saturating subtract.
+        g, k, n9 = gray, None, 9.0
+        bv = cv2.boxFilter(g, cv2.CV_16U, (1, 9), normalize=False)
+        bh = cv2.boxFilter(g, cv2.CV_16U, (9, 1), normalize=False)
+    else:
+        g, n9 = gray.astype(np.float32), 1.0
+        k = np.ones((1, 9), np.float32) / 9
+        bv = cv2.filter2D(g, -1, k.T)
+        bh = cv2.filter2D(g, -1, k)
+    # absolute neighbour differences on the common (h-1)x(w-1) grid
     d_f_v = cv2.absdiff(g[1:, :-1], g[:-1, :-1])
     d_f_h = cv2.absdiff(g[:-1, 1:], g[:-1, :-1])
-    v_v = np.maximum(d_f_v - cv2.absdiff(bv[1:, :-1], bv[:-1, :-1]), 0)
-    v_h = np.maximum(d_f_h - cv2.absdiff(bh[:-1, 1:], bh[:-1, :-1]), 0)
-    m = None if mask is None else mask[:-1, :-1].astype(np.uint8)
+    if k is None:
+        v_v = cv2.subtract(cv2.multiply(d_f_v, 9, dtype=cv2.CV_16U), cv2.absdiff(bv[1:, :-1], bv[:-1, :-1]))
+        v_h = cv2.subtract(cv2.multiply(d_f_h, 9, dtype=cv2.CV_16U), cv2.absdiff(bh[:-1, 1:], bh[:-1, :-1]))
+    else:
+        v_v = np.maximum(d_f_v - cv2.absdiff(bv[1:, :-1], bv[:-1, :-1]), 0)
+        v_h = np.maximum(d_f_h - cv2.absdiff(bh[:-1, 1:], bh[:-1, :-1]), 0)
+    m = None if mask is None else mask[:-1, :-1]
+    if m is not None:
+        m = m.view(np.uint8) if m.dtype == bool else m.astype(np.uint8)
     s_f_v, s_f_h, s_v_v, s_v_h = (cv2.sumElems(x)[0] if m is None else cv2.mean(x, mask=m)[0]
                                   for x in (d_f_v, d_f_h, v_v, v_h))
     if m is not None:  # means over the mask -> sums (the ratios below only need a common scale)
@@ -149,8 +162,8 @@ def blur_metric(gray: np.ndarray, mask: np.ndarray | None = None) -> float:
         s_f_v, s_f_h, s_v_v, s_v_h = (v * n for v in (s_f_v, s_f_h, s_v_v, s_v_h))
     if s_f_v < 1e-3 or s_f_h < 1e-3:
         return 0.0
-    b_v = (s_f_v - s_v_v) / s_f_v
-    b_h = (s_f_h - s_v_h) / s_f_h
+    b_v = (s_f_v - s_v_v / n9) / s_f_v
+    b_h = (s_f_h - s_v_h / n9) / s_f_h
     return float(max(b_v, b_h))
 
 

@@ -326,11 +326,17 @@ def _edge_fade(catcher: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.nda
     covered = covered[y0:y1, x0:x1]
     at = (at[0] - y0, at[1] - x0)
     dist = cv2.distanceTransform(covered, cv2.DIST_L2, 3)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(covered, connectivity=8)
+    # labels without stats (3x cheaper); a patch's largest distance by a masked max over the
+    # box, or, with many patches, over each patch's own box
+    n, labels = cv2.connectedComponents(covered, connectivity=8, ltype=cv2.CV_32S)
     inradius = np.zeros(n, np.float32)
-    for i in range(1, n):  # the largest distance inside each patch, on its own box
-        x, y, w, h = stats[i, :4]
-        inradius[i] = dist[y:y + h, x:x + w][labels[y:y + h, x:x + w] == i].max()
+    if n <= 8:
+        for i in range(1, n):
+            inradius[i] = cv2.minMaxLoc(dist, mask=cv2.compare(labels, i, cv2.CMP_EQ))[1]
+    else:
+        for i, sl in enumerate(ndimage.find_objects(labels), start=1):
+            if sl is not None:
+                inradius[i] = dist[sl][labels[sl] == i].max()
     return np.clip(dist[at] / np.maximum(CONTACT_FADE * inradius[labels[at]], 1.0), 0.0, 1.0)
 
 

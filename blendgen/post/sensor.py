@@ -152,14 +152,18 @@ def blur_metric(gray: np.ndarray, mask: np.ndarray | None = None) -> float:
     else:
         v_v = np.maximum(d_f_v - cv2.absdiff(bv[1:, :-1], bv[:-1, :-1]), 0)
         v_h = np.maximum(d_f_h - cv2.absdiff(bh[:-1, 1:], bh[:-1, :-1]), 0)
-    m = None if mask is None else mask[:-1, :-1]
-    if m is not None:
-        m = m.view(np.uint8) if m.dtype == bool else m.astype(np.uint8)
-    s_f_v, s_f_h, s_v_v, s_v_h = (cv2.sumElems(x)[0] if m is None else cv2.mean(x, mask=m)[0]
-                                  for x in (d_f_v, d_f_h, v_v, v_h))
-    if m is not None:  # means over the mask -> sums (the ratios below only need a common scale)
-        n = cv2.countNonZero(m)
-        s_f_v, s_f_h, s_v_v, s_v_h = (v * n for v in (s_f_v, s_f_h, s_v_v, s_v_h))
+    if mask is None:
+        s_f_v, s_f_h, s_v_v, s_v_h = (cv2.sumElems(x)[0] for x in (d_f_v, d_f_h, v_v, v_h))
+    elif k is None:
+        # masked sums as AND with an all-ones/zero mask + sum: 10x faster than cv2.mean(mask=)
+        m8 = (mask[:-1, :-1] != 0).view(np.uint8) * np.uint8(255)
+        m16 = m8.astype(np.uint16) * np.uint16(257)
+        s_f_v, s_f_h = (cv2.sumElems(cv2.bitwise_and(x, m8))[0] for x in (d_f_v, d_f_h))
+        s_v_v, s_v_h = (cv2.sumElems(cv2.bitwise_and(x, m16))[0] for x in (v_v, v_h))
+    else:
+        m = (mask[:-1, :-1] != 0).view(np.uint8)
+        n = cv2.countNonZero(m)  # means over the mask -> sums
+        s_f_v, s_f_h, s_v_v, s_v_h = (cv2.mean(x, mask=m)[0] * n for x in (d_f_v, d_f_h, v_v, v_h))
     if s_f_v < 1e-3 or s_f_h < 1e-3:
         return 0.0
     b_v = (s_f_v - s_v_v / n9) / s_f_v

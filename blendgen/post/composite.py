@@ -103,7 +103,7 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
         mult = 1.0 - _edge_fade(shadow, (my, mx))[:, None] * (1.0 - mult)
         flat = (my + wy0) * W + (mx + wx0)  # flat frame indices: gathers ~5x faster than masks
         out2 = out.reshape(-1, 3)
-        out2[flat] = linear_to_srgb_u8(srgb_u8_to_linear(out2[flat]) * mult)
+        _put(out2, flat, linear_to_srgb_u8(srgb_u8_to_linear(np.take(out2, flat, axis=0)) * mult))
         info.update(shadows=True, shadow_px=int(m.sum()), shadow_baseline=round(baseline, 4))
 
     # ---- objects: crop to them and their background rings (origin on the 8x8 JPEG grid)
@@ -205,12 +205,12 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
             if illumination.condition != "day":  # night light pools: the light where it stands
                 local = local_light_gain(real_bgr, (bx0, by0, bx1, by1), illumination,
                                          exclude=lambda band: _in_window(not_road, win, band, False))
-            lit, rec["relight"] = relight(rgb_px[sel], sub, None, illumination, local_gain=local)
-            rgb_px[sel] = lit
+            lit, rec["relight"] = relight(np.take(rgb_px, sel, axis=0), sub, None, illumination, local_gain=local)
+            _put(rgb_px, sel, lit)
         # Un-premultiply, then display-encode (HDR clips here, like the real camera's sensor).
         obj = np.zeros(alpha.shape + (3,), np.float32)
         lflat = cy * alpha.shape[1] + cx  # crop-flat indices of the covered pixels
-        obj.reshape(-1, 3)[lflat] = linear_to_srgb(rgb_px[:, ::-1] / a_px[:, None])  # BGR, [0, 1]
+        _put(obj.reshape(-1, 3), lflat, linear_to_srgb(rgb_px / a_px[:, None])[:, ::-1])  # BGR, [0, 1]
 
         # ---- colour transfer against the real background around the object
         t2 = time.perf_counter()
@@ -243,8 +243,8 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
         t4 = time.perf_counter()
         out2 = out.reshape(-1, 3)
         a = a_px[:, None]
-        out2[flat] = linear_to_srgb_u8(a * srgb_to_linear(obj.reshape(-1, 3)[lflat]) +
-                                       (1.0 - a) * srgb_u8_to_linear(out2[flat]))
+        _put(out2, flat, linear_to_srgb_u8(a * srgb_to_linear(_take(obj, lflat)) +
+                                           (1.0 - a) * srgb_u8_to_linear(np.take(out2, flat, axis=0))))
         t5 = time.perf_counter()
         for k, v in (("relight", t2 - t1), ("color_transfer", t3 - t2), ("sensor", t4 - t3), ("blend", t5 - t4)):
             tm[k] += v
@@ -288,6 +288,15 @@ def _take(a: np.ndarray, flat: np.ndarray) -> np.ndarray:
     """Rows ``flat`` of an HxW(xC) image viewed as (H*W, C)."""
     a = np.asarray(a)
     return np.take(a.reshape(a.shape[0] * a.shape[1], -1), flat, axis=0)
+
+
+def _put(dst: np.ndarray, flat: np.ndarray, rows: np.ndarray) -> None:
+    """dst[flat] = rows for a C-contiguous (N, C) ``dst``: each row moved as one opaque item
+    (np.put on a void view: ~3x faster than fancy-index assignment of (n, C) rows)."""
+    c = dst.shape[1]
+    item = np.dtype((np.void, c * dst.itemsize))
+    src = np.ascontiguousarray(rows, dtype=dst.dtype).reshape(-1, c)
+    np.put(dst.view(item).reshape(-1), flat, src.view(item).reshape(-1), mode="clip")
 
 
 def _shadow_mask(catcher: np.ndarray, win):

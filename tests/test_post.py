@@ -304,6 +304,13 @@ def test_sensor_cache_measures_once_per_block_whatever_the_order():
     with pytest.raises(ValueError):
         sensor.SensorCache(read, block=0)
 
+    def broken(i):
+        raise UserError(f"frame {i} is truncated", where="frames/")
+
+    c = sensor.SensorCache(broken, block=5)  # a bad first frame: the block's good frames measure themselves
+    prof, src = c.profile(3, frames[3])
+    assert prof == sensor.measure_frame(frames[3]) and src["frame"] == 3 and "unreadable" in src["reason"]
+
 
 # ---------------- compositing
 

@@ -23,6 +23,8 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
+from blendgen.errors import UserError
+
 NOISE_MIN_SIGMA = 1.5  # 8-bit levels (quantisation and fine texture read as ~1)
 BLUR_MIN_DELTA = 0.03  # re-blur metric above the render's
 BLOCKINESS_MIN = 1.12  # boundary / interior gradient ratio
@@ -72,7 +74,7 @@ class SensorCache:
     processes frames in (composites are bit-identical however the farm spreads the work):
     frame i uses the profile measured on frame a = i - i % block (read with ``read_frame``
     when this worker has not seen it), unless its brightness differs from frame a's by more
-    than REFRESH_LEVEL_RATIO: then frame i is measured itself."""
+    than REFRESH_LEVEL_RATIO, or frame a cannot be read: then frame i is measured itself."""
 
     def __init__(self, read_frame: Callable[[int], np.ndarray], block: int = SENSOR_BLOCK):
         if block < 1:
@@ -86,7 +88,11 @@ class SensorCache:
         a = i - i % self.block
         level = frame_level(real_bgr)
         if a not in self._anchors:
-            anchor = real_bgr if a == i else self.read_frame(a)
+            try:
+                anchor = real_bgr if a == i else self.read_frame(a)
+            except (UserError, OSError) as e:  # a bad frame must not fail the good ones of its block
+                self.measured += 1
+                return measure_frame(real_bgr), {"frame": i, "reason": f"frame {a} unreadable: {e}"}
             self._anchors[a] = (measure_frame(anchor), level if a == i else frame_level(anchor))
             self.measured += 1
             if len(self._anchors) > 8:  # a worker moves forward through the recording

@@ -129,7 +129,8 @@ def _work_window(idx: np.ndarray, catcher: np.ndarray | None, H: int, W: int):
     catcher pixel that is not exactly 1 (outside the rendered region the catcher is 1), padded
     and aligned to the WINDOW_GRID; None when there is neither."""
     boxes = []
-    x, y, w, h = cv2.boundingRect((idx != 0).view(np.uint8))
+    nz = cv2.compare(idx, 0, cv2.CMP_NE) if idx.dtype == np.int32 else (idx != 0).view(np.uint8)
+    x, y, w, h = cv2.boundingRect(nz)
     if w > 0:
         boxes.append((x - 1, y - 1, x + w + 1, y + h + 1))
     if catcher is not None:

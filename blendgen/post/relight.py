@@ -85,11 +85,18 @@ def relight(rgb: np.ndarray, passes: dict, mask: np.ndarray, illumination: Illum
     if local_gain is not None:
         g = g * np.float32(local_gain)
     gm1 = g - np.float32(1.0)
-    delta = dc * (gm1 * (dd + di))
+    # in place (the same products as dc * (gm1 * (dd + di)), bit for bit, fewer temporaries)
+    delta = np.add(dd, di)
+    delta *= gm1
+    delta *= dc
     if gd is not None and gi is not None and gc is not None:
-        delta += gc * (gm1 * (gd + gi))
+        gl = np.add(gd, gi)
+        gl *= gm1
+        gl *= gc
+        delta += gl
     if mask is None:
-        out = np.maximum(rgb + delta, 0.0)
+        out = np.add(rgb, delta, dtype=np.float32) if rgb.dtype == np.float32 else rgb + delta
+        out = np.maximum(out, 0.0, out=out)
     else:
         out = rgb.copy()
         out[mask] = np.maximum(rgb[mask] + delta, 0.0)

@@ -284,4 +284,4 @@ def apply(obj_bgr: np.ndarray, alpha: np.ndarray, profile: SensorProfile, *, ori
         if ok:
             out = cv2.imdecode(enc, cv2.IMREAD_COLOR).astype(np.float32) / 255.0
             applied["jpeg_quality"] = profile.jpeg_quality
-    return np.clip(out, 0.0, 1.0).astype(np.float32), applied
+    return np.clip(out, 0.0, 1.0).astype(np.float32, copy=False), applied

@@ -244,8 +244,13 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
         t4 = time.perf_counter()
         out2 = out.reshape(-1, 3)
         a = a_px[:, None]
-        _put(out2, flat, linear_to_srgb_u8(a * srgb_to_linear(_take(obj, lflat)) +
-                                           (1.0 - a) * srgb_u8_to_linear(np.take(out2, flat, axis=0))))
+        # a * I_V + (1 - a) * I_R, in place on the two temporaries (the same products, bit for bit)
+        fg = srgb_to_linear(_take(obj, lflat))
+        fg *= a
+        bg = srgb_u8_to_linear(np.take(out2, flat, axis=0))
+        bg *= 1.0 - a
+        fg += bg
+        _put(out2, flat, linear_to_srgb_u8(fg))
         t5 = time.perf_counter()
         for k, v in (("relight", t2 - t1), ("color_transfer", t3 - t2), ("sensor", t4 - t3), ("blend", t5 - t4)):
             tm[k] += v

@@ -100,7 +100,7 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
         # whole patches, so the fade is the same as on the full frame.
         my, mx = np.nonzero(m)
         my, mx = my + sb[0].start, mx + sb[1].start  # window coordinates
-        mult = 1.0 - _edge_fade(shadow, (my, mx))[:, None] * (1.0 - mult)
+        mult = 1.0 - _rep3(_edge_fade(shadow, (my, mx))) * (1.0 - mult)
         flat = (my + wy0) * W + (mx + wx0)  # flat frame indices: gathers ~5x faster than masks
         out2 = out.reshape(-1, 3)
         _put(out2, flat, linear_to_srgb_u8(srgb_u8_to_linear(np.take(out2, flat, axis=0)) * mult))
@@ -192,6 +192,7 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
         cov = alpha > 0
         cy, cx = np.nonzero(cov)
         a_px = alpha[cy, cx]
+        a3 = _rep3(a_px)  # (n, 3): same-shape products are ~5x faster than (n, 1) broadcasts
         flat = (cy + y0) * W + (cx + x0)  # np.take on flat indices: ~5x faster than a masked view
         rgb_px = np.clip(finite(_take(rgba, flat)[:, :3].astype(np.float32), 0.0, HDR_MAX), 0.0, HDR_MAX)
         rec = {"id": int(oid), "pixels": int(o_c.sum()), "crop_xywh": [int(x0), int(y0), int(x1 - x0), int(y1 - y0)]}
@@ -211,7 +212,7 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
         # Un-premultiply, then display-encode (HDR clips here, like the real camera's sensor).
         obj = np.zeros(alpha.shape + (3,), np.float32)
         lflat = cy * alpha.shape[1] + cx  # crop-flat indices of the covered pixels
-        _put(obj.reshape(-1, 3), lflat, linear_to_srgb(rgb_px / a_px[:, None])[:, ::-1])  # BGR, [0, 1]
+        _put(obj.reshape(-1, 3), lflat, linear_to_srgb(rgb_px / a3)[:, ::-1])  # BGR, [0, 1]
 
         # ---- colour transfer against the real background around the object
         t2 = time.perf_counter()
@@ -243,12 +244,11 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
         # ---- alpha blend in linear light over the (already shadowed) background
         t4 = time.perf_counter()
         out2 = out.reshape(-1, 3)
-        a = a_px[:, None]
         # a * I_V + (1 - a) * I_R, in place on the two temporaries (the same products, bit for bit)
         fg = srgb_to_linear(_take(obj, lflat))
-        fg *= a
+        fg *= a3
         bg = srgb_u8_to_linear(np.take(out2, flat, axis=0))
-        bg *= 1.0 - a
+        bg *= 1.0 - a3
         fg += bg
         _put(out2, flat, linear_to_srgb_u8(fg))
         t5 = time.perf_counter()
@@ -294,6 +294,13 @@ def _take(a: np.ndarray, flat: np.ndarray) -> np.ndarray:
     """Rows ``flat`` of an HxW(xC) image viewed as (H*W, C)."""
     a = np.asarray(a)
     return np.take(a.reshape(a.shape[0] * a.shape[1], -1), flat, axis=0)
+
+
+def _rep3(v: np.ndarray) -> np.ndarray:
+    """(n,) float32 -> (n, 3), the value in each channel (numpy's (n, 1) broadcast against
+    (n, 3) runs an inner loop of 3 elements per row)."""
+    v = np.ascontiguousarray(v, dtype=np.float32).reshape(-1)
+    return cv2.merge((v, v, v)).reshape(-1, 3) if v.size else np.zeros((0, 3), np.float32)
 
 
 def _put(dst: np.ndarray, flat: np.ndarray, rows: np.ndarray) -> None:

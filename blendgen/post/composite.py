@@ -194,7 +194,7 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
         a_px = alpha[cy, cx]
         a3 = _rep3(a_px)  # (n, 3): same-shape products are ~5x faster than (n, 1) broadcasts
         flat = (cy + y0) * W + (cx + x0)  # np.take on flat indices: ~5x faster than a masked view
-        rgb_px = np.clip(finite(_take(rgba, flat)[:, :3].astype(np.float32), 0.0, HDR_MAX), 0.0, HDR_MAX)
+        rgb_px = np.clip(finite(_rows3(_take(rgba, flat), cv2.COLOR_BGRA2BGR), 0.0, HDR_MAX), 0.0, HDR_MAX)
         rec = {"id": int(oid), "pixels": int(o_c.sum()), "crop_xywh": [int(x0), int(y0), int(x1 - x0), int(y1 - y0)]}
 
         # ---- relight (re-weight the lighting passes toward the estimate)
@@ -212,7 +212,8 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
         # Un-premultiply, then display-encode (HDR clips here, like the real camera's sensor).
         obj = np.zeros(alpha.shape + (3,), np.float32)
         lflat = cy * alpha.shape[1] + cx  # crop-flat indices of the covered pixels
-        _put(obj.reshape(-1, 3), lflat, linear_to_srgb(rgb_px / a3)[:, ::-1])  # BGR, [0, 1]
+        srgb = linear_to_srgb(rgb_px / a3)
+        _put(obj.reshape(-1, 3), lflat, _rows3(srgb, cv2.COLOR_RGB2BGR))  # BGR, [0, 1]
 
         # ---- colour transfer against the real background around the object
         t2 = time.perf_counter()
@@ -294,6 +295,15 @@ def _take(a: np.ndarray, flat: np.ndarray) -> np.ndarray:
     """Rows ``flat`` of an HxW(xC) image viewed as (H*W, C)."""
     a = np.asarray(a)
     return np.take(a.reshape(a.shape[0] * a.shape[1], -1), flat, axis=0)
+
+
+def _rows3(rows: np.ndarray, code: int) -> np.ndarray:
+    """(n, 3) float32 rows of (n, 4) or (n, 3) ``rows`` through cvtColor ``code`` (drop alpha,
+    swap R and B): numpy's [:, :3] and [:, ::-1] copies run 3-element inner loops."""
+    rows = np.ascontiguousarray(rows, dtype=np.float32)
+    if rows.shape[1] != (4 if code == cv2.COLOR_BGRA2BGR else 3) or not len(rows):
+        return np.ascontiguousarray(rows[:, :3] if code == cv2.COLOR_BGRA2BGR else rows[:, ::-1])
+    return cv2.cvtColor(rows.reshape(-1, 1, rows.shape[1]), code).reshape(-1, 3)
 
 
 def _rep3(v: np.ndarray) -> np.ndarray:

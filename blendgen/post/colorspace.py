@@ -5,6 +5,7 @@ Real frames are 8-bit sRGB-encoded BGR (OpenCV order); renders are linear RGB(A)
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 # Rec.709 luminance weights in BGR order (OpenCV images are BGR).
@@ -63,7 +64,14 @@ def finite(a: np.ndarray, fill: float = 0.0, big: float | None = None) -> np.nda
     """``a`` with NaN -> fill and +-inf -> big / fill; a cheap check first, since render passes
     are almost always finite and np.nan_to_num costs several full passes over the data."""
     a = np.asarray(a)
-    if a.dtype.kind != "f" or np.isfinite(a.sum()):  # (an overflow to inf only costs the slow path)
+    if a.dtype.kind != "f":
+        return a
+    if a.dtype in (np.float32, np.float64) and a.flags.c_contiguous and a.size:
+        # OpenCV's sum (double accumulator: no overflow) is ~3x faster than numpy's on (n, 3) rows
+        total = cv2.sumElems(a.reshape(-1, 1))[0]
+    else:
+        total = a.sum()  # (an overflow to inf only costs the slow path)
+    if np.isfinite(total):
         return a
     return np.nan_to_num(a, nan=fill, posinf=fill if big is None else big, neginf=fill)
 

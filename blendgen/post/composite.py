@@ -93,7 +93,9 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
         m = shadowed[sb]
         sc = cv2.blur(shadow[sb], (3, 3)).reshape(m.shape + (-1,))
         # Shadows only darken: the catcher's >1 values (bounce light, noise) are not added.
-        mult = np.clip(sc[m][:, ::-1] / baseline, 0.0, 1.0)
+        mult = _rows3(sc[m], cv2.COLOR_RGB2BGR)
+        mult /= baseline
+        np.clip(mult, 0.0, 1.0, out=mult)
         # the sky shadow under an object still blocks light at the catcher patch's edge: fade
         # it out toward the edge, or the patch's outline shows on the road (sun shadows end
         # a margin inside their patch, so the fade leaves them whole). The window holds
@@ -326,7 +328,10 @@ def _shadow_mask(catcher: np.ndarray, win):
     """(shadowed, catcher (float32, finite), baseline) on the window ``win``."""
     x0, y0, x1, y1 = win
     sc = catcher[y0:y1, x0:x1]
-    shadow = finite(np.ascontiguousarray(sc[..., :3] if sc.ndim == 3 else sc[..., None], dtype=np.float32), 1.0)
+    if sc.ndim == 3 and sc.shape[2] == 3 and sc.dtype == np.float32:
+        shadow = finite(sc, 1.0)  # the window as a view (OpenCV reads strided rows): no copy
+    else:
+        shadow = finite(np.ascontiguousarray(sc[..., :3] if sc.ndim == 3 else sc[..., None], dtype=np.float32), 1.0)
     # Grey level via cvtColor (~10x faster than a min over channels).
     grey = cv2.cvtColor(shadow, cv2.COLOR_BGR2GRAY) if shadow.shape[2] == 3 else shadow[..., 0]
     # The catcher carries a small global bias (objects block a little sky everywhere, denoiser
@@ -349,7 +354,7 @@ def _edge_fade(catcher: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.nda
     the road instead of stopping."""
     # != 1.0 in any channel, on the float bits; cvtColor of 255/0 bytes ORs the channels
     # (numpy's any() over a 3-channel axis is slow)
-    ne = (np.ascontiguousarray(catcher, dtype=np.float32).view(np.uint32) != ONE_F32_BITS).view(np.uint8)
+    ne = (np.asarray(catcher, dtype=np.float32).view(np.uint32) != ONE_F32_BITS).view(np.uint8)
     covered = cv2.cvtColor(ne * np.uint8(255), cv2.COLOR_BGR2GRAY) if ne.shape[2] == 3 else ne[..., 0] * np.uint8(255)
     # Only the patches' box (+1 px of zeros, so edge distances stay as they are) is transformed.
     x, y, w, h = cv2.boundingRect(covered)

@@ -287,6 +287,7 @@ def test_sensor_cache_measures_once_per_block_whatever_the_order():
     noisy = [np.clip(clean + rng.normal(0, 5, clean.shape), 0, 255).astype(np.uint8) for _ in range(12)]
     frames = {i: noisy[i] for i in range(12)}
     frames[7] = (clean // 2).astype(np.uint8)  # exposure change: half as bright, no noise
+    frames[3] = cv2.GaussianBlur(frames[3], (0, 0), 2)  # motion blur on one frame
     reads = []
 
     def read(i):
@@ -298,8 +299,11 @@ def test_sensor_cache_measures_once_per_block_whatever_the_order():
     assert a.measured == 4 and reads == []  # frames 0, 5, 10 and the darker frame 7
     backward = {i: b.profile(i, frames[i]) for i in reversed(range(12))}
     assert forward == backward and sorted(reads) == [0, 5, 10]  # mid-block: it reads the first frame
-    assert forward[3][1] == {"frame": 0} and forward[7][1]["frame"] == 7
-    assert forward[3][0] == sensor.measure_frame(frames[0]) and forward[3][0].noise_sigma > sensor.NOISE_MIN_SIGMA
+    assert forward[4][1] == {"frame": 0, "blur_frame": 4} and forward[7][1]["frame"] == 7
+    own, first = sensor.measure_frame(frames[4]), sensor.measure_frame(frames[0])
+    assert forward[4][0].noise_sigma == first.noise_sigma > sensor.NOISE_MIN_SIGMA
+    assert forward[4][0].blur_metric == own.blur_metric  # blur follows the motion: every frame's own
+    assert forward[3][0].blur_metric == sensor.measure_frame(frames[3]).blur_metric > first.blur_metric + 0.1
     assert forward[7][0].noise_sigma < sensor.NOISE_MIN_SIGMA  # measured on itself, not on frame 5
     with pytest.raises(ValueError):
         sensor.SensorCache(read, block=0)

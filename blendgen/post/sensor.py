@@ -18,7 +18,7 @@ per block of SENSOR_BLOCK frames (`SensorCache`, used by the frame processor); a
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import cv2
 import numpy as np
@@ -31,9 +31,9 @@ BLOCKINESS_MIN = 1.12  # boundary / interior gradient ratio
 VIGNETTE_MIN_K = 0.15  # 15% darker at the corner radius (scene content can fake ~10%)
 BLUR_SIGMAS = (0.0, 0.6, 1.0, 1.5, 2.2)
 GHOST_QUALITIES = (30, 40, 50, 60, 70, 80, 90)
-# Refresh rule of SensorCache: one measurement per block of frames (1-3 s at 10-30 fps), and
-# a frame whose brightness differs from its block's measured frame by more than this ratio is
-# measured itself (gain and exposure time, hence noise and motion blur, follow the light).
+# Refresh rule of SensorCache: noise, JPEG and vignetting measured once per block of frames
+# (1-3 s at 10-30 fps); a frame whose brightness differs from its block's measured frame by
+# more than this ratio is measured itself (gain, hence noise, follows the light).
 SENSOR_BLOCK = 30
 REFRESH_LEVEL_RATIO = 1.25
 CROP = 384  # the measurement's centre crop (px): the statistics are global, this keeps them fast
@@ -64,49 +64,51 @@ def measure_frame(real_bgr: np.ndarray) -> SensorProfile:
     return measure(centre_crop(real_bgr))
 
 
-def frame_level(real_bgr: np.ndarray) -> float:
-    """Mean 8-bit level of the measurement crop (~0.05 ms): SensorCache's change detector."""
-    return float(np.mean(cv2.mean(centre_crop(real_bgr))[:3]))
-
-
 class SensorCache:
-    """Sensor profiles of one recording, deterministic per frame whatever order a worker
-    processes frames in (composites are bit-identical however the farm spreads the work):
-    frame i uses the profile measured on frame a = i - i % block (read with ``read_frame``
-    when this worker has not seen it), unless its brightness differs from frame a's by more
-    than REFRESH_LEVEL_RATIO, or frame a cannot be read: then frame i is measured itself."""
+    """Sensor profiles of one recording. Noise, JPEG and vignetting belong to the camera and
+    change slowly: frame i takes them from frame a = i - i % block (read with ``read_frame``
+    when this worker has not seen it), or from itself when its brightness differs from frame
+    a's by more than REFRESH_LEVEL_RATIO (gain follows the light) or frame a cannot be read.
+    Blur follows the motion and is measured on every frame (~0.5 ms). Deterministic per frame
+    whatever order a worker processes frames in (composites are bit-identical however the
+    farm spreads the work)."""
 
     def __init__(self, read_frame: Callable[[int], np.ndarray], block: int = SENSOR_BLOCK):
         if block < 1:
             raise ValueError(f"block must be >= 1, got {block}")
         self.read_frame, self.block = read_frame, int(block)
         self._anchors: dict[int, tuple[SensorProfile, float]] = {}
-        self.measured = 0  # measurements made (for the benchmark and the tests)
+        self.measured = 0  # full measurements made (for the benchmark and the tests)
 
     def profile(self, i: int, real_bgr: np.ndarray) -> tuple[SensorProfile, dict]:
         """(profile for frame i, where it came from) given frame i's pixels ``real_bgr``."""
         a = i - i % self.block
-        level = frame_level(real_bgr)
-        if a not in self._anchors:
+        gray = cv2.cvtColor(centre_crop(real_bgr), cv2.COLOR_BGR2GRAY)
+        level = float(cv2.mean(gray)[0])
+        if a == i or a not in self._anchors:
             try:
-                anchor = real_bgr if a == i else self.read_frame(a)
+                anchor = gray if a == i else cv2.cvtColor(centre_crop(self.read_frame(a)), cv2.COLOR_BGR2GRAY)
             except (UserError, OSError) as e:  # a bad frame must not fail the good ones of its block
                 self.measured += 1
-                return measure_frame(real_bgr), {"frame": i, "reason": f"frame {a} unreadable: {e}"}
-            self._anchors[a] = (measure_frame(anchor), level if a == i else frame_level(anchor))
-            self.measured += 1
-            if len(self._anchors) > 8:  # a worker moves forward through the recording
-                self._anchors.pop(next(iter(self._anchors)))
+                return measure(gray), {"frame": i, "reason": f"frame {a} unreadable: {e}"}
+            if a not in self._anchors:
+                self._anchors[a] = (measure(anchor), float(cv2.mean(anchor)[0]))
+                self.measured += 1
+                if len(self._anchors) > 8:  # a worker moves forward through the recording
+                    self._anchors.pop(next(iter(self._anchors)))
         prof, a_level = self._anchors[a]
+        if a == i:
+            return prof, {"frame": i}
         ratio = (level + 1.0) / (a_level + 1.0)
-        if a != i and max(ratio, 1.0 / ratio) > REFRESH_LEVEL_RATIO:
+        if max(ratio, 1.0 / ratio) > REFRESH_LEVEL_RATIO:
             self.measured += 1
-            return measure_frame(real_bgr), {"frame": i, "reason": f"brightness x{ratio:.2f} of frame {a}"}
-        return prof, {"frame": a}
+            return measure(gray), {"frame": i, "reason": f"brightness x{ratio:.2f} of frame {a}"}
+        return replace(prof, blur_metric=blur_metric(gray)), {"frame": a, "blur_frame": i}
 
 
 def measure(real_bgr: np.ndarray) -> SensorProfile:
-    gray = cv2.cvtColor(real_bgr, cv2.COLOR_BGR2GRAY)
+    """The profile of an 8-bit BGR or grey image (all of it)."""
+    gray = cv2.cvtColor(real_bgr, cv2.COLOR_BGR2GRAY) if real_bgr.ndim == 3 else real_bgr
     blockiness = _blockiness(gray)
     return SensorProfile(noise_sigma=noise_sigma(gray), blur_metric=blur_metric(gray), blockiness=blockiness,
                          jpeg_quality=_jpeg_quality(gray) if blockiness >= BLOCKINESS_MIN else None,

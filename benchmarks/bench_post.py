@@ -329,10 +329,10 @@ def timing_benchmark(args, work: Path):
     reals = [cv2.resize(cv2.imread(str(p)), (1280, 720), interpolation=cv2.INTER_LINEAR) for p in photos]
     n_obj = [len(np.unique(p["index"])) - 1 for p in renders]
     # "after" is what the frame processor does: the sensor profile comes from a SensorCache
-    # (one measurement per block of frames of a recording). Each photo is its own recording and
-    # its repeats are consecutive frames of it: repeat 0 (the block's first frame) measures,
-    # the others reuse it, i.e. 1 in `repeats` frames pays the measurement (the pipeline: 1 in
-    # SENSOR_BLOCK). "before" measured every frame.
+    # (one full measurement per block of frames of a recording, the blur every frame). Each
+    # photo is its own recording and its repeats are consecutive frames of it: repeat 0 (the
+    # block's first frame) is measured in full, i.e. 1 in `repeats` frames pays it (the
+    # pipeline: 1 in SENSOR_BLOCK). "before" measured every frame in full.
     caches = [SensorCache(lambda a, real=real: real) for real in reals]
 
     def after_cf(real, passes, *, settings, illumination, seed, frame):
@@ -421,9 +421,10 @@ def write_timing(res: dict, args) -> None:
         f"matching). {args.repeats} repeats per frame, before and after interleaved (alternating order) in one "
         "process; per frame = estimate_illumination + composite_frame. Before = blendgen/post at git "
         f"`{args.before}`. After = what the frame processor does: the sensor profile from a `SensorCache` (each "
-        "photo one recording, its repeats consecutive frames: the first measures, the others reuse it; "
-        f"{res['measured']} measurements for {len(res['cpu']['after'])} frames; the pipeline measures once per "
-        f"{SENSOR_BLOCK} frames).", "",
+        "photo one recording, its repeats consecutive frames: the first is measured in full, the others reuse "
+        "its noise, JPEG and vignetting and measure their own blur; "
+        f"{res['measured']} full measurements for {len(res['cpu']['after'])} frames; the pipeline measures in full "
+        f"once per {SENSOR_BLOCK} frames).", "",
         "| | median ms / frame (wall) | median CPU ms / frame | mean CPU ms / frame | n |", "|---|---|---|---|---|"]
     for k in ("before", "after"):
         lines.append(f"| {k} | {med[k][0]:.1f} | {med[k][1]:.1f} | {1e3 * np.mean(res['cpu'][k]):.1f} | "

@@ -159,9 +159,13 @@ def _composite_objects(out, real_bgr, passes, rgba, idx, win, obj_any, shadowed,
     H, W = real_bgr.shape[:2]
     t0 = time.perf_counter()
     wx0, wy0, wx1, wy1 = win
-    ids_u16 = np.clip(idx[wy0:wy1, wx0:wx1], 0, 65535).astype(np.uint16)
+    ids_w = idx[wy0:wy1, wx0:wx1]
+    lo, hi = cv2.minMaxLoc(ids_w)[:2] if ids_w.dtype == np.int32 else (ids_w.min(), ids_w.max())
+    # ids already in 0..65535 (always, in practice): one conversion pass instead of clip + convert
+    ids_u16 = ids_w.astype(np.uint16) if 0 <= lo and hi <= 65535 else np.clip(ids_w, 0, 65535).astype(np.uint16)
     # Anti-aliased rims (alpha > 0 next to an object) belong to the neighbouring object.
-    owner = np.where(ids_u16 > 0, ids_u16, cv2.dilate(ids_u16, np.ones((3, 3), np.uint8)))
+    owner = cv2.dilate(ids_u16, np.ones((3, 3), np.uint8))
+    cv2.copyTo(ids_u16, cv2.compare(ids_u16, 0, cv2.CMP_GT), owner)  # an object's own pixels keep their id
     boxes = ndimage.find_objects(owner)  # each id's box in one pass
     env_lit = illumination is not None and settings.illumination != "off"
     strength = 0.0 if settings.color_transfer == "none" else settings.color_strength \
@@ -354,8 +358,14 @@ def _edge_fade(catcher: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.nda
     the road instead of stopping."""
     # != 1.0 in any channel, on the float bits; cvtColor of 255/0 bytes ORs the channels
     # (numpy's any() over a 3-channel axis is slow)
-    ne = (np.asarray(catcher, dtype=np.float32).view(np.uint32) != ONE_F32_BITS).view(np.uint8)
-    covered = cv2.cvtColor(ne * np.uint8(255), cv2.COLOR_BGR2GRAY) if ne.shape[2] == 3 else ne[..., 0] * np.uint8(255)
+    c = np.asarray(catcher, dtype=np.float32)
+    if c.ndim == 3 and c.shape[2] == 3:
+        # 255 where a channel's float bits are not 1.0f (int32 compare), ORed by cvtColor
+        ne = cv2.compare(c.view(np.int32).reshape(c.shape[0], -1), int(ONE_F32_BITS), cv2.CMP_NE)
+        covered = cv2.cvtColor(ne.reshape(c.shape), cv2.COLOR_BGR2GRAY)
+    else:
+        ne = (c.view(np.uint32) != ONE_F32_BITS).view(np.uint8)
+        covered = cv2.cvtColor(ne * np.uint8(255), cv2.COLOR_BGR2GRAY) if ne.shape[2] == 3 else ne[..., 0] * np.uint8(255)
     # Only the patches' box (+1 px of zeros, so edge distances stay as they are) is transformed.
     x, y, w, h = cv2.boundingRect(covered)
     H, W = covered.shape

@@ -441,8 +441,8 @@ def write_timing(res: dict, args) -> None:
               f"{max(res['crop_diff'])} level(s), PSNR min {min(res['crop_psnr']):.1f} dB.",
               f"- Reference 3x3 box blur of a 1280x720 float image: {res['ref_ms']:.2f} ms (machine load gauge)."]
     for r in res["cache_check"]:
-        lines.append(f"- Sensor cache on a real video (`{r['video']}`, first {r['frames']} frames at 1280x720, the first "
-                     "render): composites with the cached profile vs every frame measured: PSNR min "
+        lines.append(f"- Sensor cache on a real video (`{r['video']}`, first {r['frames']} frames at 1280x720, "
+                     "the first render): composites with the cached profile vs every frame measured: PSNR min "
                      f"{r['psnr_min']:.1f} dB, median {r['psnr_median']:.1f} dB; the same sensor operations applied in "
                      f"{r['same_ops']} of {r['frames']} frames; {r['measured']} full measurements.")
     md = "\n".join(lines) + "\n"

@@ -365,7 +365,8 @@ def _edge_fade(catcher: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.nda
         covered = cv2.cvtColor(ne.reshape(c.shape), cv2.COLOR_BGR2GRAY)
     else:
         ne = (c.view(np.uint32) != ONE_F32_BITS).view(np.uint8)
-        covered = cv2.cvtColor(ne * np.uint8(255), cv2.COLOR_BGR2GRAY) if ne.shape[2] == 3 else ne[..., 0] * np.uint8(255)
+        covered = (cv2.cvtColor(ne * np.uint8(255), cv2.COLOR_BGR2GRAY) if ne.shape[2] == 3
+                   else ne[..., 0] * np.uint8(255))
     # Only the patches' box (+1 px of zeros, so edge distances stay as they are) is transformed.
     x, y, w, h = cv2.boundingRect(covered)
     H, W = covered.shape

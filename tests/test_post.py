@@ -281,6 +281,41 @@ def test_sensor_measures_noise_blur_jpeg_vignette():
     assert sensor.vignette_k(flat.astype(np.uint8)) < 0.02
 
 
+def test_sensor_cache_measures_once_per_block_whatever_the_order():
+    rng = np.random.default_rng(6)
+    clean = _scene(240, 320)
+    noisy = [np.clip(clean + rng.normal(0, 5, clean.shape), 0, 255).astype(np.uint8) for _ in range(12)]
+    frames = {i: noisy[i] for i in range(12)}
+    frames[7] = (clean // 2).astype(np.uint8)  # exposure change: half as bright, no noise
+    frames[3] = cv2.GaussianBlur(frames[3], (0, 0), 2)  # motion blur on one frame
+    reads = []
+
+    def read(i):
+        reads.append(i)
+        return frames[i]
+
+    a, b = sensor.SensorCache(read, block=5), sensor.SensorCache(read, block=5)
+    forward = {i: a.profile(i, frames[i]) for i in range(12)}
+    assert a.measured == 4 and reads == []  # frames 0, 5, 10 and the darker frame 7
+    backward = {i: b.profile(i, frames[i]) for i in reversed(range(12))}
+    assert forward == backward and sorted(reads) == [0, 5, 10]  # mid-block: it reads the first frame
+    assert forward[4][1] == {"frame": 0, "blur_frame": 4} and forward[7][1]["frame"] == 7
+    own, first = sensor.measure_frame(frames[4]), sensor.measure_frame(frames[0])
+    assert forward[4][0].noise_sigma == first.noise_sigma > sensor.NOISE_MIN_SIGMA
+    assert forward[4][0].blur_metric == own.blur_metric  # blur follows the motion: every frame's own
+    assert forward[3][0].blur_metric == sensor.measure_frame(frames[3]).blur_metric > first.blur_metric + 0.1
+    assert forward[7][0].noise_sigma < sensor.NOISE_MIN_SIGMA  # measured on itself, not on frame 5
+    with pytest.raises(ValueError):
+        sensor.SensorCache(read, block=0)
+
+    def broken(i):
+        raise UserError(f"frame {i} is truncated", where="frames/")
+
+    c = sensor.SensorCache(broken, block=5)  # a bad first frame: the block's good frames measure themselves
+    prof, src = c.profile(3, frames[3])
+    assert prof == sensor.measure_frame(frames[3]) and src["frame"] == 3 and "unreadable" in src["reason"]
+
+
 # ---------------- compositing
 
 def test_composite_empty_mask_returns_background_bit_for_bit():
@@ -408,6 +443,14 @@ def test_composite_sensor_matching_adds_measured_noise_only_when_present():
     assert "noise_sigma" not in info_clean["sensor"]["applied"]
     assert "noise_sigma" in info_noisy["sensor"]["applied"]
     assert out[125:175, 105:175].astype(float).std() > 2.5
+    # a cached profile (the frame processor's) gives the same composite as measuring the frame
+    cached, info = composite_frame(noisy, p, settings=s, illumination=None, seed=0,
+                                   sensor_profile=sensor.measure_frame(noisy))
+    assert np.array_equal(cached, out) and info["sensor"] == info_noisy["sensor"]
+    # and the profile given is the one applied: the clean frame gets the noisy camera's noise
+    _, info_given = composite_frame(clean, p, settings=s, illumination=None, seed=0,
+                                    sensor_profile=sensor.measure_frame(noisy))
+    assert "noise_sigma" in info_given["sensor"]["applied"]
 
 
 def test_composite_is_fast_at_720p():

@@ -54,6 +54,14 @@ class FrameProcessor:
         w, h = self.job.render.resolution or (self.rec.camera.width, self.rec.camera.height)
         self.camera = self.rec.camera.scaled(w, h)
         self.session = None
+        self.sensor = None  # the camera's sensor profile, measured once per block of frames
+
+    def _real(self, i: int) -> np.ndarray:
+        """Recording frame i at the render resolution."""
+        real = read_frame(self.rec, i)
+        if real.shape[:2] != (self.camera.height, self.camera.width):
+            real = cv2.resize(real, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
+        return real
 
     def _georef(self):
         if self.job.twin_path is None:
@@ -76,9 +84,7 @@ class FrameProcessor:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         i = int(frame_id.lstrip("f"))
-        real = read_frame(self.rec, i)
-        if real.shape[:2] != (self.camera.height, self.camera.width):
-            real = cv2.resize(real, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
+        real = self._real(i)
         seed = frame_seed(job.seed, frame_id)
 
         fa, real_boxes = self._analysis(frame_id)
@@ -119,7 +125,17 @@ class FrameProcessor:
             sx, sy = self.camera.width / fa.width, self.camera.height / fa.height
             passes = apply_occluder(passes, hood_mask(np.asarray(fa.hood) * [sx, sy], self.camera.width,
                                                       self.camera.height))
-        composite, post_info = composite_frame(real, passes, settings=job.post, illumination=illum, seed=seed)
+        profile = None
+        if job.post.sensor_match:
+            from blendgen.post.sensor import SensorCache
+
+            if self.sensor is None:
+                self.sensor = SensorCache(self._real)
+            profile, profile_src = self.sensor.profile(i, real)
+        composite, post_info = composite_frame(real, passes, settings=job.post, illumination=illum, seed=seed,
+                                               sensor_profile=profile)
+        if profile is not None and post_info.get("sensor") is not None:
+            post_info["sensor"]["measured_on"] = profile_src
         timings["post"] = time.perf_counter() - t2
 
         t3 = time.perf_counter()

@@ -5,6 +5,7 @@ Real frames are 8-bit sRGB-encoded BGR (OpenCV order); renders are linear RGB(A)
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 # Rec.709 luminance weights in BGR order (OpenCV images are BGR).
@@ -21,14 +22,21 @@ LINEAR_TO_SRGB_U8 = np.clip(np.rint(255.0 * np.where(_LIN <= 0.0031308, _LIN * 1
                                                      1.055 * _LIN ** (1 / 2.4) - 0.055)), 0, 255).astype(np.uint8)
 
 
+def _lut_index(x: np.ndarray) -> np.ndarray:
+    """[0, 1] (clipped) -> 16-bit table index, rounded; in place on one temporary."""
+    q = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
+    q *= np.float32(65535.0)
+    q += np.float32(0.5)
+    return q.astype(np.uint16)
+
+
 def linear_to_srgb_u8(x: np.ndarray) -> np.ndarray:
     """Linear (finite; clipped to [0, 1]) -> 8-bit sRGB through the lookup table."""
-    q = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0) * 65535.0 + 0.5
-    return LINEAR_TO_SRGB_U8[q.astype(np.uint16)]
+    return LINEAR_TO_SRGB_U8.take(_lut_index(x))
 
 
 def srgb_u8_to_linear(img_u8: np.ndarray) -> np.ndarray:
-    return SRGB_U8_TO_LINEAR[img_u8]
+    return SRGB_U8_TO_LINEAR.take(img_u8)
 
 
 # sRGB [0, 1] <-> linear [0, 1] on a 2^16 grid (float tables): the error is below 1e-4 of
@@ -39,8 +47,7 @@ _LINEAR_TO_SRGB = np.where(_LIN <= 0.0031308, _LIN * 12.92, 1.055 * _LIN ** (1 /
 
 
 def _lut16(x: np.ndarray, table: np.ndarray) -> np.ndarray:
-    q = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0) * np.float32(65535.0) + np.float32(0.5)
-    return table[q.astype(np.uint16)]
+    return table.take(_lut_index(x))
 
 
 def srgb_to_linear(x: np.ndarray) -> np.ndarray:
@@ -57,7 +64,17 @@ def finite(a: np.ndarray, fill: float = 0.0, big: float | None = None) -> np.nda
     """``a`` with NaN -> fill and +-inf -> big / fill; a cheap check first, since render passes
     are almost always finite and np.nan_to_num costs several full passes over the data."""
     a = np.asarray(a)
-    if a.dtype.kind != "f" or np.isfinite(a.sum()):  # (an overflow to inf only costs the slow path)
+    if a.dtype.kind != "f":
+        return a
+    if a.dtype in (np.float32, np.float64) and a.flags.c_contiguous and a.size:
+        # OpenCV's sum (double accumulator: no overflow) is ~3x faster than numpy's on (n, 3) rows
+        total = cv2.sumElems(a.reshape(-1, 1))[0]
+    elif a.dtype in (np.float32, np.float64) and a.ndim == 3 and a.shape[2] <= 4 and a.size \
+            and a.strides[2] == a.itemsize and a.strides[1] == a.itemsize * a.shape[2]:
+        total = sum(cv2.sumElems(a)[:a.shape[2]])  # an image window (strided rows): no copy
+    else:
+        total = a.sum()  # (an overflow to inf only costs the slow path)
+    if np.isfinite(total):
         return a
     return np.nan_to_num(a, nan=fill, posinf=fill if big is None else big, neginf=fill)
 

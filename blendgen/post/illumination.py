@@ -172,7 +172,9 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         horizon = 0.45 * h
         notes.append("no sky region found: horizon assumed at 45% of the height")
 
-    valid = (small.max(axis=2) < 250) & (small.max(axis=2) > 5)  # unsaturated, not black
+    # channel max with OpenCV (numpy's max over the 3-channel axis is ~10x slower)
+    cmax = cv2.max(cv2.max(small[..., 0], small[..., 1]), small[..., 2])
+    valid = (cmax < 250) & (cmax > 5)  # unsaturated, not black
     scene = valid & ~sky
     if scene.sum() < 16:
         scene = ~sky if (~sky).sum() >= 16 else np.ones_like(sky)
@@ -191,7 +193,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         sky_bgr = lin[sky].mean(axis=0)
         sky_rgb = tuple(float(v) for v in sky_bgr[::-1])
         sky_lum = float(sky_bgr @ LUMA_BGR)
-        sky_sat = float((small[sky].max(axis=1) >= 250).mean())
+        sky_sat = float((cmax[sky] >= 250).mean())
     else:
         sky_bgr, sky_rgb, sky_lum, sky_sat = None, None, 0.0, 0.0
 

@@ -85,11 +85,16 @@ def relight(rgb: np.ndarray, passes: dict, mask: np.ndarray, illumination: Illum
     if local_gain is not None:
         g = g * np.float32(local_gain)
     gm1 = g - np.float32(1.0)
-    delta = dc * (gm1 * (dd + di))
+    # in place (the same products as dc * (gm1 * (dd + di)), bit for bit, fewer temporaries)
+    delta = _scale_channels(np.add(dd, di), gm1)
+    delta *= dc
     if gd is not None and gi is not None and gc is not None:
-        delta += gc * (gm1 * (gd + gi))
+        gl = _scale_channels(np.add(gd, gi), gm1)
+        gl *= gc
+        delta += gl
     if mask is None:
-        out = np.maximum(rgb + delta, 0.0)
+        out = np.add(rgb, delta, dtype=np.float32) if rgb.dtype == np.float32 else rgb + delta
+        out = np.maximum(out, 0.0, out=out)
     else:
         out = rgb.copy()
         out[mask] = np.maximum(rgb[mask] + delta, 0.0)
@@ -106,6 +111,17 @@ def _gains(rendered: np.ndarray, target_chroma: np.ndarray) -> np.ndarray:
     t = np.maximum(np.nan_to_num(target_chroma, nan=1.0), 1e-6)
     t = t / float(t @ LUMA_RGB)
     return np.clip(t / (r / lr), 1.0 / MAX_GAIN, MAX_GAIN)
+
+
+def _scale_channels(x: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """x * g for (n, 3) float32 x and 3 gains, in place; OpenCV's per-channel scalar product
+    (the same float32 products) is ~2x faster than numpy's 3-element broadcast."""
+    if x.dtype != np.float32 or x.ndim != 2 or x.shape[1] != 3 or not x.flags.c_contiguous or len(x) == 0:
+        x *= g
+        return x
+    v = x.reshape(-1, 1, 3)
+    cv2.multiply(v, (float(g[0]), float(g[1]), float(g[2]), 0.0), dst=v)
+    return x
 
 
 def _clean(a: np.ndarray) -> np.ndarray:

@@ -432,7 +432,7 @@ def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road, h_scale: float
         return float(sum(_forward(rec, settings, cfg, x0, P0, args, road, tau, h_scale)["innovation_nll"].values()))
 
     if pri.latency_auto:
-        prof = profile_latency(cost, 0.0, pri.latency_max_s)
+        prof = profile_latency(cost, 0.0, pri.latency_max_s, step=LATENCY_STEP_S)
     else:
         lo, hi = pri.latency_s - 3 * pri.latency_std_s, pri.latency_s + 3 * pri.latency_std_s
         prof = profile_latency(cost, lo, hi, step=min(LATENCY_STEP_S, (hi - lo) / 4),

@@ -142,13 +142,14 @@ def use_blender_defaults(sess) -> dict:
     return {k: (v if isinstance(v, (int, float, bool, str)) else str(v)) for k, v in defaults.items()}
 
 
-def search_samples(measure, target_db: float, lo: int = 1, hi: int = 256):
+def search_samples(measure, target_db: float, lo: int = 1, hi: int = 256, tried: dict | None = None):
     """Lowest sample count whose PSNR reaches ``target_db``: doubling from ``lo`` until one
     does, then bisection between the last miss and the first hit. ``measure(samples)`` renders
     and returns a row with ``psnr_db``. Returns (row of the lowest hit or None, all rows). With
     PSNR noisy in the samples the hit found has a miss one sample below it, which is not
-    always the lowest count that would ever reach the target (the tried rows are reported)."""
-    tried = {}
+    always the lowest count that would ever reach the target (the tried rows are reported).
+    ``tried`` (sample count -> row) is shared between searches for several targets."""
+    tried = {} if tried is None else tried
 
     def at(n):
         if n not in tried:
@@ -459,6 +460,11 @@ def fair(args):
     t, info, p = run_config(sess, plan, Render(), tmp / "b.exr", reps)
     blend = row("blendgen defaults", Render(), t, info, p, {"repeats": reps})
     target = blend["psnr_db"]
+    # other operating points (sample counts) of blendgen, each against its own naive search
+    points = {blend["samples"]: blend}
+    for n in sorted(set(args.samples) - {blend["samples"]}):
+        t, info, p = run_config(sess, plan, Render(samples=n), tmp / "b.exr", reps)
+        points[n] = row("blendgen", Render(samples=n), t, info, p, {"repeats": reps})
     # the same frame with one region around all objects (before issue 17)
     over0 = fx.REGION_OVERHEAD_FRACTION
     fx.REGION_OVERHEAD_FRACTION = 1e12
@@ -516,23 +522,29 @@ def fair(args):
         t, info, p = run_config(sess, plan, r, tmp / "n.exr")
         return row("naive, Blender defaults", r, t, info, p)
 
-    found, tried = search_samples(naive_at, target, 1, args.max_samples)
-    final = None
-    if found is not None:
-        r = Render(samples=found["samples"], denoise=True, region=False)
-        walls, cpus = [found["time_s"]], [found["cpu_s"]]  # the search's run counts as the first
-        for _ in range(reps - 1):
-            t, info, p = run_config(sess, plan, r, tmp / "n.exr")
-            walls.append(t)
-            cpus.append(info["cpu_s"])
-        final = {**found, "config": "naive at the found samples", "time_s": statistics.median(walls),
-                 "cpu_s": statistics.median(cpus), "repeats": reps, "cpu_runs": cpus}
+    memo, finals = {}, {}
+    for n, b in sorted(points.items()):
+        found, _ = search_samples(naive_at, b["psnr_db"], 1, args.max_samples, memo)
+        if found is not None and found["samples"] not in finals:
+            r = Render(samples=found["samples"], denoise=True, region=False)
+            walls, cpus = [found["time_s"]], [found["cpu_s"]]  # the search's run counts as the first
+            for _ in range(reps - 1):
+                t, info, p = run_config(sess, plan, r, tmp / "n.exr")
+                walls.append(t)
+                cpus.append(info["cpu_s"])
+            finals[found["samples"]] = {**found, "config": "naive at the found samples",
+                                        "time_s": statistics.median(walls), "cpu_s": statistics.median(cpus),
+                                        "repeats": reps, "cpu_runs": cpus}
+        b["naive"] = finals[found["samples"]] if found is not None else None
+    tried = [memo[k] for k in sorted(memo)]
+    final = blend["naive"]
     sess.close()
     total = time.perf_counter() - t_start
 
     # ---- report
     cmd = (".venv/bin/python benchmarks/bench_render.py" + (" --quick" if args.quick else "") +
-           (f" --repeats {reps}" if reps != 3 else ""))
+           (f" --repeats {reps}" if reps != 3 else "") +
+           (f" --samples {' '.join(map(str, args.samples))}" if args.samples != [12] else ""))
     ratio = (final["cpu_s"] / blend["cpu_s"]) if final else None
     lines = [f"# Render cost: the fair baseline and clusters{' (quick)' if args.quick else ''}", "",
              f"Command: `{cmd}` (under `nice -n 5`; 2 CPU cores shared with other sessions' jobs, Cycles CPU; "
@@ -561,8 +573,18 @@ def fair(args):
     lines += ["", (f"- Lowest naive sample count reaching {target:.2f} dB: **{final['samples']}**; blendgen is "
                    f"**{ratio:.1f}x cheaper in CPU seconds** ({final['cpu_s']:.2f} -> {blend['cpu_s']:.2f} s; "
                    f"wall {final['time_s'] / blend['time_s']:.1f}x)." if final else
-                   f"- No naive sample count up to {args.max_samples} reached {target:.2f} dB."),
-              "", "## Clusters: two cars side by side vs at opposite edges", "",
+                   f"- No naive sample count up to {args.max_samples} reached {target:.2f} dB.")]
+    if len(points) > 1:
+        lines += ["", "Operating points: blendgen at other sample counts, each against the lowest naive count "
+                  "reaching its PSNR (the same search, its renders shared):", "",
+                  "| blendgen samples | PSNR (dB) | CPU (s) | naive samples | naive PSNR (dB) | naive CPU (s) | "
+                  "CPU ratio |", "|---|---|---|---|---|---|---|"]
+        for n, b in sorted(points.items()):
+            nv = b["naive"]
+            lines.append(f"| {n}{' (default)' if b is blend else ''} | {b['psnr_db']:.2f} | {b['cpu_s']:.2f} | " +
+                         (f"{nv['samples']} | {nv['psnr_db']:.2f} | {nv['cpu_s']:.2f} | "
+                          f"**{nv['cpu_s'] / b['cpu_s']:.1f}x** |" if nv else "none | | | |"))
+    lines += ["", "## Clusters: two cars side by side vs at opposite edges", "",
               "At the edges the cars stand 18 m ahead instead of 14 m, so that both layouts show the same "
               "content (the wide lens stretches objects near the edges); the table gives the object and shadow "
               "pixels of each and the cost per content pixel as well.", "",
@@ -592,7 +614,7 @@ def fair(args):
     RESULTS.mkdir(parents=True, exist_ok=True)
     write_text(RESULTS / ("render_fair_quick.json" if args.quick else "render_fair.json"), json.dumps({
         "resolution": [W, H], "reference_samples": ref_samples, "blendgen": blend, "blendgen_one_region": blend_one,
-        "naive_tried": tried,
+        "naive_tried": tried, "operating_points": {str(n): {k: v for k, v in b.items()} for n, b in points.items()},
         "naive_final": final, "ratio_cpu": ratio, "defaults": defaults,
         "clusters": {f"{k[0]}, {k[1]}": {kk: vv for kk, vv in v.items() if kk != "passes"} for k, v in cl.items()},
         "paste_psnr_db": paste_db, "overhead_px": overhead_px,
@@ -608,6 +630,8 @@ def main():
     ap.add_argument("--ref-samples", type=int, default=None, help="reference samples (default 256; quick 128)")
     ap.add_argument("--repeats", type=int, default=3, help="runs per measured configuration (median)")
     ap.add_argument("--max-samples", type=int, default=256, help="upper end of the naive sample search")
+    ap.add_argument("--samples", type=int, nargs="*", default=[12],
+                    help="blendgen sample counts besides its default, each against its own naive search")
     ap.add_argument("--sweep", action="store_true",
                     help="the older samples/denoise/bounces sweep and the memory run instead (docs/benchmarks/render.md)")
     ap.add_argument("--replot", type=Path, default=None, help="redraw the sweep plot from a results JSON and exit")

@@ -37,6 +37,23 @@ def test_sample_search_finds_the_lowest_count_reaching_the_target():
     row, _ = search(lambda n: {"samples": n, "psnr_db": 20.0}, 35.0, 1, 64)
     assert row is None
 
+    # a memo shared between two targets: the second search reuses the first one's renders
+    memo, calls = {}, []
+    for target in (35.0, 36.0):
+        search(lambda n: calls.append(n) or {"samples": n, "psnr_db": 30.0 + 0.4 * n}, target, 1, 256, memo)
+    assert len(calls) == len(set(calls))
+
+
+def test_naive_cost_from_a_line_fit_at_the_interpolated_count():
+    fit = _bench().fitted_naive_cpu
+    # CPU = 20 + 2 n with one noisy render at 13 (+5 s); PSNR 36.9 at 12, 37.4 at 13
+    rows = [{"samples": n, "cpu_s": 20 + 2 * n + (5 if n == 13 else 0), "psnr_db": 32.1 + 0.4 * n + (0.1 if n >= 13 else 0)}
+            for n in (1, 2, 4, 8, 12, 13, 16)]
+    n, cpu, a, b = fit(rows, 37.0)
+    assert n == pytest.approx(12.2)
+    assert cpu == pytest.approx(a + b * n) and abs(b - 2) < 0.3  # the noisy render barely moves the line
+    assert fit(rows, 99.0) is None  # not bracketed
+
 
 @pytest.mark.benchmark
 @pytest.mark.bpy

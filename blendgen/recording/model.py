@@ -35,7 +35,6 @@ class Recording:
     T_cam_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
     time_offset_cam_imu: float = 0.0  # Kalibr timeshift_cam_imu: t_imu = t_cam + shift
-    rolling_shutter_s: float = 0.0  # camera readout, top row to bottom row; a frame's stamp is its top row
     frames_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_files: list[str] | None = None  # image files relative to root, or None with a video
     video: str | None = None  # video file relative to root (frames.csv then holds t, index)

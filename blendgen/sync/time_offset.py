@@ -1,0 +1,182 @@
+"""Camera-IMU time offset from the data (calib.yaml `timeshift_cam_imu: auto`).
+
+Kalibr's convention: t_imu = t_cam + shift. Each VO pair's rotation (frames k-1, k) is the
+body's rotation over [t_cam[k-1] + shift, t_cam[k] + shift] seen in the camera's axes; with the
+wrong shift the gyro is integrated over a window displaced by the error d, and the two differ
+by about (w(t_k) - w(t_k-1)) d: only *changes* of the angular rate between frames show the
+offset (shake, turning in and out), a constant rate or no rotation does not. Rotation only,
+so neither scale nor position nor the filter enters.
+
+The cost of a candidate shift is the negative log-likelihood of the VO-minus-gyro rotation
+vectors under a Huber kernel, with the gyro bias (median difference per second, as the trust
+check) refitted at each candidate and the noise scale measured robustly (MAD) on the residuals.
+It is minimised on a grid of a quarter frame interval over calib +- search, then on a finer
+grid about the best point, each refined by a parabola (`latency.profile_latency`); the
+curvature gives the 1-sigma. Pairs the trust check flags (frozen, skipped, gyro-gated) are
+left out. The estimate replaces the calib value only when it is determined (enough pairs, a
+curved cost, 1-sigma <= MAX_STD_S, not at the search limit); otherwise the calib value is kept
+and the reason reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from blendgen.sync.latency import profile_latency
+from blendgen.sync.vo_trust import GYRO_BIAS_STD, GyroIntegrator
+
+SEARCH_S = 0.1          # default half-width of the search about the calib value
+MAX_STD_S = 0.005       # a 1-sigma above this: undetermined, the calib value is kept
+MIN_PAIRS = 20
+HUBER_C = 2.0           # residual components beyond 2 sigma count linearly
+
+
+@dataclass
+class TimeOffset:
+    """How the camera-IMU time offset used by sync was found (`summary["camera_imu_time_offset"]`)."""
+
+    shift_s: float                      # used: t_imu = t_cam + shift
+    calib_s: float                      # calib.yaml's value
+    method: str                         # "calib.yaml", "estimated" or "calib.yaml (estimate undetermined)"
+    estimate_s: float | None = None     # the minimum of the cost, even when not used
+    std_s: float | None = None          # 1-sigma from the curvature; None when the cost is flat
+    pairs: int = 0
+    reason: str = ""
+    residual_calib_deg: float | None = None  # RMS VO-gyro rotation difference per pair at the calib value
+    residual_used_deg: float | None = None   # the same at the shift used
+    rate_change_dps: float | None = None     # RMS change of the angular rate between pairs (what observes it)
+    profile: list = field(default_factory=list)
+
+    def summary(self) -> dict:
+        r = lambda x, n: None if x is None else round(float(x), n)  # noqa: E731
+        return {"shift_s": r(self.shift_s, 5), "calib_s": r(self.calib_s, 5), "method": self.method,
+                "estimate_s": r(self.estimate_s, 5), "std_s": r(self.std_s, 5), "pairs": self.pairs,
+                "reason": self.reason, "residual_calib_deg": r(self.residual_calib_deg, 4),
+                "residual_used_deg": r(self.residual_used_deg, 4), "rate_change_dps": r(self.rate_change_dps, 2),
+                "profile": [[round(a, 5), round(b, 3)] for a, b in self.profile]}
+
+
+def describe(s: dict) -> str:
+    """One line for the command."""
+    sh = s["shift_s"]
+    if s["method"] == "estimated":
+        out = (f"camera-IMU time offset {sh * 1e3:+.1f} +- {s['std_s'] * 1e3:.1f} ms estimated from {s['pairs']} "
+               f"VO-gyro rotation pairs (calib.yaml {s['calib_s'] * 1e3:+.1f} ms)")
+    elif s["method"] == "calib.yaml":
+        return f"camera-IMU time offset {sh * 1e3:+.1f} ms from calib.yaml (timeshift_cam_imu: auto estimates it)"
+    else:
+        out = f"camera-IMU time offset {sh * 1e3:+.1f} ms from calib.yaml: not estimated, {s['reason']}"
+    if s.get("residual_calib_deg") is not None and s.get("residual_used_deg") is not None:
+        out += (f"; VO-gyro rotation residual {s['residual_calib_deg']:.3f} -> {s['residual_used_deg']:.3f} deg RMS"
+                if s["method"] == "estimated" else f"; VO-gyro rotation residual {s['residual_used_deg']:.3f} deg RMS")
+    return out
+
+
+class _Pairs:
+    """The VO pairs used and their gyro rotation at any shift."""
+
+    def __init__(self, results, gyro: GyroIntegrator, t_cam, R_bc, flags, lo: float, hi: float):
+        self.gyro, self.R_bc = gyro, R_bc
+        t_cam = np.asarray(t_cam, dtype=float)
+        ks = [k for k in range(1, len(results)) if results[k] is not None and results[k].has_rotation
+              and (flags is None or flags[k] is None)]
+        ks = np.array(ks, dtype=int)
+        if len(ks):  # the set must not change with the shift: every interval covered at both ends
+            ok = gyro.between(t_cam[ks - 1] + lo, t_cam[ks] + lo)[1] & gyro.between(t_cam[ks - 1] + hi,
+                                                                                   t_cam[ks] + hi)[1]
+            ks = ks[ok]
+        self.k = ks
+        self.ta, self.tb = t_cam[ks - 1], t_cam[ks]
+        self.dt = self.tb - self.ta
+        self.w_vo = (Rotation.from_matrix(np.array([results[k].R_c1c2 for k in ks])).as_rotvec()
+                     if len(ks) else np.zeros((0, 3)))
+
+    def residuals(self, shift: float) -> tuple[np.ndarray, np.ndarray]:
+        """(VO minus bias-corrected gyro rotation vectors in camera axes, gyro rates (rad/s))."""
+        Rg, _ = self.gyro.between(self.ta + shift, self.tb + shift)
+        Rc = np.einsum("ji,njk,kl->nil", self.R_bc, Rg, self.R_bc)  # R_bc^T Rg R_bc
+        w_g = Rotation.from_matrix(Rc).as_rotvec()
+        b = np.median((w_g - self.w_vo) / self.dt[:, None], axis=0)
+        b = np.clip(b, -5 * GYRO_BIAS_STD, 5 * GYRO_BIAS_STD)
+        return self.w_vo - (w_g - b * self.dt[:, None]), w_g / self.dt[:, None]
+
+
+def _sigma(E: np.ndarray) -> float:
+    return max(float(1.4826 * np.median(np.abs(E - np.median(E, axis=0)))), 1e-7)
+
+
+def _huber_nll(E: np.ndarray, sigma: float) -> float:
+    r = np.abs(E) / sigma
+    return float(0.5 * np.sum(np.where(r <= HUBER_C, r * r, 2 * HUBER_C * r - HUBER_C**2)))
+
+
+def _rms_deg(E: np.ndarray) -> float:
+    return float(np.degrees(np.sqrt(np.mean(np.sum(E * E, axis=1))))) if len(E) else float("nan")
+
+
+def estimate_time_offset(results: list, gyro: GyroIntegrator, t_cam, R_bc: np.ndarray, calib_s: float,
+                         search_s: float = SEARCH_S, flags: list | None = None,
+                         stabilised: bool = False) -> TimeOffset:
+    """The shift (t_imu = t_cam + shift) that best aligns VO's per-pair rotations with the gyro.
+
+    results: VoResult (or None) per frame, entry k the pair (k-1, k); t_cam: frame stamps on
+    the camera clock; flags: the trust check's per-frame flags (flagged pairs are left out)."""
+    out = TimeOffset(shift_s=calib_s, calib_s=calib_s, method="calib.yaml (estimate undetermined)")
+    if stabilised:
+        out.reason = "the video is stabilised (the image does not turn with the body)"
+        return out
+    lo, hi = calib_s - search_s, calib_s + search_s
+    P = _Pairs(results, gyro, t_cam, R_bc, flags, lo, hi)
+    out.pairs = len(P.k)
+    if out.pairs < MIN_PAIRS:
+        out.reason = f"{out.pairs} usable VO pairs with a rotation (at least {MIN_PAIRS} needed)"
+        return out
+    E0, rates = P.residuals(calib_s)
+    out.residual_calib_deg = out.residual_used_deg = _rms_deg(E0)
+    # consecutive pairs only: the change of rate the offset is seen through
+    cons = np.flatnonzero(np.diff(P.k) == 1)
+    out.rate_change_dps = float(np.degrees(np.sqrt(np.mean(np.sum((rates[cons + 1] - rates[cons]) ** 2, axis=1))))
+                                if len(cons) else 0.0)
+    frame_dt = float(np.median(P.dt))
+    step = float(np.clip(frame_dt / 4.0, 0.002, search_s / 2.0))
+    # one noise scale for every candidate (else the cost is not comparable between them): the
+    # smallest robust spread over the coarse grid, i.e. at the best-aligned candidate
+    grid = np.linspace(lo, hi, max(int(np.ceil(2 * search_s / step - 1e-9)), 2) + 1)
+    sigma = min(_sigma(P.residuals(float(s))[0]) for s in grid)
+    memo: dict = {}
+
+    def cost(s: float) -> float:
+        s = round(float(s), 9)
+        if s not in memo:
+            memo[s] = _huber_nll(P.residuals(s)[0], sigma)
+        return memo[s]
+
+    coarse = profile_latency(cost, lo, hi, step=step)
+    # finer about the coarse minimum: the residuals are linear in the shift only for small errors
+    f_lo, f_hi = max(lo, coarse.tau_s - step), min(hi, coarse.tau_s + step)
+    fine = profile_latency(cost, f_lo, f_hi, step=(f_hi - f_lo) / 8.0)
+    m = min(memo.values())
+    out.profile = sorted((t, c - m) for t, c in memo.items())
+    out.estimate_s = fine.tau_s
+    out.std_s = fine.std_s if np.isfinite(fine.std_s) else None
+    if coarse.at_limit:
+        out.reason = f"the cost is lowest at the end of the search range (calib +- {search_s * 1e3:.0f} ms)"
+    elif out.std_s is None:
+        out.reason = (f"the cost is flat: too little change of rotation between frames "
+                      f"({out.rate_change_dps:.1f} deg/s RMS)")
+    elif out.std_s > MAX_STD_S:
+        out.reason = (f"1-sigma {out.std_s * 1e3:.1f} ms > {MAX_STD_S * 1e3:.0f} ms: too little change of rotation "
+                      f"between frames ({out.rate_change_dps:.1f} deg/s RMS)")
+    else:
+        out.shift_s, out.method = fine.tau_s, "estimated"
+        out.reason = (f"VO-gyro rotation profile over calib +- {search_s * 1e3:.0f} ms "
+                      f"(step {step * 1e3:.1f} ms, then {(f_hi - f_lo) / 8 * 1e3:.1f} ms, parabola)")
+        out.residual_used_deg = _rms_deg(P.residuals(out.shift_s)[0])
+    return out
+
+
+def not_estimated(calib_s: float, why: str) -> TimeOffset:
+    return TimeOffset(shift_s=calib_s, calib_s=calib_s, method="calib.yaml (estimate undetermined)", reason=why)

@@ -156,3 +156,19 @@ def test_sync_estimates_the_offset_and_the_rotation_improves(offset_drive, tmp_p
     assert s["method"] == "estimated" and abs(s["shift_s"] - 0.025) < 0.003, s
     assert s["residual_used_deg"] < 0.5 * s["residual_calib_deg"]
     assert np.median(err) < 0.7 * np.median(err0)
+
+
+def test_a_real_stabiliser_is_not_taken_for_an_offset(tmp_path):
+    """Stabilised frames (1 deg shake smoothed over 0.3 s) with `auto`: whatever shift the
+    profile finds, the frames still look stabilised there, so the calib value is kept and the
+    stabiliser handled as before."""
+    from blendgen.job.schema import Sync
+    from blendgen.sync.pipeline import run_sync
+    from blendgen.sync.simulate import synthetic_recording
+
+    rec, _, _ = synthetic_recording("drive", 8.0, fps=10.0, resolution=(320, 180), shake_deg=1.0, stabilise_s=0.3)
+    rec.time_offset_estimate = True
+    res = run_sync(rec, Sync(), tmp_path, georef=rec.extra["georef"], progress=False)
+    s = res.summary["camera_imu_time_offset"]
+    assert s["method"] != "estimated" and s["shift_s"] == 0.0 and "stabilised" in s["reason"]
+    assert res.summary["vo_trust"]["stabiliser_detected"]

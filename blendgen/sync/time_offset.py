@@ -99,7 +99,15 @@ class _Pairs:
         Rg, _ = self.gyro.between(self.ta + shift, self.tb + shift)
         Rc = np.einsum("ji,njk,kl->nil", self.R_bc, Rg, self.R_bc)  # R_bc^T Rg R_bc
         w_g = Rotation.from_matrix(Rc).as_rotvec()
-        b = np.median((w_g - self.w_vo) / self.dt[:, None], axis=0)
+        # the bias as a Huber M-estimate (IRLS from the median): a median alone jumps from pair
+        # to pair as the shift moves and made the real clip's cost ragged
+        x = (w_g - self.w_vo) / self.dt[:, None]
+        b = np.median(x, axis=0)
+        s = max(1.4826 * float(np.median(np.abs(x - b))), 1e-9)
+        for _ in range(5):
+            r = np.linalg.norm(x - b, axis=1) / s
+            wt = np.minimum(1.0, HUBER_C / np.maximum(r, 1e-12))
+            b = (wt[:, None] * x).sum(axis=0) / wt.sum()
         b = np.clip(b, -5 * GYRO_BIAS_STD, 5 * GYRO_BIAS_STD)
         return self.w_vo - (w_g - b * self.dt[:, None]), w_g / self.dt[:, None]
 

@@ -439,6 +439,8 @@ def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg)
                                     flags=trust.flags)
     if toff.method == "estimated" and looked_stabilised:
         toff.reason += "; at the calib value the frames looked stabilised: it was the time offset"
+    elif looked_stabilised and "stabilised" not in toff.reason:
+        toff.reason += "; the frames look stabilised (the image does not turn with the body)"
     return trust, toff, out_t
 
 

@@ -172,3 +172,15 @@ def test_a_real_stabiliser_is_not_taken_for_an_offset(tmp_path):
     s = res.summary["camera_imu_time_offset"]
     assert s["method"] != "estimated" and s["shift_s"] == 0.0 and "stabilised" in s["reason"]
     assert res.summary["vo_trust"]["stabiliser_detected"]
+
+
+def test_inconsistent_parts_of_a_recording_are_not_trusted():
+    """Two halves whose frames lag the IMU differently (-70 and +10 ms, what the GoPro clip's
+    halves looked like): the curvature alone is confident, the block jackknife is not, and the
+    calib value is kept."""
+    res_a, gyro, t, R_bc = _pairs(shake_deg=0.3, shift=-0.07, dur=20.0)
+    res_b, _, _, _ = _pairs(shake_deg=0.3, shift=0.01, dur=20.0)
+    n = len(res_a) // 2
+    est = estimate_time_offset(res_a[:n] + res_b[n:], gyro, t, R_bc, 0.0)
+    assert est.method != "estimated" and est.shift_s == 0.0
+    assert est.std_jackknife_s > MAX_STD_S > est.std_curvature_s

@@ -197,9 +197,15 @@ def estimate_time_offset(results: list, gyro: GyroIntegrator, t_cam, R_bc: np.nd
         out.reason = (f"the cost is flat: too little change of rotation between frames "
                       f"({out.rate_change_dps:.1f} deg/s RMS)")
     elif out.std_s > MAX_STD_S:
-        out.reason = (f"1-sigma {out.std_s * 1e3:.1f} ms > {MAX_STD_S * 1e3:.0f} ms (curvature "
-                      f"{out.std_curvature_s * 1e3:.1f}, jackknife {out.std_jackknife_s * 1e3:.1f}): too little change "
-                      f"of rotation between frames ({out.rate_change_dps:.1f} deg/s RMS) for the VO noise")
+        head = (f"1-sigma {out.std_s * 1e3:.1f} ms > {MAX_STD_S * 1e3:.0f} ms (curvature "
+                f"{out.std_curvature_s * 1e3:.1f}, jackknife {out.std_jackknife_s * 1e3:.1f}): ")
+        if out.std_jackknife_s > 3 * out.std_curvature_s:
+            out.reason = head + (f"parts of the recording disagree (VO and gyro rotations differ beyond noise: "
+                                 f"lens model, rolling shutter, moving objects?) with little change of rotation "
+                                 f"between frames ({out.rate_change_dps:.1f} deg/s RMS)")
+        else:
+            out.reason = head + (f"too little change of rotation between frames ({out.rate_change_dps:.1f} deg/s RMS) "
+                                 f"for the VO noise")
     else:
         out.shift_s, out.method = fine.tau_s, "estimated"
         out.reason = (f"VO-gyro rotation profile over calib +- {search_s * 1e3:.0f} ms "

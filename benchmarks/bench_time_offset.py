@@ -5,7 +5,8 @@
 1. Synthetic (`simulate.synthetic_recording`, frames rendered `cam_time_offset_s` after their
    stamps on the IMU clock): a shaky 12 s drive (1 deg shake, 10 fps, 320x180) with a true
    offset of 25 ms, 0 and -40 ms, and the gentle 20 s drive without shake (5 fps, 480x270) with
-   25 ms, and a stabilised shaky drive (no offset: must not be taken for one). Per case: sync with the calib value 0 (offset ignored), with `auto`, and with the true
+   25 ms, and a stabilised shaky drive (no offset: must not be taken for one). Per case: sync
+   with the calib value 0 (offset ignored), with `auto`, and with the true
    value in calib (oracle): estimate +- 1 sigma, VO-gyro rotation residual at 0 and at the
    estimate, camera rotation error (median, deg) against the ground truth, CPU seconds.
 2. The real GoPro Karma clip (`../shared/data/real/gopro_karma.mp4`, imported with
@@ -46,7 +47,8 @@ def synthetic() -> None:
              ("gentle 20 s, 5 fps, no shake", dict(kind="drive", duration=20.0, fps=5.0), [0.025]),
              ("shaky 8 s, stabilised (0.3 s)", dict(kind="drive", duration=8.0, fps=10.0, resolution=(320, 180),
                                                     shake_deg=1.0, stabilise_s=0.3), [0.0])]
-    print("| drive | true offset (ms) | calib | estimate +- 1 sigma (ms) | method | VO-gyro residual at 0 -> used (deg RMS) "
+    print("| drive | true offset (ms) | calib | estimate +- 1 sigma (ms) | method "
+          "| VO-gyro residual at 0 -> used (deg RMS) "
           "| rotation error median (deg) | CPU s |")
     print("|---|---|---|---|---|---|---|---|")
     for name, kw, offsets in cases:

@@ -8,15 +8,15 @@ offset (shake, turning in and out), a constant rate or no rotation does not. Rot
 so neither scale nor position nor the filter enters.
 
 The cost of a candidate shift is the negative log-likelihood of the VO-minus-gyro rotation
-vectors under a Huber kernel, with the gyro bias (median difference per second, as the trust
-check) refitted at each candidate and the noise scale measured robustly (MAD) on the residuals.
-It is minimised on a grid of a quarter frame interval over calib +- search, then on a finer
-grid about the best point, each refined by a parabola (`latency.profile_latency`); the
-curvature gives the 1-sigma. Pairs the trust check flags (frozen, skipped, gyro-gated) are
-left out. The estimate replaces the calib value only when it is determined (enough pairs, a
-curved cost, 1-sigma <= MAX_STD_S, not at the search limit; the 1-sigma is the larger of the
-curvature's and a delete-one-block jackknife's, which sees correlated errors and misfit); otherwise the calib value is kept
-and the reason reported.
+vectors under a Huber kernel, with the gyro bias (Huber M-estimate of the difference per
+second) refitted at each candidate and the noise scale measured robustly (MAD) once. It is
+minimised on a grid of a quarter frame interval over calib +- search, then on a finer grid
+about the best point, each refined by a parabola (`latency.profile_latency`). The 1-sigma is
+the larger of the curvature's (independent pairs) and a delete-one-block jackknife's (which
+sees correlated errors and model misfit). Pairs the trust check flags (frozen, skipped,
+gyro-gated) are left out. The estimate replaces the calib value only when it is determined
+(enough pairs, a curved cost, 1-sigma <= MAX_STD_S, not at the search limit); otherwise the
+calib value is kept and the reason reported.
 """
 
 from __future__ import annotations

@@ -118,15 +118,37 @@ def _read_calib(root: Path) -> Recording:
         except ValueError:
             raise UserError(f"time_origin_utc: {quote(str(data['time_origin_utc']))} is not an ISO 8601 "
                             "time; expected e.g. 2024-06-21T10:30:00Z", where=str(path)) from None
-    known = {"camera", "T_cam_imu", "imu", "timeshift_cam_imu"}
-    ts = data.get("timeshift_cam_imu", 0.0)
-    if not isinstance(ts, (int, float)) or not np.isfinite(ts):
-        raise UserError(f"timeshift_cam_imu: expected a number of seconds, got {ts!r}", where=str(path))
-    rec = Recording(root=root, camera=camera, T_cam_imu=T, imu_noise=noise,
-                     time_offset_cam_imu=float(data.get("timeshift_cam_imu", 0.0)),
+    known = {"camera", "T_cam_imu", "imu", "timeshift_cam_imu", "timeshift_cam_imu_estimate",
+             "timeshift_cam_imu_search_s"}
+    ts, est, search = _read_timeshift(data, path)
+    rec = Recording(root=root, camera=camera, T_cam_imu=T, imu_noise=noise, time_offset_cam_imu=ts,
+                     time_offset_estimate=est, time_offset_search_s=search,
                      extra={k: v for k, v in data.items() if k not in known})
     rec.issues.extend(f"{path.name}: missing {m}" for m in missing_calib)
     return rec
+
+
+def _read_timeshift(data: dict, path: Path) -> tuple[float, bool, float]:
+    """(timeshift_cam_imu, estimate it?, search half-width) from calib.yaml.
+
+    `timeshift_cam_imu: auto` is 0 s, estimated; `timeshift_cam_imu_estimate: true` estimates
+    about the given value (kept when the data cannot determine it)."""
+    ts = data.get("timeshift_cam_imu", 0.0)
+    auto = isinstance(ts, str) and ts.strip().lower() == "auto"
+    if auto:
+        ts = 0.0
+    if isinstance(ts, bool) or not isinstance(ts, (int, float)) or not np.isfinite(ts) or abs(ts) > 10.0:
+        raise UserError(f"timeshift_cam_imu: expected seconds (|shift| <= 10, t_imu = t_cam + shift) or 'auto', "
+                        f"got {ts!r}", where=str(path))
+    est = data.get("timeshift_cam_imu_estimate", auto)
+    if not isinstance(est, bool):
+        raise UserError(f"timeshift_cam_imu_estimate: expected true or false, got {est!r}", where=str(path))
+    if auto and not est:
+        raise UserError("timeshift_cam_imu: 'auto' contradicts timeshift_cam_imu_estimate: false", where=str(path))
+    search = data.get("timeshift_cam_imu_search_s", 0.1)
+    if isinstance(search, bool) or not isinstance(search, (int, float)) or not 0.0 < search <= 0.5:
+        raise UserError(f"timeshift_cam_imu_search_s: expected seconds in (0, 0.5], got {search!r}", where=str(path))
+    return float(ts), bool(est), float(search)
 
 
 def _parse_camera(cam: dict, path: Path) -> Camera:

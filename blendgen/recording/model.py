@@ -35,6 +35,10 @@ class Recording:
     T_cam_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
     imu_noise: ImuNoise = field(default_factory=ImuNoise)
     time_offset_cam_imu: float = 0.0  # Kalibr timeshift_cam_imu: t_imu = t_cam + shift
+    # calib.yaml `timeshift_cam_imu: auto` (or timeshift_cam_imu_estimate: true): sync estimates
+    # it from VO vs gyro within time_offset_cam_imu +- time_offset_search_s (blendgen.sync.time_offset)
+    time_offset_estimate: bool = False
+    time_offset_search_s: float = 0.1
     frames_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_files: list[str] | None = None  # image files relative to root, or None with a video
     video: str | None = None  # video file relative to root (frames.csv then holds t, index)

@@ -84,6 +84,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"sync: VO trust: {tr['trusted']} (gated against the gyro: {tr['gyro_gated']}, frozen frames: "
               f"{tr['frozen']}, skipped frames: {tr['skipped']}; stabiliser detected: "
               f"{'yes' if tr['stabiliser_detected'] else 'no'})")
+    if "camera_imu_time_offset" in s:
+        from blendgen.sync.time_offset import describe as describe_offset
+
+        print("sync: " + describe_offset(s["camera_imu_time_offset"]))
     if "calibration" in s:
         from blendgen.sync.calibration import describe
 

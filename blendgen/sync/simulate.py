@@ -376,6 +376,18 @@ def hard_recording(duration: float = 60.0, *, seed: int = 0, **kw):
                                rolling_shutter_s=HARD_READOUT_S, shake_deg=HARD_SHAKE_DEG, photometric=True, **kw)
 
 
+def shaken(traj: Trajectory, shake_deg: float, seed: int = 0) -> Trajectory:
+    """The trajectory with camera shake (rough road, a hand): the body's yaw, pitch and roll
+    get sums of 1-6 Hz sinusoids of about `shake_deg`."""
+    rng_s = np.random.default_rng(seed + 11)
+    shake = np.zeros_like(traj.ypr)
+    for axis, k in ((0, 0.6), (1, 1.0), (2, 0.8)):  # yaw, pitch, roll
+        for hz in (1.1, 2.3, 3.7, 5.9):
+            shake[:, axis] += k * np.sin(2 * np.pi * (hz * (1 + 0.1 * rng_s.normal())) * traj.t
+                                         + rng_s.uniform(0, 2 * np.pi)) / 2.0
+    return Trajectory(traj.t, traj.xyz, traj.ypr + np.radians(shake_deg) * shake)
+
+
 def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: float = 5.0,
                         resolution=(480, 270), hfov_deg: float = 70.0, speed: float = 8.0,
                         imu: bool = True, gnss: bool = True, gnss_std: float = 1.0, frames: bool = True,
@@ -383,7 +395,8 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
                         scene: StreetScene | None = None, imu_mount_rpy_deg=(0.0, 0.0, 0.0),
                         shake_deg: float = 0.0, stabilise_s: float | None = None, margin: float = 0.12,
                         imu_errors: ImuErrors | None = None, gnss_errors: dict | None = None,
-                        rolling_shutter_s: float = 0.0, photometric: bool = False):
+                        rolling_shutter_s: float = 0.0, photometric: bool = False,
+                        cam_time_offset_s: float = 0.0):
     """An in-memory Recording (images kept in `rec.extra['images']`) and its ground truth.
 
     imu_mount_rpy_deg: the IMU rotated (roll, pitch, yaw; about the vehicle's x, y, z) in the
@@ -401,18 +414,15 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     rolling_shutter_s: readout time; row r of a frame stamped t is exposed at t + r * readout / H
     (ground truth: the pose at t, the first row's). photometric: per-frame exposure flicker,
     vignetting and JPEG compression (quality 75), as from a real camera.
+    cam_time_offset_s: the camera clock lags the IMU's (Kalibr timeshift_cam_imu: t_imu = t_cam
+    + shift): the frame stamped t is exposed at t + shift on the IMU clock; `rec` keeps the
+    calib value 0 (an unknown offset). Ground truth rows: the stamp t, the pose at t + shift.
     Returns (rec, traj, T_cam_imu). `rec.groundtruth` holds T_world_cam per frame (the body's camera).
     """
     traj = make_trajectory(kind, duration + 1.0, speed=speed)
     traj_smooth = None
     if shake_deg > 0:
-        rng_s = np.random.default_rng(seed + 11)
-        shake = np.zeros_like(traj.ypr)
-        for axis, k in ((0, 0.6), (1, 1.0), (2, 0.8)):  # yaw, pitch, roll
-            for hz in (1.1, 2.3, 3.7, 5.9):
-                shake[:, axis] += k * np.sin(2 * np.pi * (hz * (1 + 0.1 * rng_s.normal())) * traj.t
-                                             + rng_s.uniform(0, 2 * np.pi)) / 2.0
-        traj = Trajectory(traj.t, traj.xyz, traj.ypr + np.radians(shake_deg) * shake)
+        traj = shaken(traj, shake_deg, seed)
     if stabilise_s is not None:
         from scipy.ndimage import gaussian_filter1d
 
@@ -446,7 +456,8 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     if traj_smooth is not None and frames:
         mx, my = int(round(margin * cam.width)), int(round(margin * cam.height))
         cam_big = Camera(cam.width + 2 * mx, cam.height + 2 * my, cam.fx, cam.fy, cam.cx + mx, cam.cy + my)
-    for i, t in enumerate(ft):
+    for i, t_stamp in enumerate(ft):
+        t = t_stamp + cam_time_offset_s  # the exposure on the IMU (true) clock
         T_wc = traj.pose(t) @ T_body_cam
         gt.append(T_wc)
         if traj_smooth is not None:

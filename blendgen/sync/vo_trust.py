@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from blendgen.sync import so3
@@ -84,35 +85,54 @@ class TrustReport:
         return out
 
 
+class GyroIntegrator:
+    """The raw gyro (no bias removed) integrated once, so that the body's rotation between
+    any two times can be read off cheaply (the time-offset search evaluates many)."""
+
+    def __init__(self, imu: np.ndarray, max_dt: float):
+        self.ti = imu[:, 0] if len(imu) else np.zeros(0)
+        n = len(self.ti)
+        dts = np.diff(self.ti)
+        # orientation at every sample (zero-order hold on the midpoint rate)
+        self.wm = 0.5 * (imu[1:, 1:4] + imu[:-1, 1:4]) if n >= 2 else np.zeros((0, 3))
+        self.Rs = np.empty((n, 3, 3))
+        if n:
+            self.Rs[0] = np.eye(3)
+        for k in range(len(dts)):
+            self.Rs[k + 1] = self.Rs[k] @ so3.exp(self.wm[k] * dts[k])
+        self.gap_cum = np.concatenate([[0], np.cumsum(dts > max_dt)])
+
+    def _at(self, tq: np.ndarray):
+        """(R_b(tq) per time, index of the sample before it; -1 where outside the IMU's span)."""
+        tq = np.asarray(tq, dtype=float)
+        j = np.searchsorted(self.ti, tq, side="right") - 1
+        bad = (j < 0) | (j >= len(self.ti) - 1)
+        j = np.where(bad, 0, j)
+        R = np.zeros((len(tq), 3, 3))
+        if len(self.wm):
+            dR = Rotation.from_rotvec(self.wm[j] * (tq - self.ti[j])[:, None]).as_matrix()
+            R = self.Rs[j] @ dR
+        return R, np.where(bad, -1, j)
+
+    def between(self, ta: np.ndarray, tb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(R_b(ta)^T R_b(tb) per pair, valid mask): invalid outside the IMU's span or across a gap."""
+        Ra, ja = self._at(ta)
+        Rb, jb = self._at(tb)
+        ok = (ja >= 0) & (jb >= 0)
+        ok &= self.gap_cum[np.where(ok, jb, 0) + 1] - self.gap_cum[np.where(ok, ja, 0)] == 0
+        return np.einsum("nji,njk->nik", Ra, Rb), ok
+
+
 def gyro_rotations(imu: np.ndarray, t: np.ndarray, max_dt: float) -> list:
     """R_b(t[k-1])^T R_b(t[k]) from the raw gyro (no bias removed), None across a gap or
     outside the IMU's time span. Entry 0 is None."""
     out: list = [None] * len(t)
     if len(imu) < 2 or len(t) < 2:
         return out
-    ti, w = imu[:, 0], imu[:, 1:4]
-    dts = np.diff(ti)
-    # orientation at every sample (zero-order hold on the midpoint rate)
-    Rs = np.empty((len(ti), 3, 3))
-    Rs[0] = np.eye(3)
-    wm = 0.5 * (w[1:] + w[:-1])
-    for k in range(len(dts)):
-        Rs[k + 1] = Rs[k] @ so3.exp(wm[k] * dts[k])
-    gap = dts > max_dt
-    gap_cum = np.concatenate([[0], np.cumsum(gap)])
-
-    def at(tq):
-        j = int(np.searchsorted(ti, tq, side="right")) - 1
-        if j < 0 or j >= len(ti) - 1:
-            return None, None
-        return Rs[j] @ so3.exp(wm[j] * (tq - ti[j])), j
-
-    for k in range(1, len(t)):
-        Ra, ja = at(t[k - 1])
-        Rb, jb = at(t[k])
-        if Ra is None or Rb is None or gap_cum[jb + 1] - gap_cum[ja] > 0:  # a gap in [ja, jb]
-            continue
-        out[k] = Ra.T @ Rb
+    t = np.asarray(t, dtype=float)
+    R, ok = GyroIntegrator(imu, max_dt).between(t[:-1], t[1:])
+    for k in np.flatnonzero(ok):
+        out[k + 1] = R[k]
     return out
 
 

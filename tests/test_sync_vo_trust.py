@@ -153,6 +153,21 @@ def test_stabiliser_is_detected_from_smoothed_image_rotation():
     assert rep.summary()["stabiliser_detected"] and "stabilised" in rep.summary()["trusted"]
 
 
+def test_an_image_turning_more_than_the_gyro_hints_at_the_focal_length():
+    """A rigid camera whose calibrated focal length is 1/1.2 of the true one: VO's angles are
+    1.2x the gyro's. The summary says so (and nothing when they agree, or over too little rotation)."""
+    from blendgen.sync.vo_trust import assess
+
+    rng = np.random.default_rng(2)
+    wg = [rng.normal(0, np.radians(1.0), 3) for _ in range(60)]
+    for gain, scale, hint in ((1.2, 1.0, True), (1.0, 1.0, False), (1.2, 0.05, False)):
+        w = [scale * x for x in wg]
+        res, Rg = _fake_pairs(w, [gain * x + rng.normal(0, np.radians(0.02), 3) for x in w])
+        rep = assess(res, Rg, np.eye(3), np.arange(61) * 0.1, 1e-4)
+        assert not rep.stabilised
+        assert ("focal length is likely 1.20x" in rep.reason) == hint, rep.reason
+
+
 @pytest.fixture(scope="module")
 def shaky():
     from blendgen.sync.simulate import synthetic_recording

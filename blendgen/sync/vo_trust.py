@@ -53,6 +53,8 @@ def vo_noise(res: VoResult) -> tuple[np.ndarray, np.ndarray | None]:
 GATE_P = 0.999                 # per-pair chi-square gate of VO rotation against the gyro
 GYRO_BIAS_STD = 0.01           # rad/s: what the gyro bias may be before the filter knows it
 STAB_GAIN = 0.8                # image rotation below this fraction of the body's: smoothed
+FOCAL_HINT_GAIN = 0.1          # a rigid image turning > 10 % more or less than the gyro: focal length off
+FOCAL_HINT_SIGMA = 4.0         # ... and that many standard errors of the gain away from 1
 STAB_MIN_NEES = 3.0            # median normalised VO-gyro disagreement per dof above this: non-rigid
 STAB_HIGHPASS_S = 2.0          # s: the stabiliser's correction has no content slower than this (3 s: p90 error 0.40 deg instead of 0.20 on the synthetic shake)
 MIN_PAIRS = 10
@@ -214,6 +216,15 @@ def assess(results: list, gyro_R_body: list, R_bc: np.ndarray, t: np.ndarray, gy
         nb = sum(1 for f in rep.flags if f)
         rep.reason = (f"VO rotation + direction, {len(rows) - nb} of {len(rows)} checked pairs consistent "
                       f"with the gyro" + (f" ({nb} gated)" if nb else ""))
+    # the gain's standard error from each pair's VO covariance (least squares over the pairs)
+    gain_se = float(np.sqrt(sum(w @ r[3] @ w for r, w in zip(rows, W_gc)))) / gg if gg > 0 else np.inf
+    if not rep.stabilised and len(rows) >= MIN_PAIRS and abs(rep.gain - 1.0) > max(FOCAL_HINT_GAIN,
+                                                                                  FOCAL_HINT_SIGMA * gain_se):
+        # near the image centre VO's angle is pixels / assumed focal length = true angle x
+        # f_true / f_assumed: the gain is the focal length's error (a fisheye read as a pinhole
+        # shows the same)
+        rep.reason += (f"; the image turns {rep.gain:.2f}x what the gyro does: the camera's focal length "
+                       f"is likely {rep.gain:.2f}x calib.yaml's, or the lens is not a pinhole")
     return rep
 
 

@@ -71,12 +71,11 @@ def comma() -> None:
         print("  comma2k19 not found: skipped")
         return
     from blendgen.recording.folder import read_recording
-    from blendgen.recording.importers.comma2k19 import import_comma2k19
+    from blendgen.recording.importers.comma2k19 import groundtruth_georef, import_comma2k19
 
     with tempfile.TemporaryDirectory() as d:
         rec = read_recording(import_comma2k19(seg, Path(d) / "rec", show_progress=False))
-        o = rec.extra["import"]["groundtruth_origin"]
-        georef = (o["lat"], o["lon"], o["alt"])
+        georef = groundtruth_georef(rec)
         c0 = time.process_time()
         res = run_sync(rec, Sync(), Path(d) / "out", georef=georef, progress=False)
         e = comma_errors(res, rec, georef)["sync"]

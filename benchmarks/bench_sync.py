@@ -152,14 +152,13 @@ def comma(quick: bool):
         return None
     from blendgen.geometry import pose_from_xyz_quat
     from blendgen.recording.folder import read_recording
-    from blendgen.recording.importers.comma2k19 import import_comma2k19
+    from blendgen.recording.importers.comma2k19 import groundtruth_georef, import_comma2k19
     from blendgen.sync.calibration import describe
 
     out = {}
     with tempfile.TemporaryDirectory() as d:
         rec = read_recording(import_comma2k19(seg, Path(d) / "rec", show_progress=False))
-        o = rec.extra["import"]["groundtruth_origin"]
-        georef = (o["lat"], o["lon"], o["alt"])
+        georef = groundtruth_georef(rec)
         t = time.perf_counter()
         res = run_sync(rec, Sync(), Path(d) / "out", georef=georef, progress=False)
         out["blendgen"] = (time.perf_counter() - t, comma_errors(res, rec, georef))

@@ -30,7 +30,7 @@ from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import VoConfig, VoResult, make_vo
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
-from blendgen.sync.vo_trust import GyroIntegrator, TrustReport, assess, gyro_rotations, vo_noise
+from blendgen.sync.vo_trust import GyroIntegrator, TrustReport, assess, vo_noise
 
 ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
 # vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
@@ -415,7 +415,7 @@ def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg)
     shift0 = float(rec.time_offset_cam_imu)
 
     def check(t):
-        return assess(results, gyro_rotations(imu, t, cfg.max_imu_dt), R_bc, t, cfg.gyro_noise)
+        return assess(results, gyro.pair_rotations(t), R_bc, t, cfg.gyro_noise)
 
     trust = check(out_t)
     toff = TimeOffset(shift_s=shift0, calib_s=shift0, method="calib.yaml")
@@ -444,15 +444,21 @@ def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg)
     return trust, toff, out_t
 
 
+# positions in _filter_pass's argument tuple (built in _filter) and of the latency in `calib`
+_ARG_SMOOTH, _ARG_CALIB, _CALIB_LATENCY = 4, 18, 2
+
+
 def _with_latency(args: tuple, tau: float) -> tuple:
-    c = args[18]
-    return args[:18] + ((c[0], c[1], float(tau), 0.0, *c[4:]),) + args[19:]
+    """The filter-pass arguments with the GNSS latency fixed at tau (its prior std 0)."""
+    c = args[_ARG_CALIB]
+    calib = c[:_CALIB_LATENCY] + (float(tau), 0.0) + tuple(c[_CALIB_LATENCY + 2:])
+    return args[:_ARG_CALIB] + (calib,) + args[_ARG_CALIB + 1:]
 
 
 def _forward(rec, settings, cfg, x0, P0, args, road, tau: float, h_scale: float) -> dict:
     """Summary of one forward pass (no smoother: it does not change the likelihood) with the
     latency fixed at tau."""
-    a = _with_latency(args[:4] + (False,) + args[5:], tau)
+    a = _with_latency(args[:_ARG_SMOOTH] + (False,) + args[_ARG_SMOOTH + 1:], tau)
     return _filter_pass(rec, settings, cfg, x0, P0, *a, False, road=road, h_scale=h_scale)[0].summary
 
 
@@ -461,7 +467,7 @@ def _innovation_scale(rec, settings, cfg, x0, P0, args, road, h_scale: float) ->
     consistent (mean NIS 2 per fix) in a forward pass at the given latency: a receiver's own
     h_std_m is often pessimistic (comma2k19: 2.1 m stated, the innovations say 0.18 m; against
     the ground truth the fixes scatter 0.28 m about their mean offset, partly slow wander)."""
-    s = _forward(rec, settings, cfg, x0, P0, args, road, args[18][2], h_scale)
+    s = _forward(rec, settings, cfg, x0, P0, args, road, args[_ARG_CALIB][_CALIB_LATENCY], h_scale)
     n = s["updates"].get("gnss", 0)
     if n < 10:
         return h_scale

@@ -124,18 +124,24 @@ class GyroIntegrator:
         ok &= self.gap_cum[np.where(ok, jb, 0) + 1] - self.gap_cum[np.where(ok, ja, 0)] == 0
         return np.einsum("nji,njk->nik", Ra, Rb), ok
 
+    def pair_rotations(self, t: np.ndarray) -> list:
+        """`gyro_rotations` over consecutive times t: entry k the rotation from t[k-1] to t[k]."""
+        t = np.asarray(t, dtype=float)
+        out: list = [None] * len(t)
+        if len(self.ti) < 2 or len(t) < 2:
+            return out
+        R, ok = self.between(t[:-1], t[1:])
+        for k in np.flatnonzero(ok):
+            out[k + 1] = R[k]
+        return out
+
 
 def gyro_rotations(imu: np.ndarray, t: np.ndarray, max_dt: float) -> list:
     """R_b(t[k-1])^T R_b(t[k]) from the raw gyro (no bias removed), None across a gap or
     outside the IMU's time span. Entry 0 is None."""
-    out: list = [None] * len(t)
     if len(imu) < 2 or len(t) < 2:
-        return out
-    t = np.asarray(t, dtype=float)
-    R, ok = GyroIntegrator(imu, max_dt).between(t[:-1], t[1:])
-    for k in np.flatnonzero(ok):
-        out[k + 1] = R[k]
-    return out
+        return [None] * len(t)
+    return GyroIntegrator(imu, max_dt).pair_rotations(t)
 
 
 def assess(results: list, gyro_R_body: list, R_bc: np.ndarray, t: np.ndarray, gyro_noise: float) -> TrustReport:

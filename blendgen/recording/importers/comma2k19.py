@@ -132,6 +132,13 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
     return dst
 
 
+def groundtruth_georef(rec) -> tuple[float, float, float]:
+    """(lat, lon, alt) of the ground truth's local ENU origin: the georeference to sync an
+    imported segment with, so that its poses and its ground truth share one frame."""
+    o = rec.extra["import"]["groundtruth_origin"]
+    return o["lat"], o["lon"], o["alt"]
+
+
 def _R_enu_ecef(lat: float, lon: float) -> np.ndarray:
     sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
     return np.array([[-so, co, 0.0], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl]])

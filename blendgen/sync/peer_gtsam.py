@@ -15,8 +15,10 @@ velocity 0 with pipeline.NHC_LAT_STD / NHC_UP_STD; the IMU is taken as aligned w
 vehicle unless `nhc` is a rotation: the peer does not estimate the mounting rotation, it can be
 given blendgen's estimate). The GNSS receiver model blendgen estimates can be given too:
 `latency_s` (a fix stamped t is the antenna at t - latency: its GPS factor sits on a keyframe at
-that time) and `h_std_scale` (the fixes' horizontal noise times this; the vertical stays as
-stated, as in blendgen's filter). Optional dependency (`pip install gtsam`); blendgen's own sync
+that time), `h_std_scale` (the fixes' horizontal noise times this; not the vertical, as in
+blendgen's filter) and `height_corr_s` (the fixes' height-error correlation time: fixes within
+it count as one height measurement, vertical std 2 g_std sqrt(corr x rate), as in blendgen's
+filter with a calibration). Optional dependency (`pip install gtsam`); blendgen's own sync
 never imports it.
 """
 
@@ -30,15 +32,16 @@ from blendgen.sync.pipeline import NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
 
 
 def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0),
-              road=None, nhc=False, latency_s: float = 0.0, h_std_scale: float = 1.0):
+              road=None, nhc=False, latency_s: float = 0.0, h_std_scale: float = 1.0, height_corr_s: float = 0.0):
     """Camera poses at out_t from IMU + GNSS (world-frame fixes g_xyz at times g_t).
 
     g_std: the fixes' stated horizontal std (m), one number or one per fix; the factor's
-    horizontal sigma is g_std * h_std_scale, the vertical 2 g_std. latency_s: each fix is put
-    at g_t - latency_s. x0 = (p, v, R_world_body) initial guess at the first IMU sample;
-    prior_sigmas = (pos m, tilt rad, yaw rad, vel m/s). road = (surface, camera_height_m):
-    surface (N, 2) xy -> (N,) road z. nhc: vehicle velocity constraint (True: the IMU axes are
-    the vehicle's; a 3x3 R_vehicle_imu: in that frame). Returns a list of T_world_cam.
+    horizontal sigma is g_std * h_std_scale, the vertical 2 g_std (times sqrt(height_corr_s x
+    fix rate) when that is > 1). latency_s: each fix is put at g_t - latency_s. x0 = (p, v,
+    R_world_body) initial guess at the first IMU sample; prior_sigmas = (pos m, tilt rad, yaw
+    rad, vel m/s). road = (surface, camera_height_m): surface (N, 2) xy -> (N,) road z. nhc:
+    vehicle velocity constraint (True: the IMU axes are the vehicle's; a 3x3 R_vehicle_imu:
+    in that frame). Returns a list of T_world_cam.
     """
     import gtsam
     from gtsam.symbol_shorthand import B, V, X
@@ -61,6 +64,8 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
     meas_t = g_t - float(latency_s)
     keep = (meas_t > imu[0, 0] + 1e-3) & (meas_t < imu[-1, 0])
     keys_t, key_xyz, key_std = meas_t[keep], np.asarray(g_xyz)[keep], g_std[keep]
+    rate = 1.0 / max(float(np.median(np.diff(g_t))), 1e-3) if len(g_t) > 1 else 1.0
+    v_factor = 2.0 * np.sqrt(max(float(height_corr_s) * rate, 1.0))
     R_vb = None if nhc is False or nhc is True else np.asarray(nhc, float)
     t_prev = imu[0, 0]
     pose = gtsam.Pose3(gtsam.Rot3(R0), gtsam.Point3(*p0))
@@ -102,7 +107,7 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
         # bias random walk between keyframes
         graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), gtsam.imuBias.ConstantBias(),
                                                   gtsam.noiseModel.Diagonal.Sigmas(rw * np.sqrt(tk - t_prev))))
-        sh, sv = key_std[k - 1] * h_std_scale, 2 * key_std[k - 1]
+        sh, sv = key_std[k - 1] * h_std_scale, v_factor * key_std[k - 1]
         gps_noise = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.array([sh, sh, sv])))
         graph.add(gtsam.GPSFactor(X(k), gtsam.Point3(*key_xyz[k - 1]), gps_noise))
         if road_model is not None and tk >= next_road_t:  # as often as blendgen's filter applies it

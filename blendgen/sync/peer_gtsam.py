@@ -66,7 +66,8 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
     keys_t, key_xyz, key_std = meas_t[keep], np.asarray(g_xyz)[keep], g_std[keep]
     rate = 1.0 / max(float(np.median(np.diff(g_t))), 1e-3) if len(g_t) > 1 else 1.0
     v_factor = 2.0 * np.sqrt(max(float(height_corr_s) * rate, 1.0))
-    R_vb = None if nhc is False or nhc is True else np.asarray(nhc, float)
+    use_nhc = nhc is not None and nhc is not False
+    R_vb = None if isinstance(nhc, bool) or nhc is None else np.asarray(nhc, float)
     t_prev = imu[0, 0]
     pose = gtsam.Pose3(gtsam.Rot3(R0), gtsam.Point3(*p0))
     graph = gtsam.NonlinearFactorGraph()
@@ -113,7 +114,7 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
         if road_model is not None and tk >= next_road_t:  # as often as blendgen's filter applies it
             graph.add(_road_factor(gtsam, X(k), road_model, T_bc[:3, 3]))
             next_road_t = tk + road_height.EVERY_S
-        if nhc is not False and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
+        if use_nhc and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
             graph.add(_nhc_factor(gtsam, X(k), V(k), R_vb))
         pred = pim.predict(state, bias)
         values.insert(X(k), pred.pose())

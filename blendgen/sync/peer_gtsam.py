@@ -12,8 +12,14 @@ road_height.EVERY_S (camera z = road z under it + camera height, std road_height
 the road's slope in the Jacobian), and `nhc` -> the no-sideslip / zero-vertical-velocity
 factor on each keyframe above pipeline.NHC_MIN_SPEED (body-frame lateral and vertical
 velocity 0 with pipeline.NHC_LAT_STD / NHC_UP_STD; the IMU is taken as aligned with the
-vehicle: the peer does not estimate the mounting rotation). Optional dependency (`pip install
-gtsam`); blendgen's own sync never imports it.
+vehicle unless `nhc` is a rotation: the peer does not estimate the mounting rotation, it can be
+given blendgen's estimate). The GNSS receiver model blendgen estimates can be given too:
+`latency_s` (a fix stamped t is the antenna at t - latency: its GPS factor sits on a keyframe at
+that time), `h_std_scale` (the fixes' horizontal noise times this; not the vertical, as in
+blendgen's filter) and `height_corr_s` (the fixes' height-error correlation time: fixes within
+it count as one height measurement, vertical std 2 g_std sqrt(corr x rate), as in blendgen's
+filter with a calibration). Optional dependency (`pip install gtsam`); blendgen's own sync
+never imports it.
 """
 
 from __future__ import annotations
@@ -25,13 +31,17 @@ from blendgen.sync import road_height, so3
 from blendgen.sync.pipeline import NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
 
 
-def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0),
-              road=None, nhc: bool = False):
+def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0),
+              road=None, nhc=False, latency_s: float = 0.0, h_std_scale: float = 1.0, height_corr_s: float = 0.0):
     """Camera poses at out_t from IMU + GNSS (world-frame fixes g_xyz at times g_t).
 
-    x0 = (p, v, R_world_body) initial guess; prior_sigmas = (pos m, tilt rad, yaw rad, vel m/s).
-    road = (surface, camera_height_m): surface (N, 2) xy -> (N,) road z. nhc: vehicle
-    velocity constraint. Returns a list of T_world_cam.
+    g_std: the fixes' stated horizontal std (m), one number or one per fix; the factor's
+    horizontal sigma is g_std * h_std_scale, the vertical 2 g_std (times sqrt(height_corr_s x
+    fix rate) when that is > 1). latency_s: each fix is put at g_t - latency_s. x0 = (p, v,
+    R_world_body) initial guess at the first IMU sample; prior_sigmas = (pos m, tilt rad, yaw
+    rad, vel m/s). road = (surface, camera_height_m): surface (N, 2) xy -> (N,) road z. nhc:
+    vehicle velocity constraint (True: the IMU axes are the vehicle's; a 3x3 R_vehicle_imu:
+    in that frame). Returns a list of T_world_cam.
     """
     import gtsam
     from gtsam.symbol_shorthand import B, V, X
@@ -48,9 +58,16 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
     isam = gtsam.ISAM2(ip)
     p0, v0, R0 = x0
     imu = rec.imu
-    keys_t = g_t[g_t > imu[0, 0] + 1e-3]
-    keys_t = keys_t[keys_t < imu[-1, 0]]
-    g_by_t = dict(zip(g_t, g_xyz))
+    g_t = np.asarray(g_t, float)
+    g_std = np.broadcast_to(np.asarray(g_std, float), g_t.shape)
+    # the time each fix was measured: the keyframe that carries its GPS factor
+    meas_t = g_t - float(latency_s)
+    keep = (meas_t > imu[0, 0] + 1e-3) & (meas_t < imu[-1, 0])
+    keys_t, key_xyz, key_std = meas_t[keep], np.asarray(g_xyz)[keep], g_std[keep]
+    rate = 1.0 / max(float(np.median(np.diff(g_t))), 1e-3) if len(g_t) > 1 else 1.0
+    v_factor = 2.0 * np.sqrt(max(float(height_corr_s) * rate, 1.0))
+    use_nhc = nhc is not None and nhc is not False
+    R_vb = None if isinstance(nhc, bool) or nhc is None else np.asarray(nhc, float)
     t_prev = imu[0, 0]
     pose = gtsam.Pose3(gtsam.Rot3(R0), gtsam.Point3(*p0))
     graph = gtsam.NonlinearFactorGraph()
@@ -68,8 +85,7 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
     isam.update(graph, values)
     state = gtsam.NavState(pose, np.asarray(v0, float))
     bias = bias0
-    gps_noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.5),
-                                               gtsam.noiseModel.Diagonal.Sigmas(np.array([g_std, g_std, 2 * g_std])))
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(1.5)
     j = 1  # next IMU sample
     times = [t_prev]
     T_bc = invert_pose(rec.T_cam_imu)
@@ -92,12 +108,14 @@ def run_gtsam(rec, g_t, g_xyz, g_std: float, out_t, x0, *, prior_sigmas=(1.0, 0.
         # bias random walk between keyframes
         graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), gtsam.imuBias.ConstantBias(),
                                                   gtsam.noiseModel.Diagonal.Sigmas(rw * np.sqrt(tk - t_prev))))
-        graph.add(gtsam.GPSFactor(X(k), gtsam.Point3(*g_by_t[tk]), gps_noise))
+        sh, sv = key_std[k - 1] * h_std_scale, v_factor * key_std[k - 1]
+        gps_noise = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.array([sh, sh, sv])))
+        graph.add(gtsam.GPSFactor(X(k), gtsam.Point3(*key_xyz[k - 1]), gps_noise))
         if road_model is not None and tk >= next_road_t:  # as often as blendgen's filter applies it
             graph.add(_road_factor(gtsam, X(k), road_model, T_bc[:3, 3]))
             next_road_t = tk + road_height.EVERY_S
-        if nhc and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
-            graph.add(_nhc_factor(gtsam, X(k), V(k)))
+        if use_nhc and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
+            graph.add(_nhc_factor(gtsam, X(k), V(k), R_vb))
         pred = pim.predict(state, bias)
         values.insert(X(k), pred.pose())
         values.insert(V(k), pred.velocity())
@@ -139,17 +157,20 @@ def _road_factor(gtsam, key, road, p_bc):
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, road_height.ROUGH_STD), [key], err)
 
 
-def _nhc_factor(gtsam, xkey, vkey):
-    """Body-frame lateral and vertical velocity zero: r = (R^T v)[1:3]; d/dw = [R^T v]x, d/dv = R^T."""
+def _nhc_factor(gtsam, xkey, vkey, R_vb=None):
+    """Vehicle-frame lateral and vertical velocity zero: r = (M R^T v)[1:3] with M = R_vb (the
+    IMU's rotation into the vehicle frame, x forward; identity when None); d/dw = M [R^T v]x,
+    d/dv = M R^T."""
+    M = np.eye(3) if R_vb is None else np.asarray(R_vb, float)
 
     def err(this, values, H):
         R = values.atPose3(this.keys()[0]).rotation().matrix()
         v = values.atVector(this.keys()[1])
         vb = R.T @ v
         if H is not None:
-            H[0] = np.hstack([_skew(vb)[1:3], np.zeros((2, 3))])
-            H[1] = R.T[1:3]
-        return vb[1:3]
+            H[0] = np.hstack([(M @ _skew(vb))[1:3], np.zeros((2, 3))])
+            H[1] = (M @ R.T)[1:3]
+        return (M @ vb)[1:3]
 
     return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([NHC_LAT_STD, NHC_UP_STD])), [xkey, vkey], err)
 

@@ -150,6 +150,9 @@ def test_exr_passes_present_and_finite(tmp_path):
         assert catcher.sum() > 20 and p["depth"][catcher].min() > 3  # the shadow lies on the road patch
         assert sc[y0:y1, x0:x1].min() < 0.6                          # the car's shadow on the road
         assert (x1 - x0) * (y1 - y0) < 0.5 * cam.width * cam.height
+        # the patch has the ground plane's albedo (it stands in for it)
+        assert tuple(s._catcher.data.materials[0].diffuse_color[:3]) == pytest.approx(
+            tuple(s._ground.data.materials[0].diffuse_color[:3]))
     finally:
         s.close()
 
@@ -277,6 +280,11 @@ def test_real_twin_and_objects(tmp_path):
             n = np.count_nonzero(p["index"] == i)
             assert abs(info["amodal_px"][i] - n) <= max(2, 0.02 * n), (i, info["amodal_px"][i], n)
         assert p["shadow_catcher"].min() < 0.7 and np.all(np.isfinite(p["rgba"]))
+        # the catcher patches stand in for the town's asphalt: its albedo, not a lighter grey
+        road = [ms.material.diffuse_color[0] for ob in s.twin_objects if s._roles[ob.name] == "road"
+                and ob.get("blendgen_kind") != "terrain" for ms in ob.material_slots]
+        assert s._catcher.data.materials[0].diffuse_color[0] == pytest.approx(np.mean(road), abs=1e-6)
+        assert max(road) < 0.2
         bg = s.render_background(T_town, SUN, tmp_path / "town.png", 2)
         assert (tmp_path / "town.png").stat().st_size > 1000 and bg["samples"] == 2
     finally:

@@ -307,7 +307,18 @@ class RenderSession:
     def _catcher_material(self):
         from blendgen.render.primitives import material
 
-        return material("blendgen_catcher", (0.3, 0.3, 0.3), roughness=0.9)
+        return material("blendgen_catcher", self._road_color(), roughness=0.9)
+
+    def _road_color(self) -> tuple[float, float, float]:
+        """Mean viewport colour of the twin's road surfaces (what the patches stand in for).
+
+        The patch's albedo sets how much light the objects bounce onto the road in the caught
+        passes: with 0.3 on a 0.25 ground plane the frame of bench_render was 0.46 dB off the
+        render that catches on the ground itself (docs/render.md)."""
+        cols = [ms.material.diffuse_color[:3] for ob in self.twin_objects
+                if self._roles.get(ob.name) == "road" and ob.get("blendgen_kind") != "terrain"
+                for ms in ob.material_slots if ms.material]
+        return tuple(float(c) for c in np.mean(cols, axis=0)) if cols else (0.25, 0.25, 0.25)
 
     def _set_camera(self, T_world_cam):
         self.cam_ob.matrix_world = Matrix(blender_matrix_world(T_world_cam).tolist())

@@ -214,28 +214,18 @@ class ErrorStateEkf:
         self._apply_F(np.eye(NC), q)
 
     def _apply_F(self, F: np.ndarray, q: np.ndarray, Qth: np.ndarray | None = None) -> None:
-        self._record(F)
+        if self.history is not None:
+            # consecutive predictions with no update between them collapse into one
+            # transition: RTS needs the state only where information entered or is asked for
+            if self._acc is None:
+                self._acc = [self._post_nominal, self.P[:NC, :NC].copy(), F]
+            else:
+                self._acc[2] = F @ self._acc[2]
         self._predict_cov(F, q, Qth)
-
-    def _record(self, F: np.ndarray) -> None:
-        """Accumulate a transition for the RTS smoother: F on the core states (NC x NC; the
-        clone is held) or on the whole state (N x N: the clone's copy)."""
-        if self.history is None:
-            return
-        if F.shape[0] == NC:
-            Fa = np.eye(N)
-            Fa[:NC, :NC] = F
-            F = Fa
-        # consecutive predictions with no update between them collapse into one
-        # transition: RTS needs the state only where information entered or is asked for
-        if self._acc is None:
-            self._acc = [self._post_nominal, self.P.copy(), F]
-        else:
-            self._acc[2] = F @ self._acc[2]
 
     def _flush(self) -> None:
         if self.history is not None and self._acc is not None:
-            self.history.append([*self._acc, self._nominal(), self.P.copy()])
+            self.history.append([*self._acc, self._nominal(), self.P[:NC, :NC].copy()])
             self._acc = None
 
     def _snap(self) -> None:
@@ -244,7 +234,7 @@ class ErrorStateEkf:
 
     def _nominal(self):
         return (self.p.copy(), self.v.copy(), self.R.copy(), self.bg.copy(), self.ba.copy(), self.R_bv.copy(),
-                self.tau, self.lever.copy(), self.p_c.copy(), self.R_c.copy())
+                self.tau, self.lever.copy())
 
     def _predict_cov(self, F: np.ndarray, q: np.ndarray, Qth: np.ndarray | None = None) -> None:
         P = self.P
@@ -259,20 +249,12 @@ class ErrorStateEkf:
     # ------------------------------------------------------------------ cloning
     def clone(self) -> None:
         """Remember the current (p, R) as the reference of the next relative measurement."""
-        J = np.zeros((6, NC))
-        J[0:3, IP] = np.eye(3)
-        J[3:6, ITH] = np.eye(3)
-        if self.history is not None:
-            # the copy is a transition of the whole state: the smoother then carries the VO
-            # pair's link between two frames backwards (with the core states alone it did not)
-            self._snap()
-            F = np.eye(N)
-            F[NC:, NC:] = 0.0
-            F[NC:, :NC] = J
-            self._record(F)
         self.p_c = self.p.copy()
         self.R_c = self.R.copy()
         P = self.P
+        J = np.zeros((6, NC))
+        J[0:3, IP] = np.eye(3)
+        J[3:6, ITH] = np.eye(3)
         top = P[:NC, :NC]
         P[NC:, :NC] = J @ top
         P[:NC, NC:] = P[NC:, :NC].T
@@ -485,38 +467,35 @@ class ErrorStateEkf:
         return len(self.history) if self.history is not None else -1
 
     def smooth(self, marks: list[int]):
-        """Rauch-Tung-Striebel pass over the recorded predictions, on the whole error state: the
-        core states and the clone of the last frame, whose copy at each frame is a transition
-        like the IMU's (so a VO pair constrains both of its frames in the smoothed trajectory).
+        """Rauch-Tung-Striebel pass over the recorded predictions (the 22 core states).
 
-        Returns, for each mark, the smoothed (p, v, R, bg, ba, R_bv, tau, lever) and the
-        diagonal of its core covariance. A mark m is the filtered state after m predictions
-        (and the updates that followed).
+        Returns, for each mark, the smoothed (p, v, R, bg, ba, R_bv, tau, lever) and the diagonal of its covariance.
+        A mark m is the filtered state after m predictions (and the updates that followed).
+        Clone correlations are not carried backwards: with VO this is an approximation.
         """
         self._flush()
         H = self.history
         n = len(H)
         xs = self._nominal()
-        Ps = self.P.copy()
+        Ps = self.P[:NC, :NC].copy()
         out: dict[int, tuple] = {}
         want = set(marks)
         if n in want:
-            out[n] = (xs[:8], np.diag(Ps)[:NC].copy())
+            out[n] = (xs, np.diag(Ps).copy())
         for j in range(n - 1, -1, -1):
             post, P_post, F, pred, P_pred = H[j]
             d = np.concatenate([xs[0] - pred[0], xs[1] - pred[1], so3.log(pred[2].T @ xs[2]),
                                 xs[3] - pred[3], xs[4] - pred[4], so3.log(pred[5].T @ xs[5]),
-                                [xs[6] - pred[6]], xs[7] - pred[7], xs[8] - pred[8], so3.log(pred[9].T @ xs[9])])
-            C = _rts_gain(P_post, F, P_pred)
+                                [xs[6] - pred[6]], xs[7] - pred[7]])
+            C = np.linalg.solve(P_pred.T, (P_post @ F.T).T).T  # P_post F^T P_pred^-1
             dx = C @ d
             xs = (post[0] + dx[IP], post[1] + dx[IV], so3.orthonormalize(post[2] @ so3.exp(dx[ITH])),
                   post[3] + dx[IBG], post[4] + dx[IBA], so3.orthonormalize(post[5] @ so3.exp(dx[IM])),
-                  post[6] + float(dx[ITAU][0]), post[7] + dx[ILA], post[8] + dx[ICP],
-                  so3.orthonormalize(post[9] @ so3.exp(dx[ICT])))
+                  post[6] + float(dx[ITAU][0]), post[7] + dx[ILA])
             Ps = P_post + C @ (Ps - P_pred) @ C.T
             Ps = 0.5 * (Ps + Ps.T)
             if j in want:
-                out[j] = (xs[:8], np.diag(Ps)[:NC].copy())
+                out[j] = (xs, np.diag(Ps).copy())
         return [out[m] for m in marks]
 
     # ------------------------------------------------------------------ access
@@ -528,17 +507,3 @@ class ErrorStateEkf:
         if not (np.all(np.isfinite(P)) and np.all(np.isfinite(self.p)) and np.all(np.isfinite(self.v))):
             return False
         return bool(np.allclose(P, P.T, atol=1e-9 * max(1.0, np.abs(P).max())))
-
-
-def _rts_gain(P_post: np.ndarray, F: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
-    """P_post F^T P_pred^-1. P_pred is singular only for a transition with no process noise
-    at all (a clone followed by an update at the same instant): then the pseudo-inverse, the
-    limit of the gain as the noise goes to zero on the directions that have it."""
-    B = (P_post @ F.T).T
-    try:
-        C = np.linalg.solve(P_pred.T, B).T
-        if np.all(np.isfinite(C)):
-            return C
-    except np.linalg.LinAlgError:
-        pass
-    return (np.linalg.pinv(P_pred.T, rcond=1e-12, hermitian=True) @ B).T

@@ -701,12 +701,11 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                         flags.append("vo" if ok else "vo_rejected")
                     elif res.status not in ("first",):
                         flags.append("vo_failed")
+                if res is None or res.status != "repeated":
+                    ekf.clone()
+                    clone_i = i
             if smooth:
                 marks.append(ekf.mark())
-            if use_vo and (res is None or res.status != "repeated"):
-                # after the mark: the copy then joins the next IMU steps in one smoother transition
-                ekf.clone()
-                clone_i = i
             T_wb = make_pose(ekf.R, ekf.p)
             T_wc = T_wb @ make_pose(R_bc, p_bc)
             poses.append((ids[i], float(out_t_cam[i]), T_wc))

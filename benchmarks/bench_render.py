@@ -554,12 +554,32 @@ def fair(args):
     tried = [memo[k] for k in sorted(memo)]
     final = blend["naive"]
     sess.close()
+
+    # ---- 4. the ratio from interleaved pairs: blendgen, then the naive render at its found
+    # count, each in a fresh session, so that both halves of a pair see the same load (other
+    # jobs on a shared machine move CPU s by up to 1.6x from one minute to the next)
+    pair_ratios = []
+    for _ in range(args.pairs if final else 0):
+        cpu = {}
+        for kind in ("blendgen", "naive"):
+            s_ = RenderSession(None, None, Render(), cam, object_builder=build,
+                               catch_shadows_on="patches" if kind == "blendgen" else "ground")
+            if kind == "naive":
+                use_blender_defaults(s_)
+            s_.render = Render(samples=1, denoise=False)
+            s_.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+            r = Render() if kind == "blendgen" else Render(samples=final["samples"], denoise=True, region=False)
+            cpu[kind] = run_config(s_, plan, r, tmp / "pair.exr")[1]["cpu_s"]
+            s_.close()
+        pair_ratios.append(cpu["naive"] / cpu["blendgen"])
+        print(f"pair: blendgen {cpu['blendgen']:.2f} CPU s, naive {cpu['naive']:.2f} -> {pair_ratios[-1]:.1f}x", flush=True)
     total = time.perf_counter() - t_start
 
     # ---- report
     cmd = (".venv/bin/python benchmarks/bench_render.py" + (" --quick" if args.quick else "") +
            (f" --repeats {reps}" if reps != 3 else "") +
-           (f" --samples {' '.join(map(str, args.samples))}" if args.samples != [12] else ""))
+           (f" --samples {' '.join(map(str, args.samples))}" if args.samples != [12] else "") +
+           (f" --pairs {args.pairs}" if args.pairs != 3 else ""))
     ratio = (final["cpu_s"] / blend["cpu_s"]) if final else None
     lines = [f"# Render cost: the fair baseline and clusters{' (quick)' if args.quick else ''}", "",
              f"Command: `{cmd}` (under `nice -n 5`; 2 CPU cores shared with other sessions' jobs, Cycles CPU; "
@@ -589,6 +609,11 @@ def fair(args):
                    f"**{ratio:.1f}x cheaper in CPU seconds** ({final['cpu_s']:.2f} -> {blend['cpu_s']:.2f} s; "
                    f"wall {final['time_s'] / blend['time_s']:.1f}x)." if final else
                    f"- No naive sample count up to {args.max_samples} reached {target:.2f} dB.")]
+    if pair_ratios:
+        lines.append(f"- Interleaved pairs (blendgen, then the naive render at {final['samples']} spp, each in a fresh "
+                     f"session, {len(pair_ratios)} times): CPU ratios "
+                     f"{' / '.join(f'{x:.1f}x' for x in pair_ratios)}, median **{statistics.median(pair_ratios):.1f}x** "
+                     "(both halves of a pair under the same load).")
     fit = fitted_naive_cpu(tried, target)
     if fit:
         lines.append(f"- The same against a straight-line fit of the naive CPU s over all {len(tried)} search renders "
@@ -638,7 +663,7 @@ def fair(args):
         "naive_tried": tried, "operating_points": {str(n): {k: v for k, v in b.items()} for n, b in points.items()},
         "naive_final": final, "ratio_cpu": ratio, "naive_fit": fit, "defaults": defaults,
         "clusters": {f"{k[0]}, {k[1]}": {kk: vv for kk, vv in v.items() if kk != "passes"} for k, v in cl.items()},
-        "paste_psnr_db": paste_db, "overhead_px": overhead_px,
+        "paste_psnr_db": paste_db, "overhead_px": overhead_px, "pair_ratios": pair_ratios,
         "call_cpu_s": call_cpu}, indent=1, default=str))
     write_text(DOC.with_name("render_fair_quick.md" if args.quick else "render_fair.md"), md + "\n")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -653,6 +678,8 @@ def main():
     ap.add_argument("--max-samples", type=int, default=256, help="upper end of the naive sample search")
     ap.add_argument("--samples", type=int, nargs="*", default=[12],
                     help="blendgen sample counts besides its default, each against its own naive search")
+    ap.add_argument("--pairs", type=int, default=3,
+                    help="interleaved blendgen / naive pairs for the load-robust ratio (0: none)")
     ap.add_argument("--sweep", action="store_true",
                     help="the older samples/denoise/bounces sweep and the memory run instead (docs/benchmarks/render.md)")
     ap.add_argument("--replot", type=Path, default=None, help="redraw the sweep plot from a results JSON and exit")

@@ -63,4 +63,4 @@ def test_bench_render_quick():
                        capture_output=True, text=True, timeout=1800, cwd=ROOT)
     assert r.returncode == 0, r.stderr[-3000:]
     md = (ROOT / "docs" / "benchmarks" / "render_fair_quick.md").read_text()
-    assert "cheaper in CPU seconds" in md and "opposite edges, clustered" in md
+    assert "cheaper in CPU seconds" in md and "opposite edges, clustered" in md and "Interleaved pairs" in md

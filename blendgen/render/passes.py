@@ -94,14 +94,15 @@ def finish(raw: dict, keys, regions, canvas: Canvas, box=None, out_box=None, *, 
     return out
 
 
-def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=None, out_region=None, *,
-                compression: str = "zip") -> None:
+def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=None, *,
+                compression: str = "zip"):
     """Paste the region renders, finish the passes and write the frame EXR.
 
-    `union`: the canvas box of all `regions`; `out_region`: the output box it samples (the
-    EXR's data window; None: the full frame). Only those boxes are processed.
+    `union`: the canvas box of all `regions`. Returns the output box it samples (the EXR's
+    data window; None: the full frame). Only those boxes are processed.
     """
     pin, out = canvas.pinhole, canvas.output
+    out_region = canvas.region_to_output(union) if union else None
     hw = (pin.height, pin.width)
     inside = (union is not None and 0 <= union[0] and 0 <= union[1] and union[2] <= pin.width
               and union[3] <= pin.height
@@ -111,8 +112,9 @@ def write_frame(path, raws: list[dict], keys, regions, canvas: Canvas, union=Non
         raw = uncrop(raws, regions, hw)
         passes = finish(raw, keys, regions, canvas, consume=True)
         write_passes(path, passes, window=out_region, compression=compression)
-        return
+        return out_region
     box = tuple(union)
     raw = uncrop(raws, regions, hw, box)
     passes = finish(raw, keys, regions, canvas, box, tuple(out_region), consume=True)
     write_passes(path, passes, window=out_region, frame_size=(out.width, out.height), compression=compression)
+    return out_region

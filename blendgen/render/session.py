@@ -591,9 +591,8 @@ class RenderSession:
         timings["render"] = time.perf_counter() - t2
 
         t3 = time.perf_counter()
-        out_region = self.canvas.region_to_output(eff.region.value) if eff.region.value else None
-        passes_mod.write_frame(out_exr, raws, keys, regions, self.canvas, eff.region.value, out_region,
-                              compression=compression)
+        out_region = passes_mod.write_frame(out_exr, raws, keys, regions, self.canvas, eff.region.value,
+                                            compression=compression)
         timings["write"] = time.perf_counter() - t3
 
         t4 = time.perf_counter()

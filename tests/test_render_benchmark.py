@@ -64,3 +64,28 @@ def test_bench_render_quick():
     assert r.returncode == 0, r.stderr[-3000:]
     md = (ROOT / "docs" / "benchmarks" / "render_fair_quick.md").read_text()
     assert "cheaper in CPU seconds" in md and "opposite edges, clustered" in md and "Interleaved pairs" in md
+
+
+@pytest.mark.bpy
+def test_gpu_bench_without_a_gpu_says_so_and_writes_nothing(tmp_path):
+    pytest.importorskip("bpy")
+    out = [ROOT / "docs" / "benchmarks" / "render_gpu.md", ROOT / "benchmarks" / "results" / "render_gpu.json"]
+    before = [p.stat().st_mtime if p.exists() else None for p in out]
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_render_gpu.py"), "--quick"],
+                       capture_output=True, text=True, timeout=600, cwd=ROOT)
+    if r.returncode == 0:
+        pytest.skip("this machine has a GPU that Cycles can use")
+    assert "found no GPU" in r.stderr and "Traceback" not in r.stderr
+    assert [p.stat().st_mtime if p.exists() else None for p in out] == before
+
+
+@pytest.mark.benchmark
+@pytest.mark.bpy
+def test_bench_render_gpu_script_on_the_cpu():
+    pytest.importorskip("bpy")
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_render_gpu.py"), "--device", "CPU", "--quick",
+                        "--repeats", "1", "--pairs", "1", "--ref-samples", "32", "--max-samples", "64"],
+                       capture_output=True, text=True, timeout=1800, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    md = (ROOT / "docs" / "benchmarks" / "render_gpu_cpu_quick.md").read_text()
+    assert "cheaper in CPU wall seconds" in md and "opposite edges, clustered" in md

@@ -29,6 +29,9 @@ FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth th
 # read) as a fraction of the frame's pixels: it grows with the frame, 0.07 CPU s = 1200 region
 # pixels at 640x360, 0.21 CPU s = 4300 at 1280x720 (benchmarks/bench_render.py, docs/render.md).
 REGION_OVERHEAD_FRACTION = 0.0045
+# On a GPU a render call costs ~0.03 s wall while a pixel costs ~0.7 us: one call is worth
+# ~5 % of a 1280x720 frame (H200, OptiX: benchmarks/bench_render_gpu.py, docs/render.md).
+REGION_OVERHEAD_FRACTION_GPU = 0.05
 # Used when a plan carries no lighting estimate: a clear-sky late morning.
 DEFAULT_LIGHTING = {
     "sun_direction": [0.35, 0.25, 0.90], "sun_strength": 3.0, "sun_color": [1.0, 0.97, 0.92],
@@ -279,7 +282,7 @@ def catcher_patches(objects, sun_dir: np.ndarray | None, margin_m: float | None 
 
 # ---------------------------------------------------------------- region
 def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | None,
-                  enabled: bool, extra_margin_px: float = 0.0) -> Decision:
+                  enabled: bool, extra_margin_px: float = 0.0, gpu: bool = False) -> Decision:
     """Border render boxes from the projected boxes and shadows of the kept objects.
 
     Value: the union box (x0, y0, x1, y1) or None (full frame); ``extra["clusters"]``: the
@@ -315,7 +318,7 @@ def decide_region(plan: FramePlan, objects, cam: Camera, sun_dir: np.ndarray | N
         return Decision(None, "no object or shadow projects into the frame")
     B = np.array(per_object)
     x0, y0, x1, y1 = int(B[:, 0].min()), int(B[:, 1].min()), int(B[:, 2].max()), int(B[:, 3].max())
-    clusters = cluster_boxes(per_object, REGION_OVERHEAD_FRACTION * W * H)
+    clusters = cluster_boxes(per_object, (REGION_OVERHEAD_FRACTION_GPU if gpu else REGION_OVERHEAD_FRACTION) * W * H)
     area = sum((c[2] - c[0]) * (c[3] - c[1]) for c in clusters)
     frac = area / float(W * H)
     what = "objects and their shadows" if sun_dir is not None else "objects (no sun shadow)"
@@ -418,8 +421,9 @@ def _check_numbers(d: dict, where: str) -> None:
             raise ValueError(f"{where}.{k}: expected finite numbers, got {v!r}")
 
 
-def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str]) -> FrameEffects:
-    """All per-frame decisions. `cam` is the pinhole canvas that Blender renders."""
+def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str], gpu: bool = False) -> FrameEffects:
+    """All per-frame decisions. `cam` is the pinhole canvas that Blender renders; `gpu`: Cycles
+    renders on a GPU (a render call costs more there, relative to a pixel)."""
     check_plan(plan)
     passes = decide_passes(set(outputs))
     catcher = decide_shadow_catcher(plan.lighting, set(outputs))
@@ -432,7 +436,7 @@ def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str]) -> F
     objects = Decision([int(o.id) for o in kept], reason)
     blur, px = decide_motion_blur(kept, cam, plan.T_world_cam, float(render.shutter_s), render.motion_blur)
     margin = max(px.values(), default=0.0) if blur.value else 0.0
-    region = decide_region(plan, kept, cam, sun, bool(render.region), extra_margin_px=margin)
+    region = decide_region(plan, kept, cam, sun, bool(render.region), extra_margin_px=margin, gpu=gpu)
     sampling = decide_sampling(render, passes.value)
     if not kept:
         skip = Decision(True, "no object or shadow in the view: empty passes written without Blender")

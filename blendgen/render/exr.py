@@ -7,6 +7,8 @@ with the same channel names. Both read back through `read_passes` as full-frame 
 
 from __future__ import annotations
 
+import functools
+import os
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +36,19 @@ LIGHTING_KEYS = ("diffuse_direct", "diffuse_indirect", "diffuse_color",
 # Lossless codecs write_passes offers (name -> OpenEXR constant).
 COMPRESSIONS = {"zip": "ZIP_COMPRESSION", "zips": "ZIPS_COMPRESSION", "rle": "RLE_COMPRESSION",
                 "piz": "PIZ_COMPRESSION", "none": "NO_COMPRESSION"}
+
+
+@functools.cache
+def _openexr():
+    """OpenEXR with its thread pool on: the Python module leaves it off (0 threads), so ZIP
+    blocks were compressed one after another; on a 16-core GPU host writing the frame's EXR
+    was then half its wall time (docs/render.md, GPU)."""
+    import OpenEXR
+
+    OpenEXR.set_global_thread_count(len(os.sched_getaffinity(0)))
+    return OpenEXR
+
+
 # Blender writes 1e10 for "no hit" in Depth; we store 0 there so every pass stays finite.
 NO_HIT_DEPTH = 1e9
 
@@ -73,7 +88,7 @@ def read_passes(path: str | Path) -> dict[str, np.ndarray]:
     depth (H,W) float32 metres along the optical axis (0 = no hit); the rest (H,W,3) float32.
     Full frame: outside a file's data window every pass is 0, except shadow_catcher (1).
     """
-    import OpenEXR
+    OpenEXR = _openexr()
 
     path = Path(path)
     if not path.is_file():
@@ -127,7 +142,7 @@ def write_passes(path: str | Path, passes: dict[str, np.ndarray], window=None, *
     smallest of the widely readable ones; "none" suits a file read back once and deleted
     (docs/render.md, cost section: time and size of each).
     """
-    import OpenEXR
+    OpenEXR = _openexr()
 
     if compression not in COMPRESSIONS:
         raise ValueError(f"EXR compression {compression!r}: expected one of {sorted(COMPRESSIONS)}")

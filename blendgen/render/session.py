@@ -159,6 +159,9 @@ class RenderSession:
                     for d in prefs.devices:
                         d.use = d.type == kind
                     self.scene.cycles.device = "GPU"
+                    # Blender's default denoises on the CPU even when rendering on a GPU: on an H200
+                    # that made OIDN most of a frame's wall time (docs/benchmarks/render_gpu.md)
+                    self.scene.cycles.denoising_use_gpu = True
                     return f"GPU ({kind})"
         except Exception:  # no GPU backend in this build/machine: CPU is the right answer
             pass
@@ -526,7 +529,8 @@ class RenderSession:
         lighting = plan.lighting or fx.DEFAULT_LIGHTING
         plan_l = FramePlan(plan.frame_id, plan.t, plan.T_world_cam, plan.objects, lighting)
         try:
-            eff = fx.decide_effects(plan_l, self.canvas.pinhole, self.render, outputs)
+            eff = fx.decide_effects(plan_l, self.canvas.pinhole, self.render, outputs,
+                                    gpu=self.device.startswith("GPU"))
         except ValueError as e:
             raise UserError(str(e), where=f"frame {plan.frame_id}") from None
         timings["decide"] = time.perf_counter() - t0

@@ -116,6 +116,34 @@ def camera_rotation_errors(result, gt: np.ndarray) -> dict:
             "h_rmse_raw_m": float(np.sqrt(np.mean(np.square(h))))}
 
 
+def fix_offset(t_fix, xy_fix, gt: np.ndarray, latency_s: float) -> dict:
+    """The GNSS fixes' constant offset from a ground truth, along and across its track, with the
+    fixes taken `latency_s` earlier than their stamps. On a drive that never turns, a constant
+    offset in the vehicle frame (an antenna lever arm) and one in the world (a receiver bias)
+    are the same thing: nothing but the fixes says where the vehicle is, so no estimator's
+    horizontal RMSE with nothing removed gets below the offset it inherits (`floor_m`, with
+    the along part at this latency). Also the latency and along-track offset that a regression
+    of the along-track error on speed gives (a latency error grows with speed, an offset not),
+    and the spread of the track's heading (how far from straight the drive is)."""
+    t = np.asarray(t_fix, float) - latency_s
+    sel = (t >= gt[0, 0]) & (t <= gt[-1, 0])
+    t = t[sel]
+    ref = np.column_stack([np.interp(t, gt[:, 0], gt[:, j]) for j in (1, 2)])
+    err = np.asarray(xy_fix, float)[sel] - ref
+    v = np.column_stack([np.gradient(ref[:, j], t) for j in (0, 1)])
+    speed = np.linalg.norm(v, axis=1)
+    fwd = v / np.maximum(speed, 1e-9)[:, None]
+    along = np.sum(err * fwd, axis=1)
+    across = fwd[:, 0] * err[:, 1] - fwd[:, 1] * err[:, 0]  # + to the left
+    moving = speed > 2.0
+    slope, icpt = np.polyfit(speed[moving], along[moving], 1)
+    heading = np.degrees(np.unwrap(np.arctan2(fwd[moving, 1], fwd[moving, 0])))
+    return {"along_m": float(along.mean()), "across_m": float(across.mean()),
+            "floor_m": float(np.hypot(along.mean(), across.mean())),
+            "regressed_latency_s": float(latency_s - slope), "regressed_along_offset_m": float(icpt),
+            "heading_span_deg": float(np.ptp(heading)) if moving.any() else 0.0}
+
+
 def comma_errors(result, rec, georef) -> dict:
     """Sync result vs comma2k19 ground truth, plus the same metrics for the raw GNSS fixes."""
     import pymap3d

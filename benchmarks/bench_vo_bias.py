@@ -1,0 +1,155 @@
+"""Where VO's relative-rotation bias on the 60 s synthetic drive comes from (issue 14, docs/sync.md
+"VO: the relative rotation's bias").
+
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo_bias.py [--seed 0] [--parts exact,frames,pp]
+
+Per frame pair of the drive (5 fps, 480x270, `synthetic_recording("drive", 60, seed=...)`), the
+VO's R_c1c2 against the ground truth's: error e = log(R_gt^T R_vo) (rad, camera axes x right,
+y down, z forward); printed as mean +- standard error (deg per pair) of each component, and the
+direction of travel's error (deg, camera x / y). Parts:
+  exact   exact correspondences: pixels of frame 1 on a grid, ray-cast into the street (ground
+          z = 0, facades y = +-W), projected into frame 2, with 0 / 0.3 / 1 px Gaussian noise, through
+          the same `solve_pair` (RANSAC + cheirality + Sampson refit) -- the estimator alone;
+  frames  the rendered frames through the pipeline's front end (ORB at 5 fps) with the true K;
+  pp      the same frames with the principal point moved by +-0.5 px in x / y (a pixel-centre
+          convention mismatch would show as a bias that one of these removes);
+CPU seconds per part (process time; shared 2-core machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from blendgen.geometry import Camera  # noqa: E402
+from blendgen.sync import so3  # noqa: E402
+from blendgen.sync.metrics import gt_poses  # noqa: E402
+from blendgen.sync.simulate import StreetScene, synthetic_recording  # noqa: E402
+from blendgen.sync.vo import VoConfig, VoResult, make_vo, solve_pair  # noqa: E402
+
+
+def pair_errors(results, gt):
+    """(n, 3) rotation errors (deg, camera axes) and (n, 2) direction errors (deg) of 'ok' pairs."""
+    rot, dirs = [], []
+    for i, r in enumerate(results):
+        if r is None or r.status != "ok":
+            continue
+        T1, T2 = gt[i], gt[i + 1]
+        R_gt = T1[:3, :3].T @ T2[:3, :3]
+        rot.append(np.degrees(so3.log(R_gt.T @ r.R_c1c2)))
+        u = T1[:3, :3].T @ (T2[:3, 3] - T1[:3, 3])
+        u /= np.linalg.norm(u)
+        # direction error as angles of x/z and y/z (camera pan / tilt of the direction)
+        dirs.append(np.degrees([np.arctan2(r.u_dir[0], r.u_dir[2]) - np.arctan2(u[0], u[2]),
+                                np.arctan2(r.u_dir[1], r.u_dir[2]) - np.arctan2(u[1], u[2])]))
+    return np.array(rot).reshape(-1, 3), np.array(dirs).reshape(-1, 2)
+
+
+def report(name, results, gt, cpu):
+    rot, dirs = pair_errors(results, gt)
+    n = len(rot)
+    m, se = rot.mean(0), rot.std(0, ddof=1) / np.sqrt(max(n, 1))
+    dm, dse = dirs.mean(0), dirs.std(0, ddof=1) / np.sqrt(max(n, 1))
+    print(f"  {name:40s} pairs {n:3d}  rot x {m[0]:+.4f}+-{se[0]:.4f} y {m[1]:+.4f}+-{se[1]:.4f} "
+          f"z {m[2]:+.4f}+-{se[2]:.4f}  (RMS x {np.sqrt(np.mean(rot[:, 0]**2)):.4f})  "
+          f"dir x {dm[0]:+.3f}+-{dse[0]:.3f} y {dm[1]:+.3f}+-{dse[1]:.3f}  CPU {cpu:.1f} s", flush=True)
+    return m, se
+
+
+def raycast(scene: StreetScene, cam: Camera, T_wc: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """World points seen at pixels uv (N, 2) (pixel centres at integers, as the renderer)."""
+    dc = np.column_stack([(uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy, np.ones(len(uv))])
+    d = dc @ T_wc[:3, :3].T
+    c = T_wc[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tg = np.where(d[:, 2] < -1e-9, -c[2] / d[:, 2], np.inf)
+        wy = np.where(d[:, 1] > 0, scene.half_width, -scene.half_width)
+        tw = np.where(np.abs(d[:, 1]) > 1e-9, (wy - c[1]) / d[:, 1], np.inf)
+    tw = np.where(tw > 0, tw, np.inf)
+    zw = c[2] + tw * d[:, 2]
+    tw = np.where((zw >= 0) & (zw <= scene.wall_h), tw, np.inf)
+    t = np.minimum(tg, tw)
+    ok = np.isfinite(t)
+    return c + t[:, None] * d, ok
+
+
+def exact_pairs(scene, cam, gt, noise_px, rng, n_pts=600):
+    """solve_pair on exact (+ noise) correspondences of every frame pair."""
+    cfg = VoConfig(method="orb")
+    f = 0.5 * (cam.fx + cam.fy)
+    Kinv = np.linalg.inv(cam.K)
+    out = []
+    for i in range(len(gt) - 1):
+        uv1 = np.column_stack([rng.uniform(0, cam.width - 1, n_pts), rng.uniform(0, cam.height - 1, n_pts)])
+        P, ok = raycast(scene, cam, gt[i], uv1)
+        Xc2 = (P - gt[i + 1][:3, 3]) @ gt[i + 1][:3, :3]
+        ok &= Xc2[:, 2] > 0.1
+        uv2 = Xc2[:, :2] / Xc2[:, 2:] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
+        ok &= (uv2[:, 0] >= 0) & (uv2[:, 0] <= cam.width - 1) & (uv2[:, 1] >= 0) & (uv2[:, 1] <= cam.height - 1)
+        p1 = uv1[ok] + rng.normal(0, noise_px, (ok.sum(), 2))
+        p2 = uv2[ok] + rng.normal(0, noise_px, (ok.sum(), 2))
+        q1 = np.column_stack([p1, np.ones(len(p1))]) @ Kinv.T
+        q2 = np.column_stack([p2, np.ones(len(p2))]) @ Kinv.T
+        out.append(solve_pair(VoResult("few_features"), p1, p2, q1, q2, cfg, f))
+    return out
+
+
+def run_frames(images, cam, method="orb"):
+    vo = make_vo(cam, VoConfig(method=method))
+    out = []
+    for k, img in enumerate(images):
+        r = vo.track(img)
+        if k > 0:
+            out.append(r)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--duration", type=float, default=60.0)
+    ap.add_argument("--parts", default="exact,frames,pp")
+    ap.add_argument("--method", default="orb", help="front end for frames / pp (the pipeline's at 5 fps: orb)")
+    args = ap.parse_args()
+    import cv2
+
+    cv2.setNumThreads(1)
+    parts = set(args.parts.split(","))
+    c0 = time.process_time()
+    need_frames = bool(parts & {"frames", "pp"})
+    scene = StreetScene()
+    rec, traj, _ = synthetic_recording("drive", args.duration, seed=args.seed, frames=need_frames, scene=scene)
+    cam = rec.camera or Camera.from_hfov(480, 270, 70.0)
+    if need_frames:
+        gt = gt_poses(rec.groundtruth)
+    else:
+        T_body_cam = np.linalg.inv(rec.T_cam_imu)
+        gt = [traj.pose(t) @ T_body_cam for t in np.arange(0.5, 0.5 + args.duration, 0.2)]
+    print(f"seed {args.seed}, {len(gt)} frames, K cx {cam.cx} cy {cam.cy} f {cam.fx:.2f} "
+          f"(built in {time.process_time() - c0:.1f} CPU s)", flush=True)
+    if "exact" in parts:
+        for noise in (0.0, 0.3, 1.0):
+            c0 = time.process_time()
+            res = exact_pairs(scene, cam, gt, noise, np.random.default_rng(args.seed))
+            report(f"exact correspondences, noise {noise} px", res, gt, time.process_time() - c0)
+    if "frames" in parts:
+        c0 = time.process_time()
+        report(f"frames, {args.method}, true K", run_frames(rec.extra["images"], cam, args.method), gt,
+               time.process_time() - c0)
+    if "pp" in parts:
+        for dx, dy in ((0.5, 0), (-0.5, 0), (0, 0.5), (0, -0.5)):
+            c2 = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx + dx, cam.cy + dy)
+            c0 = time.process_time()
+            report(f"frames, {args.method}, cx{dx:+.1f} cy{dy:+.1f}", run_frames(rec.extra["images"], c2, args.method),
+                   gt, time.process_time() - c0)
+
+
+if __name__ == "__main__":
+    main()

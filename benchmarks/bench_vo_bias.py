@@ -111,6 +111,42 @@ def run_frames(images, cam, method="orb"):
     return out
 
 
+def flow_errors(images, cam, gt, scene, old_mapping=False):
+    """ORB matches of each pair: the frame-2 keypoint minus where the frame-1 keypoint's scene
+    point truly projects in frame 2 (px), with the two octaves; and solve_pair on the matched
+    frame-1 keypoints with exact frame-2 positions (the estimator on ORB's feature layout)."""
+    from blendgen.sync import vo as vo_mod
+
+    vo = vo_mod.OrbVo(cam, VoConfig(method="orb"))
+    if old_mapping:  # before the fix: nominal level scale s^k and the half-pixel term only
+        vo_mod_orig = vo_mod.orb_level_to_full
+        vo_mod.orb_level_to_full = lambda pts, octv, sf, shape: pts + 0.5 * (sf ** np.asarray(octv, float) - 1.0)[:, None]
+    rows, exact = [], []
+    f = 0.5 * (cam.fx + cam.fy)
+    Kinv = np.linalg.inv(cam.K)
+    prev = None
+    for i, img in enumerate(images):
+        px, desc = vo._orb_features(img)
+        if prev is not None and desc is not None:
+            px1, d1, oc1 = prev
+            pairs = vo._match(d1, desc)
+            a, b = px1[pairs[:, 0]], px[pairs[:, 1]]
+            P, ok = raycast(scene, cam, gt[i - 1], a)
+            Xc2 = (P - gt[i][:3, 3]) @ gt[i][:3, :3]
+            ok &= Xc2[:, 2] > 0.1
+            b_true = Xc2[:, :2] / np.where(ok, Xc2[:, 2], 1.0)[:, None] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
+            e = b - b_true
+            good = ok & (np.abs(e).max(axis=1) < 2.0)
+            rows.append(np.column_stack([np.full(good.sum(), i), a[good], e[good]]))
+            q1 = np.column_stack([a[ok], np.ones(ok.sum())]) @ Kinv.T
+            q2 = np.column_stack([b_true[ok], np.ones(ok.sum())]) @ Kinv.T
+            exact.append(solve_pair(VoResult("few_features"), a[ok], b_true[ok], q1, q2, VoConfig(method="orb"), f))
+        prev = (px, desc, None)
+    if old_mapping:
+        vo_mod.orb_level_to_full = vo_mod_orig
+    return np.vstack(rows), exact
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -123,7 +159,7 @@ def main() -> None:
     cv2.setNumThreads(1)
     parts = set(args.parts.split(","))
     c0 = time.process_time()
-    need_frames = bool(parts & {"frames", "pp"})
+    need_frames = bool(parts & {"frames", "pp", "flow"})
     scene = StreetScene()
     rec, traj, _ = synthetic_recording("drive", args.duration, seed=args.seed, frames=need_frames, scene=scene)
     cam = rec.camera or Camera.from_hfov(480, 270, 70.0)
@@ -143,6 +179,19 @@ def main() -> None:
         c0 = time.process_time()
         report(f"frames, {args.method}, true K", run_frames(rec.extra["images"], cam, args.method), gt,
                time.process_time() - c0)
+    if "flow" in parts:
+        for old in (True, False):
+            c0 = time.process_time()
+            fe, exact = flow_errors(rec.extra["images"], cam, gt, scene, old_mapping=old)
+            tag = "old level mapping" if old else "true level sizes"
+            e = fe[:, 3:]
+            se = e.std(0) / np.sqrt(len(e))
+            print(f"  ORB matches ({tag}): {len(e)} inliers (|e| < 2 px), frame-2 position error mean "
+                  f"u {e[:, 0].mean():+.4f}+-{se[0]:.4f} v {e[:, 1].mean():+.4f}+-{se[1]:.4f} px", flush=True)
+            for lo, hi in ((0, 90), (90, 180), (180, 270)):
+                m = (fe[:, 2] >= lo) & (fe[:, 2] < hi)
+                print(f"    rows {lo:3d}-{hi:3d}: {m.sum():6d}  u {e[m, 0].mean():+.4f} v {e[m, 1].mean():+.4f}")
+            report(f"ORB's frame-1 keypoints, exact frame 2 ({tag})", exact, gt, time.process_time() - c0)
     if "pp" in parts:
         for dx, dy in ((0.5, 0), (-0.5, 0), (0, 0.5), (0, -0.5)):
             c2 = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx + dx, cam.cy + dy)

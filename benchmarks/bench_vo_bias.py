@@ -101,14 +101,19 @@ def exact_pairs(scene, cam, gt, noise_px, rng, n_pts=600):
     return out
 
 
-def run_frames(images, cam, method="orb"):
-    vo = make_vo(cam, VoConfig(method=method))
+def run_frames(images, cam, method="orb", levels=6):
+    vo = make_vo(cam, VoConfig(method=method, n_levels=levels))
     out = []
     for k, img in enumerate(images):
         r = vo.track(img)
         if k > 0:
             out.append(r)
     return out
+
+
+def OLD_MAPPING(pts, octave, scale_factor, shape):
+    """The ORB level mapping before the fix: nominal scale s^k and the half-pixel term only."""
+    return pts + 0.5 * (scale_factor ** np.asarray(octave, float) - 1.0)[:, None]
 
 
 def flow_errors(images, cam, gt, scene, old_mapping=False):
@@ -120,7 +125,7 @@ def flow_errors(images, cam, gt, scene, old_mapping=False):
     vo = vo_mod.OrbVo(cam, VoConfig(method="orb"))
     if old_mapping:  # before the fix: nominal level scale s^k and the half-pixel term only
         vo_mod_orig = vo_mod.orb_level_to_full
-        vo_mod.orb_level_to_full = lambda pts, octv, sf, shape: pts + 0.5 * (sf ** np.asarray(octv, float) - 1.0)[:, None]
+        vo_mod.orb_level_to_full = OLD_MAPPING
     rows, exact = [], []
     f = 0.5 * (cam.fx + cam.fy)
     Kinv = np.linalg.inv(cam.K)
@@ -137,7 +142,8 @@ def flow_errors(images, cam, gt, scene, old_mapping=False):
             b_true = Xc2[:, :2] / np.where(ok, Xc2[:, 2], 1.0)[:, None] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
             e = b - b_true
             good = ok & (np.abs(e).max(axis=1) < 2.0)
-            rows.append(np.column_stack([np.full(good.sum(), i), a[good], e[good]]))
+            ground = np.abs(P[:, 2]) < 1e-6
+            rows.append(np.column_stack([np.full(good.sum(), i), a[good], e[good], ground[good]]))
             q1 = np.column_stack([a[ok], np.ones(ok.sum())]) @ Kinv.T
             q2 = np.column_stack([b_true[ok], np.ones(ok.sum())]) @ Kinv.T
             exact.append(solve_pair(VoResult("few_features"), a[ok], b_true[ok], q1, q2, VoConfig(method="orb"), f))
@@ -151,7 +157,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--duration", type=float, default=60.0)
-    ap.add_argument("--parts", default="exact,frames,pp")
+    ap.add_argument("--parts", default="exact,frames,pp",
+                    help="comma separated: exact, frames, pp, flow, levels1; 'old' adds the pre-fix ORB level mapping")
+    ap.add_argument("--width", type=int, default=480, help="frame width (height 9/16 of it)")
     ap.add_argument("--method", default="orb", help="front end for frames / pp (the pipeline's at 5 fps: orb)")
     args = ap.parse_args()
     import cv2
@@ -159,9 +167,10 @@ def main() -> None:
     cv2.setNumThreads(1)
     parts = set(args.parts.split(","))
     c0 = time.process_time()
-    need_frames = bool(parts & {"frames", "pp", "flow"})
+    need_frames = bool(parts & {"frames", "pp", "flow", "levels1"})
     scene = StreetScene()
-    rec, traj, _ = synthetic_recording("drive", args.duration, seed=args.seed, frames=need_frames, scene=scene)
+    rec, traj, _ = synthetic_recording("drive", args.duration, seed=args.seed, frames=need_frames, scene=scene,
+                                       resolution=(args.width, args.width * 9 // 16))
     cam = rec.camera or Camera.from_hfov(480, 270, 70.0)
     if need_frames:
         gt = gt_poses(rec.groundtruth)
@@ -179,19 +188,34 @@ def main() -> None:
         c0 = time.process_time()
         report(f"frames, {args.method}, true K", run_frames(rec.extra["images"], cam, args.method), gt,
                time.process_time() - c0)
+        if "old" in parts:
+            from blendgen.sync import vo as vo_mod
+
+            keep = vo_mod.orb_level_to_full
+            vo_mod.orb_level_to_full = OLD_MAPPING
+            c0 = time.process_time()
+            report(f"frames, {args.method}, true K, old level mapping", run_frames(rec.extra["images"], cam, args.method),
+                   gt, time.process_time() - c0)
+            vo_mod.orb_level_to_full = keep
     if "flow" in parts:
-        for old in (True, False):
+        for old in ((True, False) if "old" in parts else (False,)):
             c0 = time.process_time()
             fe, exact = flow_errors(rec.extra["images"], cam, gt, scene, old_mapping=old)
             tag = "old level mapping" if old else "true level sizes"
-            e = fe[:, 3:]
+            e = fe[:, 3:5]
             se = e.std(0) / np.sqrt(len(e))
             print(f"  ORB matches ({tag}): {len(e)} inliers (|e| < 2 px), frame-2 position error mean "
                   f"u {e[:, 0].mean():+.4f}+-{se[0]:.4f} v {e[:, 1].mean():+.4f}+-{se[1]:.4f} px", flush=True)
             for lo, hi in ((0, 90), (90, 180), (180, 270)):
                 m = (fe[:, 2] >= lo) & (fe[:, 2] < hi)
                 print(f"    rows {lo:3d}-{hi:3d}: {m.sum():6d}  u {e[m, 0].mean():+.4f} v {e[m, 1].mean():+.4f}")
+            for name, m in (("ground", fe[:, 5] > 0), ("facades", fe[:, 5] == 0)):
+                print(f"    {name:8s}: {m.sum():6d}  u {e[m, 0].mean():+.4f} v {e[m, 1].mean():+.4f}")
             report(f"ORB's frame-1 keypoints, exact frame 2 ({tag})", exact, gt, time.process_time() - c0)
+    if "levels1" in parts:  # ORB on the full-resolution image only: no pyramid mapping at all
+        c0 = time.process_time()
+        report(f"frames, orb, 1 level, true K", run_frames(rec.extra["images"], cam, "orb", 1), gt,
+               time.process_time() - c0)
     if "pp" in parts:
         for dx, dy in ((0.5, 0), (-0.5, 0), (0, 0.5), (0, -0.5)):
             c2 = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx + dx, cam.cy + dy)

@@ -101,8 +101,11 @@ def exact_pairs(scene, cam, gt, noise_px, rng, n_pts=600):
     return out
 
 
-def run_frames(images, cam, method="orb", levels=6):
-    vo = make_vo(cam, VoConfig(method=method, n_levels=levels))
+def run_frames(images, cam, method="orb", levels=None, scale_factor=None):
+    cfg = VoConfig(method=method)
+    cfg.n_levels = levels or cfg.n_levels
+    cfg.orb_scale_factor = scale_factor or cfg.orb_scale_factor
+    vo = make_vo(cam, cfg)
     out = []
     for k, img in enumerate(images):
         r = vo.track(img)
@@ -123,15 +126,22 @@ def flow_errors(images, cam, gt, scene, old_mapping=False):
     from blendgen.sync import vo as vo_mod
 
     vo = vo_mod.OrbVo(cam, VoConfig(method="orb"))
-    if old_mapping:  # before the fix: nominal level scale s^k and the half-pixel term only
-        vo_mod_orig = vo_mod.orb_level_to_full
-        vo_mod.orb_level_to_full = OLD_MAPPING
+    vo_mod_orig = vo_mod.orb_level_to_full
+    mapping = OLD_MAPPING if old_mapping else vo_mod_orig
+    seen = {}
+
+    def recording(pts, octave, sf, shape):  # keeps the octaves of the last frame's keypoints
+        seen["octave"] = np.asarray(octave)
+        return mapping(pts, octave, sf, shape)
+
+    vo_mod.orb_level_to_full = recording
     rows, exact = [], []
     f = 0.5 * (cam.fx + cam.fy)
     Kinv = np.linalg.inv(cam.K)
     prev = None
     for i, img in enumerate(images):
         px, desc = vo._orb_features(img)
+        octv = seen.get("octave", np.zeros(len(px)))
         if prev is not None and desc is not None:
             px1, d1, oc1 = prev
             pairs = vo._match(d1, desc)
@@ -143,13 +153,13 @@ def flow_errors(images, cam, gt, scene, old_mapping=False):
             e = b - b_true
             good = ok & (np.abs(e).max(axis=1) < 2.0)
             ground = np.abs(P[:, 2]) < 1e-6
-            rows.append(np.column_stack([np.full(good.sum(), i), a[good], e[good], ground[good]]))
+            do = (octv[pairs[:, 1]] - prev[2][pairs[:, 0]])[good]
+            rows.append(np.column_stack([np.full(good.sum(), i), a[good], e[good], ground[good], do]))
             q1 = np.column_stack([a[ok], np.ones(ok.sum())]) @ Kinv.T
             q2 = np.column_stack([b_true[ok], np.ones(ok.sum())]) @ Kinv.T
             exact.append(solve_pair(VoResult("few_features"), a[ok], b_true[ok], q1, q2, VoConfig(method="orb"), f))
-        prev = (px, desc, None)
-    if old_mapping:
-        vo_mod.orb_level_to_full = vo_mod_orig
+        prev = (px, desc, octv)
+    vo_mod.orb_level_to_full = vo_mod_orig
     return np.vstack(rows), exact
 
 
@@ -159,6 +169,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--parts", default="exact,frames,pp",
                     help="comma separated: exact, frames, pp, flow, levels1; 'old' adds the pre-fix ORB level mapping")
+    ap.add_argument("--supersample", type=int, default=1,
+                    help="render each frame at this many times the resolution and box-average it down (pixels "
+                         "that integrate their footprint, as a sensor) instead of one ray per pixel")
     ap.add_argument("--width", type=int, default=480, help="frame width (height 9/16 of it)")
     ap.add_argument("--method", default="orb", help="front end for frames / pp (the pipeline's at 5 fps: orb)")
     args = ap.parse_args()
@@ -167,11 +180,19 @@ def main() -> None:
     cv2.setNumThreads(1)
     parts = set(args.parts.split(","))
     c0 = time.process_time()
-    need_frames = bool(parts & {"frames", "pp", "flow", "levels1"})
+    need_frames = bool(parts & {"frames", "pp", "flow", "levels1", "coarse"})
     scene = StreetScene()
     rec, traj, _ = synthetic_recording("drive", args.duration, seed=args.seed, frames=need_frames, scene=scene,
                                        resolution=(args.width, args.width * 9 // 16))
-    cam = rec.camera or Camera.from_hfov(480, 270, 70.0)
+    cam = rec.camera or Camera.from_hfov(args.width, args.width * 9 // 16, 70.0)
+    if args.supersample > 1 and need_frames:
+        import cv2
+
+        k = args.supersample
+        big = cam.scaled(cam.width * k, cam.height * k)
+        rng = np.random.default_rng(args.seed + 7)
+        rec.extra["images"] = [cv2.resize(scene.render(big, T, noise_std=2.0 * k, rng=rng), (cam.width, cam.height),
+                                          interpolation=cv2.INTER_AREA) for T in gt_poses(rec.groundtruth)]
     if need_frames:
         gt = gt_poses(rec.groundtruth)
     else:
@@ -194,7 +215,7 @@ def main() -> None:
             keep = vo_mod.orb_level_to_full
             vo_mod.orb_level_to_full = OLD_MAPPING
             c0 = time.process_time()
-            report(f"frames, {args.method}, true K, old level mapping", run_frames(rec.extra["images"], cam, args.method),
+            report("frames, orb, before: 1.2 x 6, old level map", run_frames(rec.extra["images"], cam, "orb", 6, 1.2),
                    gt, time.process_time() - c0)
             vo_mod.orb_level_to_full = keep
     if "flow" in parts:
@@ -209,9 +230,14 @@ def main() -> None:
             for lo, hi in ((0, 90), (90, 180), (180, 270)):
                 m = (fe[:, 2] >= lo) & (fe[:, 2] < hi)
                 print(f"    rows {lo:3d}-{hi:3d}: {m.sum():6d}  u {e[m, 0].mean():+.4f} v {e[m, 1].mean():+.4f}")
-            for name, m in (("ground", fe[:, 5] > 0), ("facades", fe[:, 5] == 0)):
+            for name, m in (("ground", fe[:, 5] > 0), ("facades", fe[:, 5] == 0), ("same octave", fe[:, 6] == 0),
+                            ("octave up", fe[:, 6] > 0), ("octave down", fe[:, 6] < 0)):
                 print(f"    {name:8s}: {m.sum():6d}  u {e[m, 0].mean():+.4f} v {e[m, 1].mean():+.4f}")
             report(f"ORB's frame-1 keypoints, exact frame 2 ({tag})", exact, gt, time.process_time() - c0)
+    if "coarse" in parts:  # OpenCV's default pyramid, 1.2 x 6 levels (blendgen's before the bias fix)
+        c0 = time.process_time()
+        report("frames, orb, pyramid 1.2 x 6 levels", run_frames(rec.extra["images"], cam, "orb", 6, 1.2), gt,
+               time.process_time() - c0)
     if "levels1" in parts:  # ORB on the full-resolution image only: no pyramid mapping at all
         c0 = time.process_time()
         report(f"frames, orb, 1 level, true K", run_frames(rec.extra["images"], cam, "orb", 1), gt,

@@ -17,7 +17,8 @@ fixes' stated noise; the synthetic gnss.csv states none: 1.5 m is taken), --true
 mounting given exactly: nominal vehicle frame = IMU frame, 0.01 deg prior).
 Per line: ATE, horizontal, along / across track (RMS, mean), camera rotation (median; mean
 pitch / yaw about the camera's x / y axes), px = a point 20 m ahead at 1280x720 (median; "rotation
-alone": the estimated rotation at the true position). CPU seconds.
+alone": the estimated rotation at the true position; "position alone": the true rotation at the
+estimated position). CPU seconds.
 """
 
 from __future__ import annotations
@@ -65,10 +66,12 @@ def _row(name, est, ref, cam720, cpu):
     # (px itself mixes it with the position error, and the two partly cancel)
     rot_only = [np.block([[e[:3, :3], g[:3, 3:4]], [np.zeros((1, 3)), 1.0]]) for e, g in zip(est, ref)]
     px_rot = trajectory_errors(rot_only, ref, camera=cam720)["reproj_median_px"]
+    pos_only = [np.block([[g[:3, :3], e[:3, 3:4]], [np.zeros((1, 3)), 1.0]]) for e, g in zip(est, ref)]
+    px_pos = trajectory_errors(pos_only, ref, camera=cam720)["reproj_median_px"]
     print(f"  {name:34s} CPU {cpu:5.1f} s  ATE {a['ate_rmse_m']:.4f}  horiz {a['ate_h_rmse_m']:.4f}  "
           f"along {np.sqrt(np.mean(along**2)):.4f} ({along.mean():+.4f})  across {np.sqrt(np.mean(across**2)):.4f} "
           f"({across.mean():+.4f})  rot {a['rot_median_deg']:.4f} (pitch {rv[:, 0].mean():+.4f} yaw "
-          f"{rv[:, 1].mean():+.4f})  px {a['reproj_median_px']:.3f} (rotation alone {px_rot:.3f})", flush=True)
+          f"{rv[:, 1].mean():+.4f})  px {a['reproj_median_px']:.3f} (rotation alone {px_rot:.3f}, position alone {px_pos:.3f})", flush=True)
 
 
 def _floor(rec, traj, t_span):

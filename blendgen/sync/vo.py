@@ -43,7 +43,7 @@ class VoConfig:
     # feature grows 15-30 % between frames at 5 fps; with 1.2 steps more matches are found at the
     # same level in both frames, where the detected corner moves with the feature's size (60 s
     # synthetic drive, bench_vo_bias.py: rotation bias about the camera's x axis +0.012 deg per
-    # pair and a direction bias +0.10 deg with 1.2 steps, +0.003 / +0.02 with 1.1; 35 % more CPU)
+    # pair and a direction bias +0.10 deg with 1.2 steps, +0.003 / +0.02 with 1.1; CPU about the same)
     n_levels: int = 11
     orb_scale_factor: float = 1.1
     max_width: int | None = 640            # ORB: larger frames are downscaled for detection (speed)

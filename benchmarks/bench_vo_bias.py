@@ -2,17 +2,25 @@
 "VO: the relative rotation's bias").
 
     PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo_bias.py [--seed 0] [--parts exact,frames,pp]
+        [--parts frames,old,coarse] [--parts flow --duration 20] [--supersample 2] [--width 640]
 
 Per frame pair of the drive (5 fps, 480x270, `synthetic_recording("drive", 60, seed=...)`), the
 VO's R_c1c2 against the ground truth's: error e = log(R_gt^T R_vo) (rad, camera axes x right,
 y down, z forward); printed as mean +- standard error (deg per pair) of each component, and the
 direction of travel's error (deg, camera x / y). Parts:
-  exact   exact correspondences: pixels of frame 1 on a grid, ray-cast into the street (ground
-          z = 0, facades y = +-W), projected into frame 2, with 0 / 0.3 / 1 px Gaussian noise, through
-          the same `solve_pair` (RANSAC + cheirality + Sampson refit) -- the estimator alone;
-  frames  the rendered frames through the pipeline's front end (ORB at 5 fps) with the true K;
-  pp      the same frames with the principal point moved by +-0.5 px in x / y (a pixel-centre
-          convention mismatch would show as a bias that one of these removes);
+  exact    exact correspondences: 600 random pixels of frame 1 ray-cast into the street (ground
+           z = 0, facades y = +-W), projected into frame 2, with 0 / 0.3 / 1 px Gaussian noise,
+           through the same `solve_pair` (RANSAC + cheirality + Sampson refit): the estimator alone;
+  frames   the rendered frames through the ORB front end (the pipeline's at 5 fps) with the true K;
+           with `old` also as before the fix (pyramid 1.2 x 6, nominal level scale);
+  coarse   the frames with OpenCV's default pyramid 1.2 x 6 (level sizes fixed);
+  levels1  ORB on the full-resolution image only;
+  pp       the frames with the principal point moved by +-0.5 px in x / y (a pixel-centre
+           convention mismatch would show as a bias that one of these removes);
+  flow     per ORB match, the frame-2 keypoint minus where the frame-1 keypoint's scene point
+           projects (by image rows, ground / facades, same / next pyramid level), and solve_pair
+           on ORB's frame-1 keypoints with exact frame-2 positions; `old`: also the old mapping.
+--supersample k renders each frame k x k larger and box-averages it down; --width another size.
 CPU seconds per part (process time; shared 2-core machine).
 """
 
@@ -168,7 +176,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--parts", default="exact,frames,pp",
-                    help="comma separated: exact, frames, pp, flow, levels1; 'old' adds the pre-fix ORB level mapping")
+                    help="comma separated: exact, frames, coarse, levels1, pp, flow; 'old' adds the state before the fix")
     ap.add_argument("--supersample", type=int, default=1,
                     help="render each frame at this many times the resolution and box-average it down (pixels "
                          "that integrate their footprint, as a sensor) instead of one ray per pixel")

@@ -3,7 +3,7 @@ target: <= 0.05 m and <= 1 px with the twin road and the camera height; docs/syn
 60 s drive's ATE: what limits it").
 
     PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_sync_floor.py [--seeds 0,1,2,3]
-        [--frames 0,1] [--nhc-lat-std 0.1] [--gnss-std 1.0] [--true-mount]
+        [--frames 0,1] [--nhc-lat-std 0.1] [--gnss-std 1.0] [--true-mount] [--vo-before]
 
 1. IMU + GNSS + twin road + camera height, no frames (poses at the 5 fps frame times), one line
    per noise seed of the drive (`synthetic_recording(seed=...)`: the IMU's and the fixes' noise;
@@ -14,7 +14,8 @@ target: <= 0.05 m and <= 1 px with the twin road and the camera height; docs/syn
    those seeds (seed 0: bench_sync.py --section hard's "easy | blendgen full + twin road").
 Ablations (ours and the peer alike): --nhc-lat-std (pipeline.NHC_LAT_STD), --gnss-std (the
 fixes' stated noise; the synthetic gnss.csv states none: 1.5 m is taken), --true-mount (the IMU
-mounting given exactly: nominal vehicle frame = IMU frame, 0.01 deg prior).
+mounting given exactly: nominal vehicle frame = IMU frame, 0.01 deg prior), --vo-before (ORB VO
+as before its bias fix, docs/sync.md "VO: the relative rotation's bias").
 Per line: ATE, horizontal, along / across track (RMS, mean), camera rotation (median; mean
 pitch / yaw about the camera's x / y axes), px = a point 20 m ahead at 1280x720 (median; "rotation
 alone": the estimated rotation at the true position; "position alone": the true rotation at the
@@ -131,9 +132,18 @@ def main() -> None:
     ap.add_argument("--nhc-lat-std", type=float, default=None, help="no-sideslip std (m/s), ours and the peer's")
     ap.add_argument("--gnss-std", type=float, default=None, help="the fixes' stated horizontal std (m)")
     ap.add_argument("--true-mount", action="store_true", help="the IMU mounting given exactly")
+    ap.add_argument("--vo-before", action="store_true",
+                    help="ORB VO as before its bias fix: nominal pyramid level scale, pyramid 1.2 x 6")
     args = ap.parse_args()
     if args.nhc_lat_std is not None:
         pl.NHC_LAT_STD = args.nhc_lat_std
+    if args.vo_before:
+        from blendgen.sync import vo
+
+        vo.orb_level_to_full = lambda pts, octave, sf, shape: pts + 0.5 * (sf ** np.asarray(octave, float) - 1.0)[:, None]
+        pl._vo_config = lambda settings, rec: vo.VoConfig(n_features=int(settings.orb_features),
+                                                          method=pl.vo_method(settings, rec), n_levels=6,
+                                                          orb_scale_factor=1.2)
     if args.true_mount:  # the synthetic IMU's axes are the vehicle's
         calibration.nominal_vehicle_frame = lambda forward_b, up_b: np.eye(3)
     import cv2

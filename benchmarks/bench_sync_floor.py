@@ -3,7 +3,7 @@ target: <= 0.05 m and <= 1 px with the twin road and the camera height; docs/syn
 60 s drive's ATE: what limits it").
 
     PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_sync_floor.py [--seeds 0,1,2,3]
-        [--frames 0,1] [--nhc-lat-std 0.1] [--gnss-std 1.0] [--true-mount]
+        [--frames 0,1] [--nhc-lat-std 0.1] [--gnss-std 1.0] [--true-mount] [--vo-before]
 
 1. IMU + GNSS + twin road + camera height, no frames (poses at the 5 fps frame times), one line
    per noise seed of the drive (`synthetic_recording(seed=...)`: the IMU's and the fixes' noise;
@@ -14,9 +14,12 @@ target: <= 0.05 m and <= 1 px with the twin road and the camera height; docs/syn
    those seeds (seed 0: bench_sync.py --section hard's "easy | blendgen full + twin road").
 Ablations (ours and the peer alike): --nhc-lat-std (pipeline.NHC_LAT_STD), --gnss-std (the
 fixes' stated noise; the synthetic gnss.csv states none: 1.5 m is taken), --true-mount (the IMU
-mounting given exactly: nominal vehicle frame = IMU frame, 0.01 deg prior).
+mounting given exactly: nominal vehicle frame = IMU frame, 0.01 deg prior), --vo-before (ORB VO
+as before its bias fix, docs/sync.md "VO: the relative rotation's bias").
 Per line: ATE, horizontal, along / across track (RMS, mean), camera rotation (median; mean
-pitch / yaw about the camera's x / y axes), px = a point 20 m ahead at 1280x720. CPU seconds.
+pitch / yaw about the camera's x / y axes), px = a point 20 m ahead at 1280x720 (median; "rotation
+alone": the estimated rotation at the true position; "position alone": the true rotation at the
+estimated position). CPU seconds.
 """
 
 from __future__ import annotations
@@ -60,10 +63,16 @@ def _row(name, est, ref, cam720, cpu):
     along = np.sum(d[:, :2] * fwd, axis=1)
     across = d[:, 1] * fwd[:, 0] - d[:, 0] * fwd[:, 1]
     rv = np.degrees([so3.log(g[:3, :3].T @ e[:3, :3]) for e, g in zip(est, ref)])  # camera axes
+    # the 20 m point with the estimated rotation at the true position: the rotation's share of px
+    # (px itself mixes it with the position error, and the two partly cancel)
+    rot_only = [np.block([[e[:3, :3], g[:3, 3:4]], [np.zeros((1, 3)), 1.0]]) for e, g in zip(est, ref)]
+    px_rot = trajectory_errors(rot_only, ref, camera=cam720)["reproj_median_px"]
+    pos_only = [np.block([[g[:3, :3], e[:3, 3:4]], [np.zeros((1, 3)), 1.0]]) for e, g in zip(est, ref)]
+    px_pos = trajectory_errors(pos_only, ref, camera=cam720)["reproj_median_px"]
     print(f"  {name:34s} CPU {cpu:5.1f} s  ATE {a['ate_rmse_m']:.4f}  horiz {a['ate_h_rmse_m']:.4f}  "
           f"along {np.sqrt(np.mean(along**2)):.4f} ({along.mean():+.4f})  across {np.sqrt(np.mean(across**2)):.4f} "
           f"({across.mean():+.4f})  rot {a['rot_median_deg']:.4f} (pitch {rv[:, 0].mean():+.4f} yaw "
-          f"{rv[:, 1].mean():+.4f})  px {a['reproj_median_px']:.3f}", flush=True)
+          f"{rv[:, 1].mean():+.4f})  px {a['reproj_median_px']:.3f} (rotation alone {px_rot:.3f}, position alone {px_pos:.3f})", flush=True)
 
 
 def _floor(rec, traj, t_span):
@@ -123,9 +132,18 @@ def main() -> None:
     ap.add_argument("--nhc-lat-std", type=float, default=None, help="no-sideslip std (m/s), ours and the peer's")
     ap.add_argument("--gnss-std", type=float, default=None, help="the fixes' stated horizontal std (m)")
     ap.add_argument("--true-mount", action="store_true", help="the IMU mounting given exactly")
+    ap.add_argument("--vo-before", action="store_true",
+                    help="ORB VO as before its bias fix: nominal pyramid level scale, pyramid 1.2 x 6")
     args = ap.parse_args()
     if args.nhc_lat_std is not None:
         pl.NHC_LAT_STD = args.nhc_lat_std
+    if args.vo_before:
+        from blendgen.sync import vo
+
+        vo.orb_level_to_full = lambda pts, octave, sf, shape: pts + 0.5 * (sf ** np.asarray(octave, float) - 1.0)[:, None]
+        pl._vo_config = lambda settings, rec: vo.VoConfig(n_features=int(settings.orb_features),
+                                                          method=pl.vo_method(settings, rec), n_levels=6,
+                                                          orb_scale_factor=1.2)
     if args.true_mount:  # the synthetic IMU's axes are the vehicle's
         calibration.nominal_vehicle_frame = lambda forward_b, up_b: np.eye(3)
     import cv2

@@ -258,14 +258,22 @@ def _vo_config(settings, rec: Recording) -> VoConfig:
                     readout_s=float(rec.rolling_shutter_s))
 
 
-def _rs_spins(imu: np.ndarray, t_frames: np.ndarray, readout_s: float, R_bc: np.ndarray) -> np.ndarray | None:
-    """The camera's angular velocity (camera axes) at the middle of each frame's readout, from the
-    gyro (IMU clock frame times): what the rolling-shutter correction of VO needs (`vo.rs_bearings`)."""
+def _rs_spins(imu: np.ndarray, t_frames: np.ndarray, readout_s: float, R_bc: np.ndarray,
+              knots: int = 16) -> np.ndarray | None:
+    """The camera's turn during each frame's readout (camera axes) from the gyro (IMU clock frame
+    times): (frames, knots, 3) rotation vectors from the top row's time to `knots` times evenly
+    over the readout, the gyro rate interpolated and integrated (small angles: rotation vectors
+    add). What the rolling-shutter correction of VO needs (`vo.rs_bearings`). Integrated, not
+    one rate per frame: shake of a few Hz changes the rate within the readout."""
     if readout_s <= 0 or len(imu) < 2:
         return None
-    tm = np.asarray(t_frames, float) + 0.5 * readout_s
-    w = np.stack([np.interp(tm, imu[:, 0], imu[:, k]) for k in (1, 2, 3)], axis=1)
-    return w @ R_bc  # rows: R_bc^T w_body
+    sub = 4  # integration steps per knot interval
+    s = np.linspace(0.0, readout_s, sub * (knots - 1) + 1)
+    tt = np.asarray(t_frames, float)[:, None] + s[None, :]
+    w = np.stack([np.interp(tt, imu[:, 0], imu[:, k]) for k in (1, 2, 3)], axis=-1) @ R_bc  # R_bc^T w_imu
+    ds = s[1] - s[0]
+    rv = np.concatenate([np.zeros((len(tt), 1, 3)), np.cumsum(0.5 * (w[:, 1:] + w[:, :-1]) * ds, axis=1)], axis=1)
+    return rv[:, ::sub]
 
 
 def _quality(vo: VoResult | None, flags: list[str]) -> dict:

@@ -187,13 +187,26 @@ class OrbVo:
 def rs_bearings(q: np.ndarray, px: np.ndarray, spin: np.ndarray | None, readout_s: float,
                 height: int) -> np.ndarray:
     """Bearings (z = 1) of a rolling-shutter frame as the camera saw them when its top row was
-    exposed (the frame's time stamp): row v is exposed readout_s * (v + 0.5) / height later, the
-    camera having turned by exp([spin] tau) in its own axes meanwhile, so its bearing b_row seen
-    from the top row's orientation is exp([spin] tau) b_row. Rotation only: the camera's travel
-    during the readout (0.24 m at 8 m/s over 30 ms) is not modelled."""
+    exposed (the frame's time stamp). Row v is exposed tau = readout_s * (v + 0.5) / height later,
+    the camera having turned by R(tau) in its own axes meanwhile, so its bearing seen from the top
+    row's orientation is R(tau) b_row.
+
+    `spin`: the camera's turn during the readout, from the gyro (camera axes): a (K, 3) table of
+    rotation vectors R(tau_k) at K >= 2 times tau_k evenly from 0 to readout_s (row 0 to the
+    bottom row), interpolated per point; or one (3,) angular velocity (rad/s), R(tau) =
+    exp([spin] tau). The table matters: camera shake of a few Hz changes the rate within a 30 ms
+    readout (at 6 Hz by 1 rad of phase), and a constant rate then over-corrects the middle rows
+    (measured: relative rotations 3-5 % too large, docs/sync.md). Rotation only: the camera's
+    travel during the readout (0.24 m at 8 m/s over 30 ms) is not modelled."""
     if spin is None or readout_s <= 0 or len(q) == 0:
         return q
-    rv = (readout_s * (px[:, 1] + 0.5) / height)[:, None] * np.asarray(spin, float)[None, :]
+    spin = np.asarray(spin, float)
+    tau = readout_s * (px[:, 1] + 0.5) / height
+    if spin.ndim == 1:
+        rv = tau[:, None] * spin[None, :]
+    else:
+        knots = np.linspace(0.0, readout_s, len(spin))
+        rv = np.stack([np.interp(tau, knots, spin[:, k]) for k in range(3)], axis=1)
     th = np.linalg.norm(rv, axis=1, keepdims=True)
     k = rv / np.maximum(th, 1e-12)
     # Rodrigues, one rotation per point

@@ -697,7 +697,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     # correction out (image camera -> body camera) and use what is left
                     if ekf.has_clone and clone_i >= 0:
                         C0, C1 = trust.correction[clone_i], trust.correction[i]
-                        rot_cov, dir_cov = vo_noise(res)
+                        rot_cov, dir_cov = vo_noise(res, rec.rolling_shutter_s > 0)
                         u = C0 @ res.u_dir if res.has_direction else None
                         if u is not None:
                             dir_cov = C0 @ dir_cov @ C0.T + trust.correction_std**2 * (np.eye(3) - np.outer(u, u))
@@ -709,7 +709,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 else:
                     if res.has_rotation and ekf.has_clone:
                         # noise from this pair's own fit (inliers, residuals, parallax), not a constant
-                        rot_std, dir_std = vo_noise(res)
+                        rot_std, dir_std = vo_noise(res, rec.rolling_shutter_s > 0)
                         # features that do not move mean "standing" only if the IMU agrees and
                         # the filter is slow: a far scene (highway, drone) barely moves either
                         imu_quiet = (not use_imu) or bool(

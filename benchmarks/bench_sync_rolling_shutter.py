@@ -6,7 +6,8 @@ The 60 s drive of bench_sync.py, full sync (VO) with each frame's rows read out 
 (calib `camera.rolling_shutter_s`), 0.3 deg shake and real-camera photometry; the frames are
 rendered once and synced with the correction off (readout 0 in the recording), with one
 angular velocity per frame (the first attempt, reverted), and with the gyro integrated over
-the readout (`pipeline._rs_spins`, landed). Prints the camera rotation error (median, and per
+the readout (`pipeline._rs_spins`, landed); "off" also drops the rolling-shutter direction noise
+(`vo_trust.VO_DIR_RS`), "floor" keeps that noise without the correction. Prints the camera rotation error (median, and per
 camera axis: x pitch, y yaw, z roll), ATE, the 20 m point's reprojection, VO pairs rejected,
 and the per-pair VO rotation error and least-squares gain against the truth.
 """
@@ -67,7 +68,8 @@ def run(name, rec, ref, spins, road: bool):
     readout = rec.rolling_shutter_s
     if spins == "off":
         rec.rolling_shutter_s = 0.0
-    pipeline._rs_spins = _constant_rate if spins == "constant" else _TABLE
+    # "floor": no correction, but the rolling-shutter direction noise (vo_trust.VO_DIR_RS)
+    pipeline._rs_spins = {"constant": _constant_rate, "floor": lambda *a, **k: None}.get(spins, _TABLE)
     # the VO results, to measure the pairs the filter was given
     cache = {}
     orig = pipeline._vo_all
@@ -108,7 +110,7 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=5.0)
     ap.add_argument("--case", choices=("rs", "hard", "easy"), default="rs")
     ap.add_argument("--duration", type=float, default=DUR)
-    ap.add_argument("--spins", default="off,constant,table", help="rs case: which corrections, comma-separated")
+    ap.add_argument("--spins", default="off,floor,constant,table", help="rs case: which corrections, comma-separated")
     args = ap.parse_args()
     if args.case == "rs":
         rec, _, _ = synthetic_recording("drive", args.duration, fps=args.fps, rolling_shutter_s=0.03, shake_deg=0.3,
@@ -120,7 +122,7 @@ def main() -> None:
         rec, _, _ = hard_recording(args.duration, scene=StreetScene(), fps=args.fps)
         print(f"hard drive (bench_sync --section hard), {args.fps:g} fps")
         for road in (False, True):
-            for spins in ("off", "table"):
+            for spins in ("off", "floor", "table"):
                 run(f"{'full + twin road' if road else 'full'}, correction {spins}", rec,
                     gt_poses(rec.groundtruth), spins, road)
     else:

@@ -107,3 +107,21 @@ def test_gyro_integrated_over_the_readout_undoes_the_simulators_rows():
     print(med)
     assert med["table"] < 0.03, med
     assert med["rate"] > 3 * med["table"], med
+
+
+def test_rolling_shutter_frames_get_more_direction_noise_only():
+    """vo_noise: rolling-shutter frames add VO_DIR_RS^2 on the direction's tangent plane (their
+    direction bias, which the corrected pairs' smaller residuals would hide); rotation and
+    global-shutter frames unchanged."""
+    from blendgen.sync.vo import VoResult
+    from blendgen.sync.vo_trust import VO_DIR_RS, vo_noise
+
+    u = np.array([0.1, 0.05, 1.0]) / np.linalg.norm([0.1, 0.05, 1.0])
+    res = VoResult("ok", u_dir=u, rot_cov=np.eye(3) * 1e-8, dir_cov=1e-6 * (np.eye(3) - np.outer(u, u)))
+    rot_g, dir_g = vo_noise(res)
+    rot_r, dir_r = vo_noise(res, rolling_shutter=True)
+    assert np.array_equal(rot_g, rot_r)
+    assert np.allclose(dir_r - dir_g, VO_DIR_RS**2 * (np.eye(3) - np.outer(u, u)))
+    assert abs(np.degrees(VO_DIR_RS) - 1.0) < 1e-9
+    assert np.allclose((dir_r - dir_g) @ u, 0)
+    assert vo_noise(VoResult("rotation", rot_cov=np.eye(3) * 1e-8), rolling_shutter=True)[1] is None

@@ -142,6 +142,26 @@ def use_blender_defaults(sess) -> dict:
     return {k: (v if isinstance(v, (int, float, bool, str)) else str(v)) for k, v in defaults.items()}
 
 
+def warm_session(cam, build, plan, tmp: Path, *, catch: str = "patches", blender_defaults: bool = False,
+                 device: str = "CPU"):
+    """A render session as a worker holds it: its first frame (kernels, BVH, objects) rendered
+    at 1 sample, so that what is timed afterwards is per frame (`warm_s`: that first frame).
+    `catch`: "patches" (blendgen) or "ground" (the whole road, as the naive render);
+    `blender_defaults`: sample like a new Blender scene (`defaults`: what was read)."""
+    from blendgen.render.session import RenderSession
+
+    sess = RenderSession(None, None, Render(device=device), cam, object_builder=build, catch_shadows_on=catch)
+    if blender_defaults:
+        sess.defaults = use_blender_defaults(sess)
+        # Blender's RNA says denoise on the CPU; a user rendering on a GPU ticks "Denoise on GPU"
+        sess.scene.cycles.denoising_use_gpu = device == "GPU"
+    sess.render = Render(samples=1, denoise=False)
+    t0 = time.perf_counter()
+    sess.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+    sess.warm_s = time.perf_counter() - t0
+    return sess
+
+
 def search_samples(measure, target_db: float, lo: int = 1, hi: int = 256, tried: dict | None = None):
     """Lowest sample count whose PSNR reaches ``target_db``: doubling from ``lo`` until one
     does, then bisection between the last miss and the first hit. ``measure(samples)`` renders
@@ -284,8 +304,6 @@ def _setup(args):
 
 def sweep(args):
     """The samples/denoise/bounces sweep against the no-denoise naive render, and memory."""
-    from blendgen.render.session import RenderSession
-
     W, H, ref_samples, cam, build, build_name, plan, tmp = _setup(args)
     rows = []
     t_start = time.perf_counter()
@@ -293,9 +311,7 @@ def sweep(args):
     # The naive render: full frame, the whole road catches shadows, no adaptive sampling. Its
     # high-sample version is the reference; the border region does not change the pixels it
     # measures (checked below), so the reference is rendered with it to save time.
-    naive = RenderSession(None, None, Render(), cam, object_builder=build, catch_shadows_on="ground")
-    naive.render = Render(samples=1, denoise=False)
-    naive.render_frame(plan, tmp / "warm.exr", OUTPUTS)  # build objects, load kernels
+    naive = warm_session(cam, build, plan, tmp, catch="ground")
     print(f"{W}x{H}, objects: {build_name}; reference {ref_samples} samples ...", flush=True)
     # Its own random sequence: with the same seed, an N-sample render would share its first
     # N samples with the reference and look better than it is.
@@ -335,9 +351,7 @@ def sweep(args):
         record("naive", dict(samples=sp, denoise=False, region=False, adaptive_threshold=0), naive)
     naive.close()
 
-    eff = RenderSession(None, None, Render(), cam, object_builder=build)
-    eff.render = Render(samples=1, denoise=False)
-    eff.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+    eff = warm_session(cam, build, plan, tmp)
     for family, kw in configs:
         record(family, kw, eff)
     default = record("default", {}, eff, repeats=3)  # job defaults (Render()), median of 3
@@ -442,16 +456,13 @@ def region_area(info) -> int:
 
 def fair(args):
     from blendgen.render import effects as fx
-    from blendgen.render.session import RenderSession
 
     W, H, ref_samples, cam, build, build_name, plan, tmp = _setup(args)
     t_start = time.perf_counter()
     reps = args.repeats
 
     # ---- 1. the reference: naive scene (whole road as catcher), many samples, own seed
-    sess = RenderSession(None, None, Render(), cam, object_builder=build, catch_shadows_on="ground")
-    sess.render = Render(samples=1, denoise=False)
-    sess.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+    sess = warm_session(cam, build, plan, tmp, catch="ground")
     print(f"{W}x{H}, objects: {build_name}; reference {ref_samples} samples ...", flush=True)
     sess.scene.cycles.seed = 7919
     t_ref, info_ref, ref = run_config(sess, plan, Render(samples=ref_samples, denoise=False, adaptive_threshold=0),
@@ -469,9 +480,7 @@ def fair(args):
         return d
 
     # ---- 2. blendgen at its defaults (Render()), and the clusters
-    sess = RenderSession(None, None, Render(), cam, object_builder=build)
-    sess.render = Render(samples=1, denoise=False)
-    sess.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+    sess = warm_session(cam, build, plan, tmp)
     t, info, p = run_config(sess, plan, Render(), tmp / "b.exr", reps)
     blend = row("blendgen defaults", Render(), t, info, p, {"repeats": reps})
     target = blend["psnr_db"]
@@ -527,10 +536,8 @@ def fair(args):
     overhead_px = max(call_cpu, 0.0) / per_px
 
     # ---- 3. the fair baseline: full frame, whole road as catcher, Blender's defaults + OIDN
-    sess = RenderSession(None, None, Render(), cam, object_builder=build, catch_shadows_on="ground")
-    defaults = use_blender_defaults(sess)
-    sess.render = Render(samples=1, denoise=False)
-    sess.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+    sess = warm_session(cam, build, plan, tmp, catch="ground", blender_defaults=True)
+    defaults = sess.defaults
 
     def naive_at(n):
         r = Render(samples=n, denoise=True, region=False)
@@ -562,12 +569,8 @@ def fair(args):
     for _ in range(args.pairs if final else 0):
         cpu = {}
         for kind in ("blendgen", "naive"):
-            s_ = RenderSession(None, None, Render(), cam, object_builder=build,
-                               catch_shadows_on="patches" if kind == "blendgen" else "ground")
-            if kind == "naive":
-                use_blender_defaults(s_)
-            s_.render = Render(samples=1, denoise=False)
-            s_.render_frame(plan, tmp / "warm.exr", OUTPUTS)
+            s_ = warm_session(cam, build, plan, tmp, catch="patches" if kind == "blendgen" else "ground",
+                              blender_defaults=kind == "naive")
             r = Render() if kind == "blendgen" else Render(samples=final["samples"], denoise=True, region=False)
             cpu[kind] = run_config(s_, plan, r, tmp / "pair.exr")[1]["cpu_s"]
             s_.close()

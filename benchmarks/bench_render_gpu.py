@@ -61,28 +61,16 @@ def main():
     reps, t_start = args.repeats, time.perf_counter()
 
     def session(device=args.device, naive=False):
-        s = RenderSession(None, None, Render(device=device), cam, object_builder=build,
-                          catch_shadows_on="ground" if naive else "patches")
-        if naive:
-            s.defaults = br.use_blender_defaults(s)
-            # Blender's RNA says denoise on the CPU; a user rendering on a GPU ticks "Denoise on GPU"
-            s.scene.cycles.denoising_use_gpu = device == "GPU"
-        s.render = Render(samples=1, denoise=False)
-        t0 = time.perf_counter()
-        s.render_frame(plan, tmp / "warm.exr", br.OUTPUTS)  # kernels, BVH, objects: once per worker
-        s.warm_s = time.perf_counter() - t0
-        return s
+        return br.warm_session(cam, build, plan, tmp, catch="ground" if naive else "patches",
+                               blender_defaults=naive, device=device)
 
     # ---- the reference, on the GPU
-    probe = RenderSession(None, None, Render(device=args.device), cam, object_builder=build)
-    found_device = probe.device
-    probe.close()
-    if args.device == "GPU" and not found_device.startswith("GPU"):
-        shutil.rmtree(tmp, ignore_errors=True)
-        sys.exit(f"bench_render_gpu: Cycles found no GPU here ({found_device}); nothing written")
-    device = gpu_name() if args.device == "GPU" else "this machine's CPU"
     ref_sess = RenderSession(None, None, Render(device=args.device), cam, object_builder=build,
                              catch_shadows_on="ground")
+    if args.device == "GPU" and not ref_sess.device.startswith("GPU"):
+        shutil.rmtree(tmp, ignore_errors=True)
+        sys.exit(f"bench_render_gpu: Cycles found no GPU here ({ref_sess.device}); nothing written")
+    device = gpu_name() if args.device == "GPU" else "this machine's CPU"
     ref_sess.scene.cycles.seed = 7919
     t_ref, info_ref, ref = br.run_config(ref_sess, plan, Render(samples=args.ref_samples, denoise=False,
                                                                 adaptive_threshold=0), tmp / "ref.exr")

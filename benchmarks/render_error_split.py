@@ -24,7 +24,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_render as B  # noqa: E402
 
 from blendgen.job.schema import Render  # noqa: E402
-from blendgen.render.session import RenderSession  # noqa: E402
 
 
 def composite(rgba, catcher):
@@ -38,9 +37,7 @@ def main():
     args = ap.parse_args()
     W, H, ref_samples, cam, build, _, plan, tmp = B._setup(argparse.Namespace(quick=False, ref_samples=None))
 
-    sess = RenderSession(None, None, Render(), cam, object_builder=build, catch_shadows_on="ground")
-    sess.render = Render(samples=1, denoise=False)
-    sess.render_frame(plan, tmp / "warm.exr", B.OUTPUTS)
+    sess = B.warm_session(cam, build, plan, tmp, catch="ground")
     sess.scene.cycles.seed = 7919  # bench_render's reference
     _, info_ref, ref = B.run_config(sess, plan, Render(samples=ref_samples, denoise=False, adaptive_threshold=0),
                                     tmp / "ref.exr")
@@ -54,9 +51,7 @@ def main():
     print(f"{W}x{H}; measured pixels {mask.sum()}: objects {obj.sum()}, object edges {edge.sum()}, "
           f"shadows {shadow.sum()}")
 
-    sess = RenderSession(None, None, Render(), cam, object_builder=build)
-    sess.render = Render(samples=1, denoise=False)
-    sess.render_frame(plan, tmp / "warm.exr", B.OUTPUTS)
+    sess = B.warm_session(cam, build, plan, tmp)
     rows = []
     for mode in ("patches", "ground") if args.ground else ("patches",):
         sess.catch_shadows_on = mode

@@ -18,6 +18,7 @@ COMMAND_MODULES = [
     "blendgen.report.command",          # report
     "blendgen.scene.map_import",        # twin import / show
     "blendgen.analysis.calibrate",      # calibrate
+    "blendgen.render.gpu_kernels",      # gpu-kernels
 ]
 
 

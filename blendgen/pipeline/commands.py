@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from blendgen.errors import UserError
@@ -47,6 +48,7 @@ def cmd_run(args) -> int:
         if v is not None and v < 1:
             raise UserError(f"--{name} must be at least 1, got {v}")
     job = load_job(args.job)
+    _warn_gpu_kernels(job)
     runner = Runner(job, engine=args.engine, workers=args.workers, chunk=args.chunk,
                     address=args.address, progress=not args.quiet)
     summary = runner.run()
@@ -54,8 +56,22 @@ def cmd_run(args) -> int:
     return FRAMES_FAILED_EXIT if summary["frames"]["failed"] else 0
 
 
+def _warn_gpu_kernels(job) -> None:
+    """A GPU job on a GPU that bpy ships no Cycles kernel for: the first render would sit for
+    minutes compiling one (docs/render.md "On a GPU"); say so before it starts."""
+    if job.render.device != "GPU" or job.farm.engine != "local":
+        return
+    from blendgen.render.gpu_kernels import missing_archs
+
+    for arch in missing_archs():
+        print(f"blendgen: warning: bpy has no Cycles kernel for this GPU ({arch}): its first render compiles "
+              "one from PTX (over 5 min on an H200, then cached by the driver); `blendgen gpu-kernels` "
+              "builds it once ahead", file=sys.stderr)
+
+
 def cmd_validate(args) -> int:
     job = load_job(args.job)
+    _warn_gpu_kernels(job)
     findings = []
     if job.recording is not None:
         # the recording is checked before the job is called valid: its errors decide the verdict

@@ -12,8 +12,10 @@ road_height.EVERY_S (camera z = road z under it + camera height, std road_height
 the road's slope in the Jacobian), and `nhc` -> the no-sideslip / zero-vertical-velocity
 factor on each keyframe above pipeline.NHC_MIN_SPEED (body-frame lateral and vertical
 velocity 0 with pipeline.NHC_LAT_STD / NHC_UP_STD; the IMU is taken as aligned with the
-vehicle unless `nhc` is a rotation: the peer does not estimate the mounting rotation, it can be
-given blendgen's estimate). The GNSS receiver model blendgen estimates can be given too:
+vehicle unless `nhc` is a rotation (blendgen's estimate of the mount), or the mount is a state
+of its own with `mount_std_deg`, observed as in blendgen's filter by the no-sideslip factor and
+a "level across on average" factor (pipeline.LEVEL_STD) on the same keyframes). The GNSS
+receiver model blendgen estimates can be given too:
 `latency_s` (a fix stamped t is the antenna at t - latency: its GPS factor sits on a keyframe at
 that time), `h_std_scale` (the fixes' horizontal noise times this; not the vertical, as in
 blendgen's filter) and `height_corr_s` (the fixes' height-error correlation time: fixes within
@@ -28,11 +30,12 @@ import numpy as np
 
 from blendgen.geometry import invert_pose, make_pose
 from blendgen.sync import road_height, so3
-from blendgen.sync.pipeline import NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
+from blendgen.sync.pipeline import LEVEL_STD, NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
 
 
 def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0),
-              road=None, nhc=False, latency_s: float = 0.0, h_std_scale: float = 1.0, height_corr_s: float = 0.0):
+              road=None, nhc=False, mount_std_deg=None, latency_s: float = 0.0, h_std_scale: float = 1.0,
+              height_corr_s: float = 0.0, info: dict | None = None):
     """Camera poses at out_t from IMU + GNSS (world-frame fixes g_xyz at times g_t).
 
     g_std: the fixes' stated horizontal std (m), one number or one per fix; the factor's
@@ -41,7 +44,10 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
     R_world_body) initial guess at the first IMU sample; prior_sigmas = (pos m, tilt rad, yaw
     rad, vel m/s). road = (surface, camera_height_m): surface (N, 2) xy -> (N,) road z. nhc:
     vehicle velocity constraint (True: the IMU axes are the vehicle's; a 3x3 R_vehicle_imu:
-    in that frame). Returns a list of T_world_cam.
+    in that frame). mount_std_deg = (roll, pitch, yaw) std: with nhc, the mount R_vehicle_imu
+    is a state (one Rot3 for the drive) with that prior around `nhc`'s rotation (identity for
+    True), estimated with everything else as blendgen's filter does; `info["mount_rpy_deg"]`
+    then gets its estimate (roll, pitch, yaw of R_vehicle_imu). Returns a list of T_world_cam.
     """
     import gtsam
     from gtsam.symbol_shorthand import B, V, X
@@ -68,6 +74,7 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
     v_factor = 2.0 * np.sqrt(max(float(height_corr_s) * rate, 1.0))
     R_vb = None if nhc is None or isinstance(nhc, bool) else np.asarray(nhc, float)
     use_nhc = nhc is True or R_vb is not None
+    mount_key = gtsam.symbol("m", 0) if use_nhc and mount_std_deg is not None else None
     t_prev = imu[0, 0]
     pose = gtsam.Pose3(gtsam.Rot3(R0), gtsam.Point3(*p0))
     graph = gtsam.NonlinearFactorGraph()
@@ -82,6 +89,11 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
     values.insert(X(0), pose)
     values.insert(V(0), np.asarray(v0, float))
     values.insert(B(0), bias0)
+    if mount_key is not None:
+        M0 = gtsam.Rot3(np.eye(3) if R_vb is None else R_vb)
+        graph.add(gtsam.PriorFactorRot3(mount_key, M0, gtsam.noiseModel.Diagonal.Sigmas(
+            np.radians(np.asarray(mount_std_deg, float)))))
+        values.insert(mount_key, M0)
     isam.update(graph, values)
     state = gtsam.NavState(pose, np.asarray(v0, float))
     bias = bias0
@@ -115,7 +127,9 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
             graph.add(_road_factor(gtsam, X(k), road_model, T_bc[:3, 3]))
             next_road_t = tk + road_height.EVERY_S
         if use_nhc and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
-            graph.add(_nhc_factor(gtsam, X(k), V(k), R_vb))
+            graph.add(_nhc_factor(gtsam, X(k), V(k), R_vb, mount_key))
+            if mount_key is not None:  # what observes the mount's roll, as in blendgen's filter
+                graph.add(_level_factor(gtsam, X(k), mount_key))
         pred = pim.predict(state, bias)
         values.insert(X(k), pred.pose())
         values.insert(V(k), pred.velocity())
@@ -127,6 +141,8 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
         t_prev = tk
         times.append(tk)
     est = isam.calculateEstimate()
+    if mount_key is not None and info is not None:
+        info["mount_rpy_deg"] = np.degrees(est.atRot3(mount_key).rpy()).tolist()
     Ts = [est.atPose3(X(k)).matrix() for k in range(len(times))]
     return _interp_cam(np.array(times), Ts, np.asarray(out_t), invert_pose(rec.T_cam_imu))
 
@@ -157,22 +173,43 @@ def _road_factor(gtsam, key, road, p_bc):
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, road_height.ROUGH_STD), [key], err)
 
 
-def _nhc_factor(gtsam, xkey, vkey, R_vb=None):
+def _nhc_factor(gtsam, xkey, vkey, R_vb=None, mount_key=None):
     """Vehicle-frame lateral and vertical velocity zero: r = (M R^T v)[1:3] with M = R_vb (the
-    IMU's rotation into the vehicle frame, x forward; identity when None); d/dw = M [R^T v]x,
-    d/dv = M R^T."""
-    M = np.eye(3) if R_vb is None else np.asarray(R_vb, float)
+    IMU's rotation into the vehicle frame, x forward; identity when None) or the state
+    `mount_key`; d/dw = M [R^T v]x, d/dv = M R^T, d/dm = -M [R^T v]x (M exp(dm))."""
+    M_fixed = np.eye(3) if R_vb is None else np.asarray(R_vb, float)
+    keys = [xkey, vkey] + ([mount_key] if mount_key is not None else [])
 
     def err(this, values, H):
         R = values.atPose3(this.keys()[0]).rotation().matrix()
         v = values.atVector(this.keys()[1])
+        M = values.atRot3(this.keys()[2]).matrix() if mount_key is not None else M_fixed
         vb = R.T @ v
         if H is not None:
             H[0] = np.hstack([(M @ _skew(vb))[1:3], np.zeros((2, 3))])
             H[1] = (M @ R.T)[1:3]
+            if mount_key is not None:
+                H[2] = -(M @ _skew(vb))[1:3]
         return (M @ vb)[1:3]
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([NHC_LAT_STD, NHC_UP_STD])), [xkey, vkey], err)
+    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([NHC_LAT_STD, NHC_UP_STD])), keys, err)
+
+
+def _level_factor(gtsam, xkey, mount_key):
+    """The vehicle is level across on average (pipeline.LEVEL_STD): r = z of the vehicle's
+    lateral axis in the world, R M^T e_y; d/dw = -R [M^T e_y]x, d/dm = R [M^T e_y]x."""
+    e_y = np.array([0.0, 1.0, 0.0])
+
+    def err(this, values, H):
+        R = values.atPose3(this.keys()[0]).rotation().matrix()
+        y_b = values.atRot3(this.keys()[1]).matrix().T @ e_y
+        if H is not None:
+            J = (R @ _skew(y_b))[2]
+            H[0] = np.hstack([-J, np.zeros(3)])[None, :]
+            H[1] = J[None, :]
+        return np.array([(R @ y_b)[2]])
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, LEVEL_STD), [xkey, mount_key], err)
 
 
 def _interp_cam(times, T_wb, out_t, T_bc):

@@ -99,3 +99,13 @@ def test_cuda_release_parsing():
     assert gk._release("Cuda compilation tools, release 13.0, V13.0.88") == (13, 0)
     assert gk._release("| NVIDIA-SMI 580.159.04   Driver Version: 580.159.04   CUDA Version: 13.0 |") == (13, 0)
     assert gk._release("no version here") is None
+
+
+def test_local_gpus_read_from_nvidia_smi(tmp_path, monkeypatch):
+    """Two GPUs and a line that is no compute capability, as nvidia-smi prints them."""
+    smi = tmp_path / "nvidia-smi"
+    smi.write_text("#!/bin/sh\nprintf '9.0\\n8.0\\n[N/A]\\n9.0\\n'\n")
+    smi.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path}:/usr/bin:/bin")
+    assert gk.local_gpu_archs() == ["sm_80", "sm_90"]
+    assert "sm_90" in gk.missing_archs() or "sm_90" in gk.shipped_archs(gk.cycles_lib_dir())

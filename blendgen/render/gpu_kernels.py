@@ -62,7 +62,10 @@ def local_gpu_archs() -> list[str]:
                              capture_output=True, text=True, timeout=30)
     except (OSError, subprocess.SubprocessError):
         return []
-    return sorted({parse_arch(line) for line in out.stdout.split() if line.strip()}) if out.returncode == 0 else []
+    if out.returncode != 0:
+        return []
+    # one "9.0" per GPU; anything else ("[N/A]", a driver message) says nothing about kernels
+    return sorted({parse_arch(c) for c in out.stdout.split() if re.fullmatch(r"\d+\.\d", c)})
 
 
 def missing_archs(archs: list[str] | None = None) -> list[str]:

@@ -55,6 +55,8 @@ class VoConfig:
     klt_max_width: int | None = None       # KLT tracks at full resolution by default
     klt_iters: int = 10                    # LK iterations per level
     klt_fast_threshold: int = 20           # FAST threshold for new corners (halved where a cell finds none)
+    photo_norm: str = "off"                # KLT tracks on a photometrically normalised image (photo_normalise)
+    photo_norm_box: int = 16               # its local mean over a box of width / this (odd, >= 5 px)
 
 
 @dataclass
@@ -215,6 +217,37 @@ def make_vo(camera: Camera, cfg: VoConfig | None = None):
     raise ValueError(f"unknown VO method {cfg.method!r}; expected 'klt' or 'orb'")
 
 
+PHOTO_NORMS = ("off", "ratio", "hp", "lcn")
+
+
+def photo_normalise(gray: np.ndarray, mode: str, box_div: int = 16) -> np.ndarray:
+    """A uint8 image for Lucas-Kanade that is (locally) insensitive to brightness changes.
+
+    LK assumes brightness constancy. A real camera breaks it per patch: exposure flicker scales
+    the whole frame, and with vignetting a feature that moves outward gets darker. A patch whose
+    gain changes by g pulls LK's solution by (g - 1) G^-1 sum grad(I^2) over the window, and
+    vignetting's own inward gradient makes that pull radial, i.e. along the focus of expansion
+    (docs/sync.md, "VO under real-camera photometry"). Modes:
+      ratio  I / local mean (x128): gain-invariant where the gain is constant over the box;
+      hp     I - local mean (+128): offset-invariant, and no large-scale gradient left;
+      lcn    (I - local mean) / local std: gain- and offset-invariant."""
+    if mode == "off":
+        return gray
+    h, w = gray.shape
+    k = max(5, (w // box_div) | 1)
+    if mode == "ratio":
+        m = cv2.blur(gray, (k, k), borderType=cv2.BORDER_REFLECT)
+        return cv2.divide(gray, np.maximum(m, 1), scale=128.0)
+    f = gray.astype(np.float32)
+    m = cv2.blur(f, (k, k), borderType=cv2.BORDER_REFLECT)
+    if mode == "hp":
+        return cv2.convertScaleAbs(f - m + 128.0)
+    if mode == "lcn":
+        v = cv2.blur(f * f, (k, k), borderType=cv2.BORDER_REFLECT) - m * m
+        return cv2.convertScaleAbs((f - m) * (45.0 / np.sqrt(np.maximum(v, 4.0))) + 128.0)
+    raise ValueError(f"unknown photo_norm {mode!r}; expected one of {PHOTO_NORMS}")
+
+
 class KltVo:
     """Track-then-detect front end: the previous frame's corners are tracked with pyramidal
     Lucas-Kanade (forward-backward checked), FAST corners are detected only in grid cells that
@@ -346,7 +379,7 @@ class KltVo:
             return rep
         small = self._small(gray)
         # (OpenCV's Python binding cannot take prebuilt pyramids: each LK call builds its own)
-        pyr = small
+        pyr = photo_normalise(small, self.cfg.photo_norm, self.cfg.photo_norm_box)
         if prev is None or len(prev[2]) == 0:
             pts = self._replenish(small, np.zeros((0, 2), np.float32))
             self.prev = (gray, pyr, pts)

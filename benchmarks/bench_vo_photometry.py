@@ -1,0 +1,109 @@
+"""Which part of a real camera's photometry biases VO's direction of travel, and whether the
+photometric normalisation removes it (issue 14, docs/sync.md "VO under real-camera photometry").
+
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo_photometry.py [--fps 10]
+        [--duration 20] [--shake 0.3] [--readout 0] [--method klt|orb] [--seed 0]
+        [--variants none,flicker,vignetting,gamma,jpeg,all] [--norm off,on]
+
+The drive of bench_sync.py (480x270, 70 deg) is rendered once without photometry
+(`synthetic_recording(..., photometric=False)`); each variant then applies some of
+`simulate.PHOTOMETRY_PARTS` to the same frames with the same random draws (the flicker's gain
+per frame), and the VO front end (KLT at >= 10 fps as the pipeline, or ORB) runs on them with
+the photometric normalisation off / on (`VoConfig.photo_norm`). Per frame pair with a full
+("ok") result, the errors against the ground truth (bench_vo_bias.pair_errors): the direction
+of travel's error as camera pan (x) / tilt (y, + = down), the relative rotation's per camera
+axis; mean +- standard error over the pairs and the pair count. CPU seconds (process time) per
+VO run; the machine is shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_vo_bias import pair_errors  # noqa: E402
+
+from blendgen.sync.metrics import gt_poses  # noqa: E402
+from blendgen.sync.simulate import PHOTOMETRY_PARTS, StreetScene, _camera_look, synthetic_recording  # noqa: E402
+from blendgen.sync.vo import VoConfig, make_vo  # noqa: E402
+
+
+def photometry(images, parts, seed: int):
+    """The frames with some photometric parts, the same per-frame draws as synthetic_recording."""
+    if not parts:
+        return list(images)
+    rng = np.random.default_rng(seed + 13)
+    return [_camera_look(img, rng, parts) for img in images]
+
+
+def run_vo(cam, images, cfg: VoConfig):
+    vo = make_vo(cam, cfg)
+    c0 = time.process_time()
+    res = [None]
+    for img in images:
+        r = vo.track(img)
+        res.append(r)
+    return res[1:], time.process_time() - c0
+
+
+def summarise(results, gt):
+    """Pairs, direction x/y mean, its standard error, rotation mean and standard error (deg)."""
+    pairs = [results[i] for i in range(1, len(results))]  # result i is the pair (i-1, i)
+    rot, dirs = pair_errors(pairs, gt)
+    n = len(dirs)
+    se = lambda a: a.std(0, ddof=1) / np.sqrt(max(n, 1))  # noqa: E731
+    return {"n": n, "dir": dirs.mean(0), "dir_se": se(dirs), "dir_std": dirs.std(0, ddof=1),
+            "rot": rot.mean(0), "rot_se": se(rot), "rot_rms": np.sqrt(np.mean(rot**2, 0))}
+
+
+VARIANTS = {"none": (), "all": PHOTOMETRY_PARTS, **{p: (p,) for p in PHOTOMETRY_PARTS},
+            **{f"all-{p}": tuple(q for q in PHOTOMETRY_PARTS if q != p) for p in PHOTOMETRY_PARTS},
+            "vig+flicker": ("vignetting", "flicker")}
+
+
+def main() -> None:
+    cv2.setNumThreads(1)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fps", type=float, default=10.0)
+    ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--shake", type=float, default=0.0)
+    ap.add_argument("--readout", type=float, default=0.0, help="rolling-shutter readout (s)")
+    ap.add_argument("--method", default="klt")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--width", type=int, default=480)
+    ap.add_argument("--variants", default="none,flicker,vignetting,gamma,jpeg,all")
+    ap.add_argument("--norm", default="off,on", help="VoConfig.photo_norm values to run")
+    args = ap.parse_args()
+    c0 = time.process_time()
+    rec, _, _ = synthetic_recording("drive", args.duration, fps=args.fps, shake_deg=args.shake,
+                                    rolling_shutter_s=args.readout, seed=args.seed, scene=StreetScene(),
+                                    resolution=(args.width, round(args.width * 9 / 16)), imu=False, gnss=False)
+    gt = gt_poses(rec.groundtruth)
+    base = rec.extra["images"]
+    print(f"{args.method} on {len(base)} frames, {args.fps:g} fps, {args.width} px wide, shake {args.shake} deg, "
+          f"readout {args.readout * 1e3:.0f} ms, seed {args.seed} (render {time.process_time() - c0:.0f} CPU s)")
+    print("  variant          norm  pairs  dir x (deg)      dir y (deg, + down)  dir std x/y   "
+          "rot x (deg/pair)   rot y              rot z              VO CPU s")
+    for name in args.variants.split(","):
+        imgs = photometry(base, VARIANTS[name], args.seed)
+        for norm in args.norm.split(","):
+            cfg = VoConfig(method=args.method, photo_norm=norm)
+            res, cpu = run_vo(rec.camera, imgs, cfg)
+            s = summarise(res, gt)
+            f = lambda k, i: f"{s[k][i]:+.3f}+-{s[k + '_se'][i]:.3f}"  # noqa: E731
+            print(f"  {name:16s} {norm:4s} {s['n']:5d}  {f('dir', 0):16s} {f('dir', 1):20s} "
+                  f"{s['dir_std'][0]:.2f}/{s['dir_std'][1]:.2f}    {f('rot', 0)}  {f('rot', 1)}  {f('rot', 2)}  "
+                  f"{cpu:.1f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -45,24 +45,35 @@ def photometry(images, parts, seed: int):
     return [_camera_look(img, rng, parts) for img in images]
 
 
+def gains(n: int, seed: int) -> np.ndarray:
+    """The flicker's gain of each frame (the draws _camera_look makes, one per frame)."""
+    rng = np.random.default_rng(seed + 13)
+    return np.array([1.0 + 0.08 * rng.uniform(-1, 1) for _ in range(n)])
+
+
 def run_vo(cam, images, cfg: VoConfig):
     vo = make_vo(cam, cfg)
     c0 = time.process_time()
-    res = [None]
-    for img in images:
-        r = vo.track(img)
-        res.append(r)
-    return res[1:], time.process_time() - c0
+    res = [vo.track(img) for img in images]
+    return res, time.process_time() - c0
 
 
-def summarise(results, gt):
-    """Pairs, direction x/y mean, its standard error, rotation mean and standard error (deg)."""
-    pairs = [results[i] for i in range(1, len(results))]  # result i is the pair (i-1, i)
+def summarise(results, gt, g=None):
+    """Pairs, direction x/y mean, its standard error, rotation mean and standard error (deg);
+    with the frames' gains g also the direction's slope against the pair's log gain ratio."""
+    pairs = results[1:]  # result i is the pair (i-1, i); pair_errors pairs entry k with gt k, k+1
     rot, dirs = pair_errors(pairs, gt)
     n = len(dirs)
     se = lambda a: a.std(0, ddof=1) / np.sqrt(max(n, 1))  # noqa: E731
-    return {"n": n, "dir": dirs.mean(0), "dir_se": se(dirs), "dir_std": dirs.std(0, ddof=1),
-            "rot": rot.mean(0), "rot_se": se(rot), "rot_rms": np.sqrt(np.mean(rot**2, 0))}
+    out = {"n": n, "dir": dirs.mean(0), "dir_se": se(dirs), "dir_std": dirs.std(0, ddof=1),
+           "dir_med": np.median(dirs, 0), "rot": rot.mean(0), "rot_se": se(rot)}
+    if g is not None:
+        ok = [k for k, r in enumerate(pairs) if r is not None and r.status == "ok"]
+        lg = np.log(g[1:] / g[:-1])[ok]
+        # least squares dir_y = a + b log(g2 / g1) + c |log(g2 / g1)| (deg per 1 % of gain change: b / 100)
+        A = np.column_stack([np.ones(n), lg, np.abs(lg)])
+        out["gain_fit"] = np.linalg.lstsq(A, dirs[:, 1], rcond=None)[0]
+    return out
 
 
 VARIANTS = {"none": (), "all": PHOTOMETRY_PARTS, **{p: (p,) for p in PHOTOMETRY_PARTS},
@@ -81,7 +92,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--width", type=int, default=480)
     ap.add_argument("--variants", default="none,flicker,vignetting,gamma,jpeg,all")
-    ap.add_argument("--norm", default="off,on", help="VoConfig.photo_norm values to run")
+    ap.add_argument("--norm", default="off,gain", help="VoConfig.photo_norm values to run (mode[:box divisor])")
     args = ap.parse_args()
     c0 = time.process_time()
     rec, _, _ = synthetic_recording("drive", args.duration, fps=args.fps, shake_deg=args.shake,
@@ -96,13 +107,15 @@ def main() -> None:
     for name in args.variants.split(","):
         imgs = photometry(base, VARIANTS[name], args.seed)
         for norm in args.norm.split(","):
-            cfg = VoConfig(method=args.method, photo_norm=norm)
+            mode, _, box = norm.partition(":")  # e.g. lcn:8 -> a box of width / 8
+            cfg = VoConfig(method=args.method, photo_norm=mode, **({"photo_norm_box": int(box)} if box else {}))
             res, cpu = run_vo(rec.camera, imgs, cfg)
-            s = summarise(res, gt)
+            s = summarise(res, gt, gains(len(imgs), args.seed) if "flicker" in VARIANTS[name] else None)
             f = lambda k, i: f"{s[k][i]:+.3f}+-{s[k + '_se'][i]:.3f}"  # noqa: E731
-            print(f"  {name:16s} {norm:4s} {s['n']:5d}  {f('dir', 0):16s} {f('dir', 1):20s} "
+            print(f"  {name:16s} {norm:7s} {s['n']:5d}  {f('dir', 0):16s} {f('dir', 1):20s} "
                   f"{s['dir_std'][0]:.2f}/{s['dir_std'][1]:.2f}    {f('rot', 0)}  {f('rot', 1)}  {f('rot', 2)}  "
-                  f"{cpu:.1f}", flush=True)
+                  f"{cpu:.1f}" + (f"  dir y median {s['dir_med'][1]:+.3f}" + (f", = {s['gain_fit'][0]:+.3f} "
+                  f"{s['gain_fit'][1] / 100:+.3f} per % gain change {s['gain_fit'][2] / 100:+.3f} per % of its size" if "gain_fit" in s else "")), flush=True)
 
 
 if __name__ == "__main__":

@@ -54,8 +54,13 @@ def gains(n: int, seed: int) -> np.ndarray:
 def run_vo(cam, images, cfg: VoConfig):
     vo = make_vo(cam, cfg)
     c0 = time.process_time()
-    res = [vo.track(img) for img in images]
-    return res, time.process_time() - c0
+    res, est = [], []
+    for img in images:
+        res.append(vo.track(img))
+        est.append(getattr(vo, "gain", 1.0))  # KLT's estimated gain from the previous frame
+    vo.gains_est = np.array(est)
+    cpu = time.process_time() - c0
+    return res, cpu, vo
 
 
 def summarise(results, gt, g=None):
@@ -81,6 +86,19 @@ VARIANTS = {"none": (), "all": PHOTOMETRY_PARTS, **{p: (p,) for p in PHOTOMETRY_
             "vig+flicker": ("vignetting", "flicker")}
 
 
+def timing() -> None:
+    from bench_vo import run, sequence
+
+    cam, poses, imgs = sequence(StreetScene(), 960, 540, 25.0, 40)
+    for name, parts in (("no photometry", ()), ("photometry", PHOTOMETRY_PARTS)):
+        frames = photometry(imgs, parts, 0)
+        for norm in ("off", "gain", "off", "gain"):  # twice, interleaved: the machine is shared
+            r = run(cam, poses, frames, VoConfig(method="klt", photo_norm=norm))
+            print(f"  960x540 KLT 1500, {name:14s} photo_norm {norm:4s}: {r['ms']:.1f} ms/frame ({r['fps']:.0f} fps), "
+                  f"rot median {r['rot_med']:.4f} deg, dir median {r['dir_med']:.3f} deg, ok {r['ok']}/{r['pairs']}",
+                  flush=True)
+
+
 def main() -> None:
     cv2.setNumThreads(1)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -93,7 +111,13 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=480)
     ap.add_argument("--variants", default="none,flicker,vignetting,gamma,jpeg,all")
     ap.add_argument("--norm", default="off,gain", help="VoConfig.photo_norm values to run (mode[:box divisor])")
+    ap.add_argument("--timing", action="store_true",
+                    help="instead: CPU ms per frame at 960x540, 25 fps (bench_vo.py's case A, 40 frames, best of 3 "
+                         "medians), photo_norm off / gain, frames without and with photometry")
     args = ap.parse_args()
+    if args.timing:
+        timing()
+        return
     c0 = time.process_time()
     rec, _, _ = synthetic_recording("drive", args.duration, fps=args.fps, shake_deg=args.shake,
                                     rolling_shutter_s=args.readout, seed=args.seed, scene=StreetScene(),
@@ -109,13 +133,19 @@ def main() -> None:
         for norm in args.norm.split(","):
             mode, _, box = norm.partition(":")  # e.g. lcn:8 -> a box of width / 8
             cfg = VoConfig(method=args.method, photo_norm=mode, **({"photo_norm_box": int(box)} if box else {}))
-            res, cpu = run_vo(rec.camera, imgs, cfg)
+            res, cpu, vo = run_vo(rec.camera, imgs, cfg)
             s = summarise(res, gt, gains(len(imgs), args.seed) if "flicker" in VARIANTS[name] else None)
             f = lambda k, i: f"{s[k][i]:+.3f}+-{s[k + '_se'][i]:.3f}"  # noqa: E731
             print(f"  {name:16s} {norm:7s} {s['n']:5d}  {f('dir', 0):16s} {f('dir', 1):20s} "
                   f"{s['dir_std'][0]:.2f}/{s['dir_std'][1]:.2f}    {f('rot', 0)}  {f('rot', 1)}  {f('rot', 2)}  "
                   f"{cpu:.1f}" + (f"  dir y median {s['dir_med'][1]:+.3f}" + (f", = {s['gain_fit'][0]:+.3f} "
                   f"{s['gain_fit'][1] / 100:+.3f} per % gain change {s['gain_fit'][2] / 100:+.3f} per % of its size" if "gain_fit" in s else "")), flush=True)
+            if mode == "gain":
+                g = gains(len(imgs), args.seed) if "flicker" in VARIANTS[name] else np.ones(len(imgs))
+                g = g ** (1 / 1.1) if "gamma" in VARIANTS[name] else g  # the gain in the image, after gamma
+                err = 100 * (vo.gains_est[1:] / (g[1:] / g[:-1]) - 1)
+                print(f"    estimated frame-to-frame gain: error {np.mean(err):+.2f} % mean, {np.sqrt(np.mean(err**2)):.2f} % "
+                      f"RMS, max {np.abs(err).max():.2f} % (true changes {100 * np.std(g[1:] / g[:-1]):.1f} % RMS)")
 
 
 if __name__ == "__main__":

@@ -55,8 +55,12 @@ class VoConfig:
     klt_max_width: int | None = None       # KLT tracks at full resolution by default
     klt_iters: int = 10                    # LK iterations per level
     klt_fast_threshold: int = 20           # FAST threshold for new corners (halved where a cell finds none)
-    photo_norm: str = "off"                # KLT tracks on a photometrically normalised image (photo_normalise)
-    photo_norm_box: int = 16               # its local mean over a box of width / this (odd, >= 5 px)
+    # KLT under exposure changes: "gain" scales the previous frame by the frame-to-frame exposure
+    # gain before LK (bench_vo_photometry.py: 10 fps drive with real-camera photometry, direction
+    # of travel bias 0.34 -> 0.09 deg down, as without photometry; 0.4 ms a frame at 960x540);
+    # "off", or the local normalisations of photo_normalise (unbiased too, but 30 % noisier)
+    photo_norm: str = "gain"
+    photo_norm_box: int = 16               # photo_normalise's local mean over a box of width / this
 
 
 @dataclass

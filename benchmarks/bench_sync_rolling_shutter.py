@@ -15,6 +15,7 @@ and the per-pair VO rotation error and least-squares gain against the truth.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import tempfile
 import time
@@ -26,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen.job.schema import Sync  # noqa: E402
-from blendgen.sync import pipeline, so3  # noqa: E402
+from blendgen.sync import pipeline, so3, vo_trust  # noqa: E402
 from blendgen.sync.metrics import gt_poses, trajectory_errors  # noqa: E402
 from blendgen.sync.simulate import GEOREF, StreetScene, hard_recording, synthetic_recording  # noqa: E402
 
@@ -64,10 +65,19 @@ def _vo_pairs(res_vo, ref):
             np.degrees(E.mean(0)), np.degrees(np.median(np.abs(E), 0)), np.degrees(np.median(S, 0)))
 
 
-def run(name, rec, ref, spins, road: bool):
+_VO_CONFIG, _DIR_RS = pipeline._vo_config, vo_trust.VO_DIR_RS
+
+
+def run(name, rec, ref, spins, road: bool, photo_norm: str | None = None, dir_rs_deg: float | None = None):
+    """One sync. photo_norm: KLT's VoConfig.photo_norm for this run (None: the default);
+    dir_rs_deg: vo_trust.VO_DIR_RS for this run (None: the default)."""
     readout = rec.rolling_shutter_s
     if spins == "off":
         rec.rolling_shutter_s = 0.0
+    if photo_norm is not None:
+        pipeline._vo_config = lambda *a, **k: dataclasses.replace(_VO_CONFIG(*a, **k), photo_norm=photo_norm)
+    if dir_rs_deg is not None:
+        vo_trust.VO_DIR_RS = np.radians(dir_rs_deg)
     # "floor": no correction, but the rolling-shutter direction noise (vo_trust.VO_DIR_RS)
     pipeline._rs_spins = {"constant": _constant_rate, "floor": lambda *a, **k: None}.get(spins, _TABLE)
     # the VO results, to measure the pairs the filter was given
@@ -89,6 +99,7 @@ def run(name, rec, ref, spins, road: bool):
                                     road_surface=flat_road if road else None)
     finally:
         pipeline._vo_all, pipeline._rs_spins, rec.rolling_shutter_s = orig, _TABLE, readout
+        pipeline._vo_config, vo_trust.VO_DIR_RS = _VO_CONFIG, _DIR_RS
     cpu = time.process_time() - c0
     est = [p[2] for p in res.poses]
     a = trajectory_errors(est, ref, camera=rec.camera.scaled(1280, 720))
@@ -111,8 +122,23 @@ def main() -> None:
     ap.add_argument("--case", choices=("rs", "hard", "easy"), default="rs")
     ap.add_argument("--duration", type=float, default=DUR)
     ap.add_argument("--spins", default="off,floor,constant,table", help="rs case: which corrections, comma-separated")
+    ap.add_argument("--rows", default=None,
+                    help="rs/hard case instead of --spins: rows spins/photo_norm/VO_DIR_RS deg, e.g. "
+                         "'off/off/1,table/gain/0' (hard: road is on, 'full + twin road')")
     args = ap.parse_args()
-    if args.case == "rs":
+    rows = [r.split("/") for r in args.rows.split(",")] if args.rows else None
+    if args.case == "rs" and rows:
+        rec, _, _ = synthetic_recording("drive", args.duration, fps=args.fps, rolling_shutter_s=0.03, shake_deg=0.3,
+                                        photometric=True, scene=StreetScene())
+        print(f"rolling-shutter frames (30 ms, 0.3 deg shake, photometry), {args.fps:g} fps, full + twin road")
+        for sp, pn, dr in rows:
+            run(f"correction {sp}, photo_norm {pn}, dir_rs {dr}", rec, gt_poses(rec.groundtruth), sp, True, pn, float(dr))
+    elif args.case == "hard" and rows:
+        rec, _, _ = hard_recording(args.duration, scene=StreetScene(), fps=args.fps)
+        print(f"hard drive (bench_sync --section hard), {args.fps:g} fps, full + twin road")
+        for sp, pn, dr in rows:
+            run(f"correction {sp}, photo_norm {pn}, dir_rs {dr}", rec, gt_poses(rec.groundtruth), sp, True, pn, float(dr))
+    elif args.case == "rs":
         rec, _, _ = synthetic_recording("drive", args.duration, fps=args.fps, rolling_shutter_s=0.03, shake_deg=0.3,
                                         photometric=True, scene=StreetScene())
         print(f"rolling-shutter frames (30 ms, 0.3 deg shake, photometry), {args.fps:g} fps, full + twin road")

@@ -136,6 +136,9 @@ def test_auto_front_end_follows_the_frame_rate():
     auto = SimpleNamespace(vo_method="auto")
     assert vo_method(auto, SimpleNamespace(frames_t=np.arange(50) / 25.0)) == "klt"
     assert vo_method(auto, SimpleNamespace(frames_t=np.arange(50) / 5.0)) == "orb"
+    # exactly 10 fps whatever the stamps' rounding (this one's median step is 0.1 + 1.4e-15 s)
+    assert vo_method(auto, SimpleNamespace(frames_t=np.arange(0.5, 60.5, 0.1))) == "klt"
+    assert vo_method(auto, SimpleNamespace(frames_t=np.arange(0.5, 60.5, 1 / 9.5))) == "orb"
     assert vo_method(SimpleNamespace(vo_method="klt"), SimpleNamespace(frames_t=np.arange(50) / 5.0)) == "klt"
 
 

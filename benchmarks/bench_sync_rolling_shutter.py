@@ -121,6 +121,7 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=5.0)
     ap.add_argument("--case", choices=("rs", "hard", "easy"), default="rs")
     ap.add_argument("--duration", type=float, default=DUR)
+    ap.add_argument("--seed", type=int, default=0, help="the recording's noise seed")
     ap.add_argument("--spins", default="off,floor,constant,table", help="rs case: which corrections, comma-separated")
     ap.add_argument("--rows", default=None,
                     help="rs/hard case instead of --spins: rows spins/photo_norm/VO_DIR_RS deg, e.g. "
@@ -129,13 +130,14 @@ def main() -> None:
     rows = [r.split("/") for r in args.rows.split(",")] if args.rows else None
     if args.case == "rs" and rows:
         rec, _, _ = synthetic_recording("drive", args.duration, fps=args.fps, rolling_shutter_s=0.03, shake_deg=0.3,
-                                        photometric=True, scene=StreetScene())
-        print(f"rolling-shutter frames (30 ms, 0.3 deg shake, photometry), {args.fps:g} fps, full + twin road")
+                                        photometric=True, scene=StreetScene(), seed=args.seed)
+        print(f"rolling-shutter frames (30 ms, 0.3 deg shake, photometry), {args.fps:g} fps, seed {args.seed}, "
+              "full + twin road")
         for sp, pn, dr in rows:
             run(f"correction {sp}, photo_norm {pn}, dir_rs {dr}", rec, gt_poses(rec.groundtruth), sp, True, pn, float(dr))
     elif args.case == "hard" and rows:
-        rec, _, _ = hard_recording(args.duration, scene=StreetScene(), fps=args.fps)
-        print(f"hard drive (bench_sync --section hard), {args.fps:g} fps, full + twin road")
+        rec, _, _ = hard_recording(args.duration, scene=StreetScene(), fps=args.fps, seed=args.seed)
+        print(f"hard drive (bench_sync --section hard), {args.fps:g} fps, seed {args.seed}, full + twin road")
         for sp, pn, dr in rows:
             run(f"correction {sp}, photo_norm {pn}, dir_rs {dr}", rec, gt_poses(rec.groundtruth), sp, True, pn, float(dr))
     elif args.case == "rs":

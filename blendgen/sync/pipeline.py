@@ -256,26 +256,7 @@ def vo_method(settings, rec: Recording) -> str:
 
 
 def _vo_config(settings, rec: Recording) -> VoConfig:
-    return VoConfig(n_features=int(settings.orb_features), method=vo_method(settings, rec),
-                    readout_s=float(rec.rolling_shutter_s))
-
-
-def _rs_spins(imu: np.ndarray, t_frames: np.ndarray, readout_s: float, R_bc: np.ndarray,
-              knots: int = 16) -> np.ndarray | None:
-    """The camera's turn during each frame's readout (camera axes) from the gyro (IMU clock frame
-    times): (frames, knots, 3) rotation vectors from the top row's time to `knots` times evenly
-    over the readout, the gyro rate interpolated and integrated (small angles: rotation vectors
-    add). What the rolling-shutter correction of VO needs (`vo.rs_bearings`). Integrated, not
-    one rate per frame: shake of a few Hz changes the rate within the readout."""
-    if readout_s <= 0 or len(imu) < 2:
-        return None
-    sub = 4  # integration steps per knot interval
-    s = np.linspace(0.0, readout_s, sub * (knots - 1) + 1)
-    tt = np.asarray(t_frames, float)[:, None] + s[None, :]
-    w = np.stack([np.interp(tt, imu[:, 0], imu[:, k]) for k in (1, 2, 3)], axis=-1) @ R_bc  # R_bc^T w_imu
-    ds = s[1] - s[0]
-    rv = np.concatenate([np.zeros((len(tt), 1, 3)), np.cumsum(0.5 * (w[:, 1:] + w[:, :-1]) * ds, axis=1)], axis=1)
-    return rv[:, ::sub]
+    return VoConfig(n_features=int(settings.orb_features), method=vo_method(settings, rec))
 
 
 def _quality(vo: VoResult | None, flags: list[str]) -> dict:
@@ -298,8 +279,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     if use_vo:
         # VO first, over all frames: each pair is checked against the gyro, and whether the
         # frames move rigidly with the IMU at all is decided, before the filter trusts any
-        _vo_all(rec, settings, len(out_t), vo_cache, progress,
-                _rs_spins(imu, out_t, rec.rolling_shutter_s, R_bc) if use_imu else None)
+        _vo_all(rec, settings, len(out_t), vo_cache, progress)
         if use_imu:
             trust, toff, out_t = _trust_and_time_offset(rec, [vo_cache.get(i) for i in range(len(out_t))], imu,
                                                         out_t_cam, out_t, R_bc, cfg)
@@ -515,20 +495,20 @@ def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road, h_scale: float
     return prof
 
 
-def _vo_step(vo, img, spin=None) -> VoResult | None:
+def _vo_step(vo, img) -> VoResult | None:
     """VO of the pair ending at `img`; a frame that does not decode (None) restarts the tracker."""
     if img is None:
         vo.reset()
         return None
-    return vo.track(img, spin)
+    return vo.track(img)
 
 
-def _vo_all(rec, settings, n: int, cache: dict, progress: bool, spins=None) -> None:
+def _vo_all(rec, settings, n: int, cache: dict, progress: bool) -> None:
     vo = make_vo(rec.camera, _vo_config(settings, rec))
     frames = _frames(rec)
     bar = _bar(progress, n, "VO")
     for i in range(n):
-        cache[i] = _vo_step(vo, next(frames)[1], spins[i] if spins is not None else None)
+        cache[i] = _vo_step(vo, next(frames)[1])
         bar.update(1)
     bar.close()
 
@@ -612,7 +592,6 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
 
     vo = make_vo(rec.camera, _vo_config(settings, rec)) if use_vo and not vo_cache else None
     frames = _frames(rec) if vo is not None else None
-    spins = _rs_spins(imu, out_t, rec.rolling_shutter_s, R_bc) if vo is not None and use_imu else None
     poses, covs, quality = [], [], []
     pending = []  # flags since the last pose
     last_zupt_t = -np.inf
@@ -686,7 +665,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             res = None
             if use_vo:
                 if vo is not None:
-                    vo_cache[i] = _vo_step(vo, next(frames)[1], spins[i] if spins is not None else None)
+                    vo_cache[i] = _vo_step(vo, next(frames)[1])
                 res = vo_cache[i]
                 if res is None:
                     flags.append("decode_failed")
@@ -699,7 +678,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     # correction out (image camera -> body camera) and use what is left
                     if ekf.has_clone and clone_i >= 0:
                         C0, C1 = trust.correction[clone_i], trust.correction[i]
-                        rot_cov, dir_cov = vo_noise(res, rec.rolling_shutter_s > 0)
+                        rot_cov, dir_cov = vo_noise(res)
                         u = C0 @ res.u_dir if res.has_direction else None
                         if u is not None:
                             dir_cov = C0 @ dir_cov @ C0.T + trust.correction_std**2 * (np.eye(3) - np.outer(u, u))
@@ -711,7 +690,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 else:
                     if res.has_rotation and ekf.has_clone:
                         # noise from this pair's own fit (inliers, residuals, parallax), not a constant
-                        rot_std, dir_std = vo_noise(res, rec.rolling_shutter_s > 0)
+                        rot_std, dir_std = vo_noise(res)
                         # features that do not move mean "standing" only if the IMU agrees and
                         # the filter is slow: a far scene (highway, drone) barely moves either
                         imu_quiet = (not use_imu) or bool(

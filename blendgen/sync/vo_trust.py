@@ -32,18 +32,10 @@ VO_DIR_INFLATE = 3.5
 VO_ROT_FLOOR = np.radians(0.08)
 VO_DIR_FLOOR = np.radians(0.5)
 VO_ROT_NO_COV = 0.003             # rad: a pair without a fit covariance (should not happen)
-# rolling-shutter frames (calib camera.rolling_shutter_s > 0): the direction of travel has a
-# bias no residual shows (KLT, 10 fps, 30 ms readout, shake, photometry: 0.29-0.34 deg downward,
-# corrected or not). Once the rows are corrected (vo.rs_bearings) the pairs' scatter and
-# residuals shrink (direction std 1.65 -> 0.63 deg), the biased direction is trusted more and
-# pulls the camera's roll (60 s drive, 10 fps: 0.08 -> 0.19 deg). This much more direction noise
-# on such frames: rotation 0.106 -> 0.071 deg at 10 fps, 0.078 -> 0.067 at 5 fps (docs/sync.md)
-VO_DIR_RS = np.radians(1.0)
 
 
-def vo_noise(res: VoResult, rolling_shutter: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-    """(3x3 rotation covariance, 3x3 direction covariance or None) for a VO pair;
-    `rolling_shutter`: the frames have a readout time (more direction noise, VO_DIR_RS)."""
+def vo_noise(res: VoResult) -> tuple[np.ndarray, np.ndarray | None]:
+    """(3x3 rotation covariance, 3x3 direction covariance or None) for a VO pair."""
     if res.rot_cov is not None:
         rot = VO_ROT_INFLATE**2 * res.rot_cov + VO_ROT_FLOOR**2 * np.eye(3)
     else:
@@ -53,8 +45,7 @@ def vo_noise(res: VoResult, rolling_shutter: bool = False) -> tuple[np.ndarray, 
     u = np.asarray(res.u_dir, dtype=float)
     tangent = np.eye(3) - np.outer(u, u)
     dcov = res.dir_cov if res.dir_cov is not None else np.radians(0.7) ** 2 * tangent
-    floor = VO_DIR_FLOOR**2 + (VO_DIR_RS**2 if rolling_shutter else 0.0)
-    return rot, VO_DIR_INFLATE**2 * dcov + floor * tangent
+    return rot, VO_DIR_INFLATE**2 * dcov + VO_DIR_FLOOR**2 * tangent
 
 
 # ----------------------------------------------------------------------------- gyro checks

@@ -86,17 +86,24 @@ VARIANTS = {"none": (), "all": PHOTOMETRY_PARTS, **{p: (p,) for p in PHOTOMETRY_
             "vig+flicker": ("vignetting", "flicker")}
 
 
-def timing() -> None:
+def timing(rounds: int = 4) -> None:
     from bench_vo import run, sequence
 
     cam, poses, imgs = sequence(StreetScene(), 960, 540, 25.0, 40)
     for name, parts in (("no photometry", ()), ("photometry", PHOTOMETRY_PARTS)):
         frames = photometry(imgs, parts, 0)
-        for norm in ("off", "gain", "off", "gain"):  # twice, interleaved: the machine is shared
-            r = run(cam, poses, frames, VoConfig(method="klt", photo_norm=norm))
-            print(f"  960x540 KLT 1500, {name:14s} photo_norm {norm:4s}: {r['ms']:.1f} ms/frame ({r['fps']:.0f} fps), "
-                  f"rot median {r['rot_med']:.4f} deg, dir median {r['dir_med']:.3f} deg, ok {r['ok']}/{r['pairs']}",
-                  flush=True)
+        ms = {"off": [], "gain": []}
+        for _ in range(rounds):  # interleaved: the machine is shared, its load changes
+            for norm in ms:
+                r = run(cam, poses, frames, VoConfig(method="klt", photo_norm=norm))
+                ms[norm].append(r["ms"])
+        for norm, v in ms.items():
+            print(f"  960x540 KLT 1500, {name:14s} photo_norm {norm:4s}: best {min(v):.1f} ms/frame "
+                  f"({1e3 / min(v):.0f} fps), rounds {' '.join(f'{x:.1f}' for x in v)}", flush=True)
+        for norm in ms:
+            r = run(cam, poses, frames, VoConfig(method="klt", photo_norm=norm), reps=1)
+            print(f"    {norm}: rot median {r['rot_med']:.4f} deg, dir median {r['dir_med']:.3f} deg, "
+                  f"ok {r['ok']}/{r['pairs']}", flush=True)
 
 
 def main() -> None:

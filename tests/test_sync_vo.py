@@ -161,7 +161,7 @@ def test_orb_keypoints_map_to_full_resolution_exactly(scene):
 
 def test_klt_direction_unbiased_under_exposure_flicker(scene):
     """Exposure flicker breaks LK's brightness constancy: on a 10 fps forward drive with the
-    gain alternating +-8 % between frames, KLT's direction of travel tilts down by ~1 deg
+    gain alternating +-8 % between frames, KLT's direction of travel tilts down by ~1.4 deg
     (docs/sync.md "VO under real-camera photometry"); the default photo_norm "gain" estimates
     the gain change and removes the bias, to what the same frames give without flicker."""
     from blendgen.sync.simulate import make_trajectory, default_T_cam_imu

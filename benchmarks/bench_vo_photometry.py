@@ -3,7 +3,10 @@ photometric normalisation removes it (issue 14, docs/sync.md "VO under real-came
 
     PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo_photometry.py [--fps 10]
         [--duration 20] [--shake 0.3] [--readout 0] [--method klt|orb] [--seed 0]
-        [--variants none,flicker,vignetting,gamma,jpeg,all] [--norm off,on]
+        [--variants none,flicker,vignetting,gamma,jpeg,all] [--norm off,gain]
+    ... --timing                      (960x540 CPU ms per frame, off / gain)
+    ... --sync rs|hard|easy [--seed S] [--fps 10] [--norm off,gain] [--method klt,orb]
+                                      (the 60 s drive through the full sync)
 
 The drive of bench_sync.py (480x270, 70 deg) is rendered once without photometry
 (`synthetic_recording(..., photometric=False)`); each variant then applies some of
@@ -106,6 +109,45 @@ def timing(rounds: int = 4) -> None:
                   f"ok {r['ok']}/{r['pairs']}", flush=True)
 
 
+def full_sync(kind: str, seed: int, fps: float, norms, methods=("klt",)) -> None:
+    """The 60 s drive through the full sync (twin road + camera_height_m, as bench_sync's
+    rolling-shutter rows): kind rs (30 ms readout, 0.3 deg shake, photometry), hard
+    (simulate.hard_recording) or easy (no photometry); per VoConfig.photo_norm and front end."""
+    import dataclasses
+    import tempfile
+
+    from blendgen.job.schema import Sync
+    from blendgen.sync import pipeline, so3
+    from blendgen.sync.metrics import trajectory_errors
+    from blendgen.sync.simulate import GEOREF, hard_recording
+
+    if kind == "hard":
+        rec, _, _ = hard_recording(60.0, scene=StreetScene(), fps=fps, seed=seed)
+    else:
+        kw = dict(rolling_shutter_s=0.03, shake_deg=0.3, photometric=True) if kind == "rs" else {}
+        rec, _, _ = synthetic_recording("drive", 60.0, fps=fps, scene=StreetScene(), seed=seed, **kw)
+    rec.extra["vehicle"] = {"camera_height_m": 1.5}
+    ref = gt_poses(rec.groundtruth)
+    orig = pipeline._vo_config
+    for method in methods:
+        for norm in norms:
+            pipeline._vo_config = lambda *a, _n=norm, **k: dataclasses.replace(orig(*a, **k), photo_norm=_n)
+            c0 = time.process_time()
+            try:
+                with tempfile.TemporaryDirectory() as d:
+                    res = pipeline.run_sync(rec, Sync(vo_method=method), Path(d), georef=GEOREF, progress=False,
+                                            road_surface=lambda p: np.zeros(len(np.atleast_2d(p))))
+            finally:
+                pipeline._vo_config = orig
+            est = [p[2] for p in res.poses]
+            a = trajectory_errors(est, ref, camera=rec.camera.scaled(1280, 720))
+            e = np.degrees(np.abs([so3.log(g[:3, :3].T @ x[:3, :3]) for g, x in zip(ref, est)]))
+            print(f"  {kind} seed {seed} {fps:g} fps {method} photo_norm {norm:4s}: rotation median "
+                  f"{a['rot_median_deg']:.3f} deg (camera x/y/z {np.median(e[:, 0]):.3f}/{np.median(e[:, 1]):.3f}/"
+                  f"{np.median(e[:, 2]):.3f}) ATE {a['ate_rmse_m']:.3f} m 20 m point {a['reproj_median_px']:.2f} px "
+                  f"rejected {res.summary.get('rejected')} CPU {time.process_time() - c0:.0f} s", flush=True)
+
+
 def main() -> None:
     cv2.setNumThreads(1)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -122,7 +164,13 @@ def main() -> None:
     ap.add_argument("--timing", action="store_true",
                     help="instead: CPU ms per frame at 960x540, 25 fps (bench_vo.py's case A, 40 frames, best of 3 "
                          "medians), photo_norm off / gain, frames without and with photometry")
+    ap.add_argument("--sync", choices=("rs", "hard", "easy"), default=None,
+                    help="instead: the 60 s drive through the full sync, photo_norm per --norm, front ends "
+                         "per --method (comma-separated)")
     args = ap.parse_args()
+    if args.sync:
+        full_sync(args.sync, args.seed, args.fps, args.norm.split(","), args.method.split(","))
+        return
     if args.sigmas is not None:
         import blendgen.sync.vo as vo_mod
 

@@ -56,9 +56,9 @@ class VoConfig:
     klt_iters: int = 10                    # LK iterations per level
     klt_fast_threshold: int = 20           # FAST threshold for new corners (halved where a cell finds none)
     # KLT under exposure changes: "gain" scales the previous frame by the frame-to-frame exposure
-    # gain before LK (bench_vo_photometry.py: 10 fps drive with real-camera photometry, direction
-    # of travel bias 0.34 -> 0.09 deg down, as without photometry; 0.4 ms a frame at 960x540);
-    # "off", or the local normalisations of photo_normalise (unbiased too, but 30 % noisier)
+    # gain, where significant, before LK (bench_vo_photometry.py: 10 fps drive with real-camera
+    # photometry, direction of travel bias 0.34 -> 0.09 deg down, as without photometry; 0.3 ms
+    # a frame at 960x540); "off", or photo_normalise's local modes (unbiased too, 30 % noisier)
     photo_norm: str = "gain"
     photo_norm_box: int = 16               # photo_normalise's local mean over a box of width / this
 
@@ -249,11 +249,13 @@ def frame_gain(b0: np.ndarray, b1: np.ndarray) -> tuple[float, float]:
 def photo_normalise(gray: np.ndarray, mode: str, box_div: int = 16) -> np.ndarray:
     """A uint8 image for Lucas-Kanade that is (locally) insensitive to brightness changes.
 
-    LK assumes brightness constancy. A real camera breaks it per patch: exposure flicker scales
-    the whole frame, and with vignetting a feature that moves outward gets darker. A patch whose
-    gain changes by g pulls LK's solution by (g - 1) G^-1 sum grad(I^2) over the window, and
-    vignetting's own inward gradient makes that pull radial, i.e. along the focus of expansion
-    (docs/sync.md, "VO under real-camera photometry"). Modes:
+    LK assumes brightness constancy. A patch whose gain changes by g between the frames pulls
+    LK's solution by (g - 1) G^-1 sum grad(I^2) over the window; exposure flicker does that to
+    every patch at once and tilted KLT's direction of travel down by 0.3 deg on the synthetic
+    drive (vignetting, a per-patch gain change for a feature moving outward, did not measurably;
+    docs/sync.md, "VO under real-camera photometry"). "gain" (the default) undoes the frame's
+    gain in KltVo.track; these local modes undo any gain that is constant over the box, at
+    ~30 % more direction scatter:
       ratio  I / local mean (x128): gain-invariant where the gain is constant over the box;
       hp     I - local mean (+128): offset-invariant, and no large-scale gradient left;
       lcn    (I - local mean) / local std: gain- and offset-invariant."""

@@ -12,11 +12,13 @@ The drive of bench_sync.py (480x270, 70 deg) is rendered once without photometry
 (`synthetic_recording(..., photometric=False)`); each variant then applies some of
 `simulate.PHOTOMETRY_PARTS` to the same frames with the same random draws (the flicker's gain
 per frame), and the VO front end (KLT at >= 10 fps as the pipeline, or ORB) runs on them with
-the photometric normalisation off / on (`VoConfig.photo_norm`). Per frame pair with a full
-("ok") result, the errors against the ground truth (bench_vo_bias.pair_errors): the direction
-of travel's error as camera pan (x) / tilt (y, + = down), the relative rotation's per camera
-axis; mean +- standard error over the pairs and the pair count. CPU seconds (process time) per
-VO run; the machine is shared.
+each `--norm` value of `VoConfig.photo_norm` (off, gain, ratio, hp, lcn; `lcn:8` = a box of
+width / 8). Per frame pair with a full ("ok") result, the errors against the ground truth
+(bench_vo_bias.pair_errors): the direction of travel's error as camera pan (x) / tilt (y, + =
+down), the relative rotation's per camera axis; mean +- standard error over the pairs and the
+pair count; with flicker, the direction's fit against the pair's gain change, and for `gain`
+the applied gain against the true one. CPU seconds (process time) per VO run; the machine is
+shared.
 """
 
 from __future__ import annotations

@@ -161,7 +161,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--width", type=int, default=480)
     ap.add_argument("--variants", default="none,flicker,vignetting,gamma,jpeg,all")
-    ap.add_argument("--norm", default="off,gain", help="VoConfig.photo_norm values to run (mode[:box divisor])")
+    ap.add_argument("--norm", default="off,gain",
+                    help="VoConfig.photo_norm values to run: mode[:box divisor] or mode:key=value+key=value "
+                         "(other VoConfig fields, e.g. off:klt_win=21)")
     ap.add_argument("--sigmas", type=float, default=None, help="vo.GAIN_SIGMAS for this run")
     ap.add_argument("--timing", action="store_true",
                     help="instead: CPU ms per frame at 960x540, 25 fps (bench_vo.py's case A, 40 frames, best of 3 "
@@ -193,12 +195,14 @@ def main() -> None:
     for name in args.variants.split(","):
         imgs = photometry(base, VARIANTS[name], args.seed)
         for norm in args.norm.split(","):
-            mode, _, box = norm.partition(":")  # e.g. lcn:8 -> a box of width / 8
-            cfg = VoConfig(method=args.method, photo_norm=mode, **({"photo_norm_box": int(box)} if box else {}))
+            mode, _, rest = norm.partition(":")  # lcn:8 -> a box of width / 8; off:klt_win=21+klt_levels=2
+            extra = {"photo_norm_box": int(rest)} if rest.isdigit() else {
+                k: type(getattr(VoConfig, k))(v) for k, v in (kv.split("=") for kv in rest.split("+") if kv)}
+            cfg = VoConfig(method=args.method, photo_norm=mode, **extra)
             res, cpu, vo = run_vo(rec.camera, imgs, cfg)
             s = summarise(res, gt, gains(len(imgs), args.seed) if "flicker" in VARIANTS[name] else None)
             f = lambda k, i: f"{s[k][i]:+.3f}+-{s[k + '_se'][i]:.3f}"  # noqa: E731
-            print(f"  {name:16s} {norm:7s} {s['n']:5d}  {f('dir', 0):16s} {f('dir', 1):20s} "
+            print(f"  {name:16s} {norm:18s} {s['n']:5d}  {f('dir', 0):16s} {f('dir', 1):20s} "
                   f"{s['dir_std'][0]:.2f}/{s['dir_std'][1]:.2f}    {f('rot', 0)}  {f('rot', 1)}  {f('rot', 2)}  "
                   f"{cpu:.1f}" + (f"  dir y median {s['dir_med'][1]:+.3f}" + (f", = {s['gain_fit'][0]:+.3f} "
                   f"{s['gain_fit'][1] / 100:+.3f} per % gain change {s['gain_fit'][2] / 100:+.3f} per % of its size" if "gain_fit" in s else "")), flush=True)

@@ -50,6 +50,14 @@ def photometry(images, parts, seed: int):
     return [_camera_look(img, rng, parts) for img in images]
 
 
+def norm_fields(norm: str) -> dict:
+    """VoConfig fields of a --norm value: lcn:8 -> a box of width / 8; off:klt_win=21+klt_levels=2."""
+    mode, _, rest = norm.partition(":")
+    if rest.isdigit():
+        return {"photo_norm": mode, "photo_norm_box": int(rest)}
+    return {"photo_norm": mode, **{k: type(getattr(VoConfig, k))(v) for k, v in (kv.split("=") for kv in rest.split("+") if kv)}}
+
+
 def gains(n: int, seed: int) -> np.ndarray:
     """The flicker's gain of each frame (the draws _camera_look makes, one per frame)."""
     rng = np.random.default_rng(seed + 13)
@@ -133,7 +141,7 @@ def full_sync(kind: str, seed: int, fps: float, norms, methods=("klt",)) -> None
     orig = pipeline._vo_config
     for method in methods:
         for norm in norms:
-            pipeline._vo_config = lambda *a, _n=norm, **k: dataclasses.replace(orig(*a, **k), photo_norm=_n)
+            pipeline._vo_config = lambda *a, _f=norm_fields(norm), **k: dataclasses.replace(orig(*a, **k), **_f)
             c0 = time.process_time()
             try:
                 with tempfile.TemporaryDirectory() as d:
@@ -144,7 +152,7 @@ def full_sync(kind: str, seed: int, fps: float, norms, methods=("klt",)) -> None
             est = [p[2] for p in res.poses]
             a = trajectory_errors(est, ref, camera=rec.camera.scaled(1280, 720))
             e = np.degrees(np.abs([so3.log(g[:3, :3].T @ x[:3, :3]) for g, x in zip(ref, est)]))
-            print(f"  {kind} seed {seed} {fps:g} fps {method} photo_norm {norm:4s}: rotation median "
+            print(f"  {kind} seed {seed} {fps:g} fps {method} photo_norm {norm}: rotation median "
                   f"{a['rot_median_deg']:.3f} deg (camera x/y/z {np.median(e[:, 0]):.3f}/{np.median(e[:, 1]):.3f}/"
                   f"{np.median(e[:, 2]):.3f}) ATE {a['ate_rmse_m']:.3f} m 20 m point {a['reproj_median_px']:.2f} px "
                   f"rejected {res.summary.get('rejected')} CPU {time.process_time() - c0:.0f} s", flush=True)
@@ -195,10 +203,7 @@ def main() -> None:
     for name in args.variants.split(","):
         imgs = photometry(base, VARIANTS[name], args.seed)
         for norm in args.norm.split(","):
-            mode, _, rest = norm.partition(":")  # lcn:8 -> a box of width / 8; off:klt_win=21+klt_levels=2
-            extra = {"photo_norm_box": int(rest)} if rest.isdigit() else {
-                k: type(getattr(VoConfig, k))(v) for k, v in (kv.split("=") for kv in rest.split("+") if kv)}
-            cfg = VoConfig(method=args.method, photo_norm=mode, **extra)
+            cfg = VoConfig(method=args.method, **norm_fields(norm))
             res, cpu, vo = run_vo(rec.camera, imgs, cfg)
             s = summarise(res, gt, gains(len(imgs), args.seed) if "flicker" in VARIANTS[name] else None)
             f = lambda k, i: f"{s[k][i]:+.3f}+-{s[k + '_se'][i]:.3f}"  # noqa: E731
@@ -206,7 +211,7 @@ def main() -> None:
                   f"{s['dir_std'][0]:.2f}/{s['dir_std'][1]:.2f}    {f('rot', 0)}  {f('rot', 1)}  {f('rot', 2)}  "
                   f"{cpu:.1f}" + (f"  dir y median {s['dir_med'][1]:+.3f}" + (f", = {s['gain_fit'][0]:+.3f} "
                   f"{s['gain_fit'][1] / 100:+.3f} per % gain change {s['gain_fit'][2] / 100:+.3f} per % of its size" if "gain_fit" in s else "")), flush=True)
-            if mode == "gain":
+            if cfg.photo_norm == "gain":
                 g = gains(len(imgs), args.seed) if "flicker" in VARIANTS[name] else np.ones(len(imgs))
                 g = g ** (1 / 1.1) if "gamma" in VARIANTS[name] else g  # the gain in the image, after gamma
                 err = 100 * (vo.gains_est[1:] / (g[1:] / g[:-1]) - 1)

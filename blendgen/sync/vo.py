@@ -223,12 +223,20 @@ def make_vo(camera: Camera, cfg: VoConfig | None = None):
 
 PHOTO_NORMS = ("off", "gain", "ratio", "hp", "lcn")
 GAIN_GRID = (16, 9)  # blocks for the frame-to-frame gain
-GAIN_SIGMAS = 3.0  # a gain is applied only this many standard errors (and 0.1 %) away from 1
+GAIN_SIGMAS = 3.0  # a gain is applied only this many standard errors away from 1
+# ... and only this far from 1: LK's pull is ~0.07 deg of direction per % of gain change, so
+# below 0.5 % it is under the pair's noise; and changes that small come from the content and
+# the codec as much as from the exposure (the GoPro clip's mean steps 0.1-0.3 % with its GOP)
+GAIN_MIN = 5e-3
 
 
 def block_means(gray: np.ndarray) -> np.ndarray:
-    """The image's mean over a GAIN_GRID of blocks (float32): what frame_gain compares."""
-    return cv2.resize(gray, GAIN_GRID, interpolation=cv2.INTER_AREA).astype(np.float32)
+    """The image's mean over a GAIN_GRID of blocks (float32): what frame_gain compares. Area
+    resize to 4x4 sub-blocks each (uint8, rounded), averaged in float: one rounded mean per
+    block would quantise a gain near mid-grey to steps of ~0.8 %."""
+    gx, gy = GAIN_GRID
+    sub = cv2.resize(gray, (4 * gx, 4 * gy), interpolation=cv2.INTER_AREA).astype(np.float32)
+    return sub.reshape(gy, 4, gx, 4).mean(axis=(1, 3))
 
 
 def frame_gain(b0: np.ndarray, b1: np.ndarray) -> tuple[float, float]:
@@ -423,7 +431,7 @@ class KltVo:
             # (only a significant one: scaling by the estimate's own noise biases LK as a flicker
             # of that size would; without flicker on a shaky drive the estimate scatters 0.5 %)
             g, se = frame_gain(blocks0, self.blocks)
-            self.gain = g if abs(np.log(g)) > max(GAIN_SIGMAS * se, 1e-3) else 1.0
+            self.gain = g if abs(np.log(g)) > max(GAIN_SIGMAS * se, GAIN_MIN) else 1.0
             if self.gain != 1.0:
                 pyr0 = cv2.convertScaleAbs(pyr0, alpha=self.gain)
         lk = dict(winSize=self.win, maxLevel=self.cfg.klt_levels, criteria=self.criteria)

@@ -250,7 +250,9 @@ def vo_method(settings, rec: Recording) -> str:
         return method
     dt = np.diff(rec.frames_t)
     fps = 1.0 / float(np.median(dt)) if len(dt) and np.median(dt) > 0 else 0.0
-    return "klt" if fps >= KLT_MIN_FPS else "orb"
+    # 1 % slack: stamps of a 10 fps camera (np.arange(0.5, 60.5, 0.1): median step 0.1 + 1.4e-15 s)
+    # must not fall to ORB by rounding (the 60 s drive at 10 fps did, the 20 s one did not)
+    return "klt" if fps >= 0.99 * KLT_MIN_FPS else "orb"
 
 
 def _vo_config(settings, rec: Recording) -> VoConfig:

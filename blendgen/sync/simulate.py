@@ -337,17 +337,34 @@ def rolling_shutter_poses(traj: Trajectory, t: float, rows: int, readout_s: floa
     return T
 
 
-def _camera_look(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+PHOTOMETRY_PARTS = ("flicker", "vignetting", "gamma", "jpeg")
+
+
+def _camera_look(img: np.ndarray, rng: np.random.Generator, parts=PHOTOMETRY_PARTS) -> np.ndarray:
     """A real camera's photometry on a rendered frame: exposure/gain flicker (+-8 %, auto
     exposure hunting), vignetting (radial falloff to ~70 % in the corners), gamma, and JPEG
-    compression at quality 75 (block artefacts and ringing that corner detectors see)."""
+    compression at quality 75 (block artefacts and ringing that corner detectors see).
+    parts: which of PHOTOMETRY_PARTS to apply (to measure each one's effect on VO); the
+    flicker's random draw is made either way, so a frame's other parts do not change."""
+    unknown = set(parts) - set(PHOTOMETRY_PARTS)
+    if unknown:
+        raise ValueError(f"unknown photometry parts {sorted(unknown)}; expected some of {PHOTOMETRY_PARTS}")
     H, W = img.shape
-    yy, xx = np.mgrid[0:H, 0:W]
-    r2 = ((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / ((W / 2) ** 2 + (H / 2) ** 2)
-    vig = (1.0 / (1.0 + 0.2 * r2)) ** 2
-    x = (img.astype(np.float32) / 255.0) * vig * (1.0 + 0.08 * rng.uniform(-1, 1))
-    x = np.clip(x, 0, 1) ** (1 / 1.1) * 255.0
-    ok, buf = cv2.imencode(".jpg", x.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 75])
+    gain = 1.0 + 0.08 * rng.uniform(-1, 1)
+    x = img.astype(np.float32) / 255.0
+    if "vignetting" in parts:
+        yy, xx = np.mgrid[0:H, 0:W]
+        r2 = ((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / ((W / 2) ** 2 + (H / 2) ** 2)
+        x = x * (1.0 / (1.0 + 0.2 * r2)) ** 2
+    if "flicker" in parts:
+        x = x * gain
+    x = np.clip(x, 0, 1)
+    if "gamma" in parts:
+        x = x ** (1 / 1.1)
+    x = (x * 255.0).astype(np.uint8)
+    if "jpeg" not in parts:
+        return x
+    ok, buf = cv2.imencode(".jpg", x, [cv2.IMWRITE_JPEG_QUALITY, 75])
     return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
 
 
@@ -395,7 +412,7 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
                         scene: StreetScene | None = None, imu_mount_rpy_deg=(0.0, 0.0, 0.0),
                         shake_deg: float = 0.0, stabilise_s: float | None = None, margin: float = 0.12,
                         imu_errors: ImuErrors | None = None, gnss_errors: dict | None = None,
-                        rolling_shutter_s: float = 0.0, photometric: bool = False,
+                        rolling_shutter_s: float = 0.0, photometric=False,
                         cam_time_offset_s: float = 0.0):
     """An in-memory Recording (images kept in `rec.extra['images']`) and its ground truth.
 
@@ -413,7 +430,8 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     gnss_errors: extra simulate_gnss arguments (gm_std_m, gm_tau_s, burst, latency_s).
     rolling_shutter_s: readout time; row r of a frame stamped t is exposed at t + r * readout / H
     (ground truth: the pose at t, the first row's). photometric: per-frame exposure flicker,
-    vignetting and JPEG compression (quality 75), as from a real camera.
+    vignetting and JPEG compression (quality 75), as from a real camera; or a sequence of some
+    of PHOTOMETRY_PARTS to apply only those.
     cam_time_offset_s: the camera clock lags the IMU's (Kalibr timeshift_cam_imu: t_imu = t_cam
     + shift): the frame stamped t is exposed at t + shift on the IMU clock; `rec` keeps the
     calib value 0 (an unknown offset). Ground truth rows: the stamp t, the pose at t + shift.
@@ -477,7 +495,7 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
             img = scene.render(cam, rolling_shutter_poses(traj, t, cam.height, rolling_shutter_s, T_body_cam)
                                if rolling_shutter_s > 0 else T_wc, rng=rng)
         if frames and photometric:
-            img = _camera_look(img, rng_p)
+            img = _camera_look(img, rng_p, PHOTOMETRY_PARTS if photometric is True else tuple(photometric))
         if frames:
             if dark_frames is not None and dark_frames[0] <= i < dark_frames[1]:
                 img = np.clip(rng.normal(3, 1.5, img.shape), 0, 255).astype(np.uint8)  # lens cap

@@ -48,7 +48,7 @@ def cmd_run(args) -> int:
         if v is not None and v < 1:
             raise UserError(f"--{name} must be at least 1, got {v}")
     job = load_job(args.job)
-    _warn_gpu_kernels(job)
+    _warn_gpu_kernels(job, args.engine)
     runner = Runner(job, engine=args.engine, workers=args.workers, chunk=args.chunk,
                     address=args.address, progress=not args.quiet)
     summary = runner.run()
@@ -56,10 +56,10 @@ def cmd_run(args) -> int:
     return FRAMES_FAILED_EXIT if summary["frames"]["failed"] else 0
 
 
-def _warn_gpu_kernels(job) -> None:
-    """A GPU job on a GPU that bpy ships no Cycles kernel for: the first render would sit for
-    minutes compiling one (docs/render.md "On a GPU"); say so before it starts."""
-    if job.render.device != "GPU" or job.farm.engine != "local":
+def _warn_gpu_kernels(job, engine: str | None = None) -> None:
+    """A GPU job rendered here on a GPU that bpy ships no Cycles kernel for: the first render
+    would sit for minutes compiling one (docs/render.md "On a GPU"); say so before it starts."""
+    if job.render.device != "GPU" or (engine or job.farm.engine) != "local":
         return
     from blendgen.render.gpu_kernels import missing_archs
 

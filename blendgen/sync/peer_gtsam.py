@@ -147,10 +147,6 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
     return _interp_cam(np.array(times), Ts, np.asarray(out_t), invert_pose(rec.T_cam_imu))
 
 
-def _skew(a):
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-
-
 def _road_factor(gtsam, key, road, p_bc):
     """Camera height above the road: r = z_cam - z_road(xy_cam) - h. Pose3's tangent is
     [rotation, translation] in the body frame, so d p_cam = -R [p_bc]x dw + R dv."""
@@ -165,7 +161,7 @@ def _road_factor(gtsam, key, road, p_bc):
                 H[0] = np.zeros((1, 6))
             return np.zeros(1)
         z, _, grad = tgt
-        J = np.hstack([-R @ _skew(p_bc), R])
+        J = np.hstack([-R @ so3.hat(p_bc), R])
         if H is not None:
             H[0] = (J[2] - grad @ J[:2])[None, :]
         return np.array([q[2] - z])
@@ -186,10 +182,11 @@ def _nhc_factor(gtsam, xkey, vkey, R_vb=None, mount_key=None):
         M = values.atRot3(this.keys()[2]).matrix() if mount_key is not None else M_fixed
         vb = R.T @ v
         if H is not None:
-            H[0] = np.hstack([(M @ _skew(vb))[1:3], np.zeros((2, 3))])
+            Mv = (M @ so3.hat(vb))[1:3]
+            H[0] = np.hstack([Mv, np.zeros((2, 3))])
             H[1] = (M @ R.T)[1:3]
             if mount_key is not None:
-                H[2] = -(M @ _skew(vb))[1:3]
+                H[2] = -Mv
         return (M @ vb)[1:3]
 
     return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([NHC_LAT_STD, NHC_UP_STD])), keys, err)
@@ -204,7 +201,7 @@ def _level_factor(gtsam, xkey, mount_key):
         R = values.atPose3(this.keys()[0]).rotation().matrix()
         y_b = values.atRot3(this.keys()[1]).matrix().T @ e_y
         if H is not None:
-            J = (R @ _skew(y_b))[2]
+            J = (R @ so3.hat(y_b))[2]
             H[0] = np.hstack([-J, np.zeros(3)])[None, :]
             H[1] = J[None, :]
         return np.array([(R @ y_b)[2]])

@@ -418,13 +418,12 @@ class KltVo:
         small = self._small(gray)
         # (OpenCV's Python binding cannot take prebuilt pyramids: each LK call builds its own)
         pyr = photo_normalise(small, self.cfg.photo_norm, self.cfg.photo_norm_box)
+        blocks0, self.blocks = self.blocks, block_means(small) if self.cfg.photo_norm == "gain" else None
         if prev is None or len(prev[2]) == 0:
             pts = self._replenish(small, np.zeros((0, 2), np.float32))
             self.prev = (gray, pyr, pts)
-            self.blocks = block_means(small) if self.cfg.photo_norm == "gain" else None
             return VoResult("first" if prev is None else "few_features", n_features=len(pts))
         _, pyr0, p0 = prev
-        blocks0, self.blocks = self.blocks, block_means(small) if self.cfg.photo_norm == "gain" else None
         if blocks0 is not None and self.blocks is not None:
             # exposure changed between the frames: bring the previous frame to this one's gain,
             # LK assumes constant brightness (docs/sync.md "VO under real-camera photometry")

@@ -239,6 +239,34 @@ def test_bad_plans_are_rejected_with_the_field_named():
     assert len(patches) == 1 and np.all(np.isfinite(patches[0]))
 
 
+
+def test_catcher_patches_never_overlap_on_one_ground():
+    import cv2
+
+    sun = fx.sun_direction(SUN)
+    person = PlacedObject(2, "person", (15.2, 0.4, 0.0), 0.0, (0.6, 0.5, 1.7))
+    (merged,) = fx.catcher_patches([car(1, 15, 0), person], sun)  # footprints overlap: one patch
+    for obj in (car(1, 15, 0), person):
+        for p in obj.box_corners_world()[:, :2]:
+            assert cv2.pointPolygonTest(merged[:, :2].astype(np.float32), tuple(map(float, p)), False) > 0
+    # A chain: each merge can make the hull reach the next one.
+    chain = fx.catcher_patches([car(i, 15, 2.3 * i) for i in range(1, 5)] + [car(9, 40, -10)], sun)
+    assert len(chain) == 2
+    polys = [c[:, :2].astype(np.float32) for c in chain]
+    assert cv2.intersectConvexConvex(polys[0], polys[1])[0] == 0
+    # Apart, or one above the other (a rider on a raised platform): each keeps its own.
+    assert len(fx.catcher_patches([car(1, 15, 0), car(2, 15, 6)], sun)) == 2
+    raised = PlacedObject(3, "person", (15.0, 0.0, 0.5), 0.0, (0.6, 0.5, 1.7))
+    assert sorted(round(p[0, 2], 2) for p in fx.catcher_patches([car(1, 15, 0), raised], sun)) == [0.0, 0.5]
+
+
+def test_catcher_lift_small_but_above_float_precision():
+    assert fx.catcher_lift_m(np.array([[10.0, 5.0, 0.0]])) == pytest.approx(2e-4)
+    far = np.array([[30000.0, 100.0, 0.0]], np.float32)  # a twin far from its origin
+    lift = fx.catcher_lift_m(far)
+    assert lift > 2e-4 and np.float32(far[0, 0]) + np.float32(lift) > np.float32(far[0, 0])
+    assert lift >= 8 * np.spacing(np.float32(30000.0))
+
 def test_rider_shadow_is_caught_on_the_road_not_at_the_pegs():
     # A rider's box starts at the pegs (~0.2 m up): a catcher patch there cut the bike's
     # wheels out of the render (the patch hid everything below it) and lifted its shadow.

@@ -301,8 +301,7 @@ class RenderSession:
         verts, faces = [], []
         for poly in polygons:
             faces.append(tuple(range(len(verts), len(verts) + len(poly))))
-            # 2 mm above the ground it covers, so camera rays meet the patch, not both.
-            verts.extend((float(x), float(y), float(z) + 0.002) for x, y, z in poly)
+            verts.extend((float(x), float(y), float(z) + fx.catcher_lift_m(poly)) for x, y, z in poly)
         me.from_pydata(verts, [], faces)
         me.update()
         self._catcher.hide_render = False

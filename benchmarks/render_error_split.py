@@ -6,7 +6,8 @@ object edges and shadow pixels, and measures how much each pass costs: the frame
 reference's alpha or the reference's shadow-catcher pass swapped in, and the catcher pass's
 signed error on the shadow pixels (a bias stays put as samples grow; noise does not), and the
 share of that error on shadow pixels no catcher patch covers (the faint sky occlusion farther
-out than the patch margin, which then reads 1). With --ground the same frame with shadows caught on the whole ground inside blendgen's regions.
+out than the patch margin, which then reads 1). With --ground the same frame with shadows
+caught on the whole ground inside blendgen's regions.
 
     PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/render_error_split.py [--samples 16 64] [--ground]
 """

@@ -239,7 +239,6 @@ def test_bad_plans_are_rejected_with_the_field_named():
     assert len(patches) == 1 and np.all(np.isfinite(patches[0]))
 
 
-
 def test_catcher_patches_never_overlap_on_one_ground():
     import cv2
 
@@ -266,6 +265,7 @@ def test_catcher_lift_small_but_above_float_precision():
     lift = fx.catcher_lift_m(far)
     assert lift > 2e-4 and np.float32(far[0, 0]) + np.float32(lift) > np.float32(far[0, 0])
     assert lift >= 8 * np.spacing(np.float32(30000.0))
+
 
 def test_rider_shadow_is_caught_on_the_road_not_at_the_pegs():
     # A rider's box starts at the pegs (~0.2 m up): a catcher patch there cut the bike's

@@ -284,11 +284,10 @@ def catcher_patches(objects, sun_dir: np.ndarray | None, margin_m: float | None 
 
 
 def catcher_lift_m(poly: np.ndarray) -> float:
-    """How far above the ground a catcher patch lies. Coplanar with the ground's faces the
-    objects' pixels were 5 dB off the reference; at 2 mm the sharp shadow
-    edges moved by a fifth of a pixel at 14 m (their pixels 1.3 dB off the render that
-    catches on the ground, docs/render.md). 0.2 mm, or 8 float32 steps of the coordinates
-    far from the origin."""
+    """How far above the ground a catcher patch lies: 0.2 mm, or 8 float32 steps of
+    coordinates far from the origin. Coplanar with the ground's faces the objects' pixels
+    were 5 dB off the reference; at 2 mm the sharp shadow edges moved by a fifth of a pixel
+    at 14 m (the shadow pixels 1.3 dB off, docs/render.md)."""
     return max(2e-4, 1e-6 * float(np.abs(poly).max()))
 
 

@@ -148,7 +148,7 @@ def lamp(color, strength):
 # vehicle lamps: (lens colour, emission colour, strength off, strength on); the render driver
 # switches them per frame from the plan's lighting["lights_on"] (set_vehicle_lamps)
 VEHICLE_LAMPS = {"head": ((0.8, 0.8, 0.8), (1.0, 0.93, 0.8), 0.0, 40.0),
-                 "tail": ((0.45, 0.01, 0.01), (1.0, 0.03, 0.01), 0.2, 12.0),
+                 "tail": ((0.45, 0.01, 0.01), (1.0, 0.008, 0.011), 0.2, 12.0),
                  "sign": ((0.3, 0.2, 0.05), (1.0, 0.55, 0.05), 0.5, 6.0)}
 
 

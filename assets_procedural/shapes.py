@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, loft, rot_y, rounded_section,
+from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, loft, rot_x, rot_y, rounded_section,
                                        torus, tube, xf)
 
 
@@ -576,8 +576,27 @@ def build_shape(cls: str, variant: dict, dims, state: str | None = None) -> Mesh
         traffic_light(mb, variant, L, W, H, state or "red")
     else:
         BUILDERS[cls](mb, variant, L, W, H)
+        if cls in ("bicycle", "motorcycle") and "rider" not in variant:
+            on_side_stand(mb, float(variant.get("wheel_radius", 0.33)))
     fit_to_dims(mb, dims)
     return mb
+
+
+PARKED_LEAN_DEG = 5.0  # how far a side stand holds a parked two-wheeler off vertical
+
+
+def on_side_stand(mb: MeshBuilder, r: float) -> None:
+    """A parked two-wheeler leans onto a side stand on its left (+y): an upright riderless
+    bicycle or motorcycle read as odd in real photos (the Udacity freeway shoulder). The
+    lean turns it about the line where its tyres meet the ground; `fit_to_dims` then
+    squeezes it back into its box (about 10 % narrower), so placement and labels keep the
+    catalog's box."""
+    lean = math.radians(PARKED_LEAN_DEG)
+    mb.verts = [xf(p, rot_x(-lean)) for p in mb.verts]
+    lo, hi = mb.vertices.min(0), mb.vertices.max(0)
+    x = lo[0] + 0.42 * (hi[0] - lo[0])  # just behind the middle, where the frame is low
+    top = xf([[x, 0.04, 0.8 * r]], rot_x(-lean))[0]
+    mb.add(*tube(top, [x - 0.12, top[1] + 0.15, 0.0], 0.012, 6), "chrome")  # the stand
 
 
 def part_box(cls: str, variant: dict, part: str = "all") -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,9 @@ random object set per copy) so that every object set has >= 300 labelled objects
 An *object set* is one `blendgen run` over those backgrounds (renders at the photos'
 native resolution, 16 samples + denoise, render region on, multilayer EXRs kept):
 - `procedural`: the procedural objects of this checkout (`--objects-rev REV` renders the
-  objects of another commit: its assets_procedural/ is put first on PYTHONPATH);
+  objects of another commit: its assets_procedural/ is put first on PYTHONPATH; with the
+  venv's editable install that does not take effect, and the bench stops saying so: render
+  the before set from a checkout of REV);
 - `procedural_illum_off`: the same objects rendered under the pipeline's default daylight
   and composited without light matching (`post.illumination: off`);
 - `assets`: library assets (glTF exported from Blender with sidecars) through `inject.assets`.
@@ -155,6 +157,13 @@ def render_set(name: str, recs: dict, args) -> dict[str, Path]:
                                   capture_output=True, check=True).stdout
             subprocess.run(["tar", "-x", "-C", str(old)], input=arch, check=True)
         env["PYTHONPATH"] = f"{old}{os.pathsep}{ROOT}"
+        # An editable install resolves assets_procedural to this checkout before PYTHONPATH
+        # is searched: the "before" set would silently render today's objects.
+        found = subprocess.run([sys.executable, "-c", "import assets_procedural; print(assets_procedural.__file__)"],
+                               env=env, capture_output=True, text=True).stdout.strip()
+        if not found.startswith(str(old)):
+            sys.exit(f"--objects-rev {args.objects_rev}: assets_procedural still resolves to {found} "
+                     "(editable install); render the before set from a checkout of that revision instead")
     assets = None
     if args.set == "assets":
         assets = make_assets(TMP / "assets")

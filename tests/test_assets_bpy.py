@@ -1,6 +1,5 @@
 """The bpy builders: every class (all body types) and both twins, dims and materials."""
 
-import math
 import time
 from pathlib import Path
 
@@ -221,3 +220,28 @@ def test_map_twin_road_meshes_follow_elevation(tmp_path):
     p = np.array([list(fur.matrix_world @ x.co) for x in fur.data.vertices])
     near = np.hypot(p[:, 0] - pole.position[0], p[:, 1] - pole.position[1]) < 0.3
     assert abs(p[near, 2].min() - twin.ground_height(*pole.position)) < 0.01 and p[near, 2].min() > 6.0
+
+
+def test_parked_two_wheelers_lean_on_a_side_stand():
+    from assets_procedural.shapes import PARKED_LEAN_DEG, build_shape
+    from blendgen.scene.riders import split_rider
+
+    def tyre_lean_deg(mb):
+        """Tilt of the tyres off vertical, towards +y (the side stand's side)."""
+        rubber = mb.slots.index("rubber")
+        idx = sorted({i for f, m in zip(mb.faces, mb.mat) if m == rubber for i in f})
+        v = mb.vertices[idx]
+        slope = np.polyfit(v[:, 2], v[:, 1], 1)[0]
+        return np.degrees(np.arctan(slope))
+
+    rng = np.random.default_rng(5)
+    for cls in ("bicycle", "motorcycle"):
+        v, d = next((v, d) for v, d in iter(lambda: sample_variant(cls, rng), None) if "rider" not in v)
+        mb = build_shape(cls, v, d)
+        lo, hi = mb.vertices.min(0), mb.vertices.max(0)
+        np.testing.assert_allclose(hi - lo, d, atol=1e-6)  # still exactly its catalog box
+        assert 0.7 * PARKED_LEAN_DEG < tyre_lean_deg(mb) < 1.1 * PARKED_LEAN_DEG, cls
+        # a ridden one stays upright
+        v, d = next((v, d) for v, d in iter(lambda: sample_variant(cls, rng), None) if "rider" in v)
+        vehicle, _ = split_rider(PlacedObject(20, cls, (5.0, 1.0, 0.0), 0.4, d, v), 21)
+        assert abs(tyre_lean_deg(build_shape(cls, vehicle.variant, vehicle.dims))) < 0.5, cls

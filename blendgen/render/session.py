@@ -301,7 +301,8 @@ class RenderSession:
         verts, faces = [], []
         for poly in polygons:
             faces.append(tuple(range(len(verts), len(verts) + len(poly))))
-            verts.extend((float(x), float(y), float(z) + fx.catcher_lift_m(poly)) for x, y, z in poly)
+            lift = fx.catcher_lift_m(poly)
+            verts.extend((float(x), float(y), float(z) + lift) for x, y, z in poly)
         me.from_pydata(verts, [], faces)
         me.update()
         self._catcher.hide_render = False

@@ -15,14 +15,16 @@
    feature count (accuracy per setting: benchmarks/bench_vo.py).
 3. comma2k19 (real IMU + GNSS, if ../shared/data is there): blendgen vs GTSAM vs raw GNSS; the
    peer as before and given blendgen's estimates (GNSS latency, fix-noise scale, height
-   correlation, vehicle frame for no-sideslip). `--section comma` runs only this.
+   correlation, vehicle frame for no-sideslip, the CAN speed with blendgen's odometer scale and
+   latency); blendgen with and without the odometer. `--section comma` runs only this.
 4. A shaky drive with electronically stabilised frames: camera orientation vs the image's,
    with the gyro checks, IMU + GNSS alone, and VO taken as rigid (before issue 14).
 5. Easy vs hard synthetic drive (`simulate.hard_recording`: IMU noise 2.5x the filter's density,
    bias random walks 5x, scale/misalignment, Gauss-Markov GNSS with a multipath burst, rolling
-   shutter, shake, camera photometry): blendgen with and without the twin's road height, and
-   the GTSAM peer with the same vehicle information (road height, no-sideslip). `--section
-   hard` runs only this and prints its table (nothing written).
+   shutter, shake, camera photometry): blendgen with and without the twin's road height and a
+   simulated CAN odometer (ODO_SIM), and the GTSAM peer with the same vehicle information (road
+   height, no-sideslip, odometer). `--section hard` runs only this and prints its table
+   (nothing written).
 
 Writes benchmarks/results/sync.png and docs/benchmarks/sync.md.
 """
@@ -48,7 +50,7 @@ from blendgen.job.schema import Sync  # noqa: E402
 from blendgen.sync.metrics import comma_errors, fix_offset, gt_poses, trajectory_errors  # noqa: E402
 from blendgen.sync.pipeline import SyncResult, _gnss_std, gnss_to_world, run_sync  # noqa: E402
 from blendgen.sync.simulate import (GEOREF, HARD_GNSS, HARD_GNSS_STD, StreetScene, hard_recording,  # noqa: E402
-                                    simulate_gnss, synthetic_recording)
+                                    simulate_gnss, simulate_odometer, synthetic_recording)
 from blendgen.sync.threads import single_thread_blas  # noqa: E402
 
 
@@ -152,7 +154,8 @@ def comma(quick: bool):
     with the receiver taken at its word) and the GTSAM peer, first as before (fixes at their
     stamps, 0.5 m), then given what blendgen's own sync estimated on this drive (issue 14):
     its GNSS latency, its fix-noise scale on gnss.csv's h_std_m, the fixes' height-error
-    correlation time, and the no-sideslip constraint in its estimated vehicle frame. CPU s."""
+    correlation time, the no-sideslip constraint in its estimated vehicle frame, and the car's CAN
+    speed (speed.csv) with blendgen's estimated odometer scale and latency. CPU s."""
     seg = DATA / "comma2k19_example1_segment40"
     if not seg.exists():
         print("  comma2k19 not found: skipped (needs ../shared/data/real/comma2k19_example1_segment40)")
@@ -162,7 +165,7 @@ def comma(quick: bool):
     from blendgen.geometry import pose_from_xyz_quat
     from blendgen.recording.folder import read_recording
     from blendgen.recording.importers.comma2k19 import groundtruth_georef, import_comma2k19
-    from blendgen.sync.calibration import describe
+    from blendgen.sync.calibration import describe, read_priors
 
     out = {}
     with tempfile.TemporaryDirectory() as d:
@@ -179,6 +182,11 @@ def comma(quick: bool):
         c0 = time.process_time()
         res_a = run_sync(rec_a, Sync(), Path(d) / "out_stated", georef=georef, progress=False)
         out["blendgen, gnss as stated (latency 0)"] = (time.process_time() - c0, comma_errors(res_a, rec_a, georef))
+        # the CAN speed the importer writes as speed.csv (the car's odometer), left out
+        c0 = time.process_time()
+        res_n = run_sync(rec, Sync(use_speed=False), Path(d) / "out_no_speed", georef=georef, progress=False)
+        out["blendgen without the odometer (use_speed: false)"] = (time.process_time() - c0,
+                                                                   comma_errors(res_n, rec, georef))
         cal = res.summary["calibration"]
         print(f"  comma2k19: {describe(cal)}; fix height correlation {res.summary['gnss_height_corr_s']} s")
         # what the fixes themselves allow: their constant offset from the ground truth (issue 14)
@@ -218,7 +226,11 @@ def comma(quick: bool):
                      ("GTSAM + all that + no-sideslip in blendgen's vehicle frame", stated,
                       {**same, **corr, "nhc": np.asarray(cal["imu_to_vehicle_R"])}),
                      ("GTSAM + all that + no-sideslip, the mount its own state (blendgen's prior)", stated,
-                      {**same, **corr, "nhc": R_vb0, "mount_std_deg": DEFAULT_MOUNT_STD_DEG, "info": mount_info})]
+                      {**same, **corr, "nhc": R_vb0, "mount_std_deg": DEFAULT_MOUNT_STD_DEG, "info": mount_info}),
+                     ("GTSAM + all that + odometer (blendgen's scale and latency)", stated,
+                      {**same, **corr, "nhc": R_vb0, "mount_std_deg": DEFAULT_MOUNT_STD_DEG,
+                       "odometer": (rec.speed, read_priors(rec).speed_std_mps, cal["speed_scale"],
+                                    cal["speed_latency_s"])})]
             for name, g_std, kw in peers:
                 c0 = time.process_time()
                 with single_thread_blas():
@@ -303,6 +315,12 @@ HARD_HEADER = ["| drive | variant | CPU s | ATE (m) | ATE4 (m) | ATE horiz. (m) 
                "| rot (deg) | px | px4 |", "|---|---|---|---|---|---|---|---|---|---|---|"]
 
 
+# a CAN wheel speed like comma2k19's (scale 0.991, ~0.04 s early, 0.04 m/s about the truth)
+ODO_SIM = {"scale": 0.99, "latency_s": -0.04, "noise_mps": 0.03}
+ODO_STD = 0.1  # calib.yaml vehicle.speed_std_mps default, as blendgen's filter uses it
+ODO_ROW = "blendgen full + twin road + camera_height_m + odometer"
+
+
 def hard(quick: bool):
     """Easy vs hard synthetic drive: ours (with/without twin road height, with/without VO) and the
     GTSAM peer (as before, + no-sideslip, + road height). CPU seconds per run."""
@@ -332,24 +350,37 @@ def hard(quick: bool):
         ref = gt_poses(rec.groundtruth)
         cam720 = rec.camera.scaled(1280, 720)
         ours = [("blendgen full (no twin)", Sync(), None), ("blendgen IMU+GNSS, no VO", Sync(use_vo=False), None),
-                ("blendgen full + twin road + camera_height_m", Sync(), flat_road)]
+                ("blendgen full + twin road + camera_height_m", Sync(), flat_road),
+                (ODO_ROW, Sync(), flat_road)]
+        odo = simulate_odometer(traj, **ODO_SIM)
         g_t, g_xyz, *_ = gnss_to_world(rec, None, GEOREF)
         t0 = rec.imu[0, 0]
         x0 = (traj.position(t0), traj.velocity(t0), traj.R(t0)[0])
+        road = {"nhc": True, "road": (flat_road, 1.5)}
         peers = [("GTSAM IMU+GPS (as before)", {}), ("GTSAM + no-sideslip", {"nhc": True}),
-                 ("GTSAM + no-sideslip + road height + camera_height_m", {"nhc": True, "road": (flat_road, 1.5)})]
+                 ("GTSAM + no-sideslip + road height + camera_height_m", road),
+                 ("GTSAM + that + odometer (blendgen's scale and latency)", road)]
+        odo_cal = {}
         for name, s, surface in ours + [(n, kw, "peer") for n, kw in peers]:
             c0 = time.process_time()
             if surface == "peer":
+                if "odometer" in name:  # what blendgen estimated from the same readings
+                    s = {**s, "odometer": (odo, ODO_STD, odo_cal["speed_scale"], odo_cal["speed_latency_s"])}
                 with single_thread_blas():
                     est = run_gtsam(rec, g_t, g_xyz, 1.0, rec.frames_t, x0, **s)
             else:
                 rec.extra.pop("vehicle", None)
+                rec.speed = odo if name == ODO_ROW else np.zeros((0, 2))
                 if surface is not None:
                     rec.extra["vehicle"] = {"camera_height_m": 1.5}
                 with tempfile.TemporaryDirectory() as d:
                     res = run_sync(rec, s, Path(d), georef=GEOREF, progress=False, road_surface=surface)
                 est = [p[2] for p in res.poses]
+                if name == ODO_ROW:
+                    odo_cal = res.summary["calibration"]
+                    print(f"    odometer: scale {odo_cal['speed_scale']:.4f} +- {odo_cal['speed_scale_std']:.4f} "
+                          f"(truth {1 / ODO_SIM['scale']:.4f}), latency {odo_cal['speed_latency_s']:+.3f} +- "
+                          f"{odo_cal['speed_latency_std_s']:.3f} s (truth {ODO_SIM['latency_s']:+.3f})")
                 print(f"    updates {res.summary.get('updates')} rejected {res.summary.get('rejected')}")
             cpu = time.process_time() - c0
             m = _metrics(est, ref, cam720)

@@ -31,6 +31,8 @@ def test_streams(rec):
     assert len(rec.gnss) == 579 and rec.gnss_columns == ["t", "lat", "lon", "alt", "h_std_m"]
     assert len(rec.groundtruth) == 1200 and np.all(np.isfinite(rec.groundtruth))
     assert rec.utc(rec.imu[0, 0]).isoformat().startswith("2018-08-02")
+    # the car's CAN speed as the odometer (speed.csv), about the ground truth's speed
+    assert len(rec.speed) == 4974 and 7.9 < rec.speed[:, 1].min() and rec.speed[:, 1].max() < 20.0
 
 
 def test_groundtruth_frame(rec):

@@ -39,14 +39,18 @@ def test_peer_factor_jacobians():
     vals.insert(X(0), gtsam.Pose3(gtsam.Rot3.Ypr(0.3, 0.05, -0.02), gtsam.Point3(3, 4, 1.4)))
     vals.insert(V(0), np.array([7.0, 1.0, 0.3]))
     _numeric_check(pg._road_factor(gtsam, X(0), road, np.array([1.2, 0.1, 0.3])), vals, [X(0)], [6])
-    _numeric_check(pg._nhc_factor(gtsam, X(0), V(0)), vals, [X(0), V(0)], [6, 3])
+    nhc = ([1, 2], np.zeros(2), [0.3, 0.1])
+    _numeric_check(pg._vehicle_velocity_factor(gtsam, X(0), V(0), *nhc), vals, [X(0), V(0)], [6, 3])
     # in a vehicle frame tilted against the IMU (blendgen's estimated mount)
     R_vb = gtsam.Rot3.Ypr(0.02, -0.065, 0.9).matrix()
-    _numeric_check(pg._nhc_factor(gtsam, X(0), V(0), R_vb), vals, [X(0), V(0)], [6, 3])
+    _numeric_check(pg._vehicle_velocity_factor(gtsam, X(0), V(0), *nhc, R_vb), vals, [X(0), V(0)], [6, 3])
+    odo = ([0], np.array([7.5]), [0.1])  # the odometer's forward speed
+    _numeric_check(pg._vehicle_velocity_factor(gtsam, X(0), V(0), *odo, R_vb), vals, [X(0), V(0)], [6, 3])
     # the mount as a state of its own
     m = gtsam.symbol("m", 0)
     vals.insert(m, gtsam.Rot3(R_vb))
-    _numeric_check(pg._nhc_factor(gtsam, X(0), V(0), None, m), vals, [X(0), V(0), m], [6, 3, 3])
+    _numeric_check(pg._vehicle_velocity_factor(gtsam, X(0), V(0), *nhc, None, m), vals, [X(0), V(0), m], [6, 3, 3])
+    _numeric_check(pg._vehicle_velocity_factor(gtsam, X(0), V(0), *odo, None, m), vals, [X(0), V(0), m], [6, 3, 3])
     _numeric_check(pg._level_factor(gtsam, X(0), m), vals, [X(0), None, m], [6, 0, 3])
 
 

@@ -25,6 +25,8 @@ IMU_COLUMNS = ["t", "wx", "wy", "wz", "ax", "ay", "az"]
 GT_COLUMNS = ["t", "x", "y", "z", "qw", "qx", "qy", "qz"]
 GNSS_REQUIRED = ["t", "lat", "lon", "alt"]
 GNSS_OPTIONAL = ["heading_deg", "h_std_m"]
+SPEED_COLUMNS = ["t", "speed"]
+MAX_SPEED = 150.0  # m/s: a larger odometer reading is a unit mistake (km/h, mph) or garbage
 IMU_GAP_FACTOR = 5.0  # an IMU interval this many times the median is reported as a gap
 MISSING_IMAGES = "image file(s) missing"  # the reader's issue text; `import --check` lists each image instead
 
@@ -63,6 +65,15 @@ def read_recording(root: str | Path, *, require_frames: bool = False) -> Recordi
         if bad.size:
             raise UserError(f"row {bad[0] + 2}: latitude/longitude out of range (lat {lat[bad[0]]}, "
                             f"lon {lon[bad[0]]})", where=str(gnss_path))
+    speed_path = root / "speed.csv"
+    if speed_path.exists():
+        rec.speed = _drop_nan_rows(_read_numeric_csv(speed_path, SPEED_COLUMNS, allow_nan={"speed"}),
+                                   speed_path, rec, "speed", check=[1])
+        _check_times(rec.speed[:, 0], speed_path, rec)
+        bad = np.flatnonzero((rec.speed[:, 1] < 0) | (rec.speed[:, 1] > MAX_SPEED))
+        if bad.size:
+            raise UserError(f"row {bad[0] + 2}: speed {rec.speed[bad[0], 1]!r} m/s is outside [0, {MAX_SPEED:g}] "
+                            "(the vehicle's forward speed in m/s, unsigned)", where=str(speed_path))
     gt_path = root / "groundtruth.csv"
     if gt_path.exists():
         rec.groundtruth = _read_numeric_csv(gt_path, GT_COLUMNS)
@@ -416,6 +427,11 @@ def write_imu(root: Path, imu) -> None:
 
 def write_gnss(root: Path, gnss, columns: list[str] | None = None) -> None:
     write_csv(root / "gnss.csv", columns or GNSS_REQUIRED, gnss, fmt="%.10f")
+
+
+def write_speed(root: Path, speed) -> None:
+    """speed.csv: the vehicle's forward speed (m/s) from its odometer or CAN bus."""
+    write_csv(root / "speed.csv", SPEED_COLUMNS, speed)
 
 
 def write_groundtruth(root: Path, gt) -> None:

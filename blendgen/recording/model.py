@@ -5,6 +5,7 @@ Arrays, one row per sample, all times on one clock in seconds:
   imu         (M,7)  t, wx, wy, wz, ax, ay, az   (rad/s, m/s^2, IMU frame)
   gnss        (K,C)  t, lat, lon, alt[, heading_deg][, h_std_m]  -> see gnss_columns
   groundtruth (G,8)  t, x, y, z, qw, qx, qy, qz  (T_world_cam in the twin frame)
+  speed       (S,2)  t, speed   (m/s: the vehicle's odometer / CAN wheel speed, forward, >= 0)
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ class Recording:
     gnss: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     gnss_columns: list[str] = field(default_factory=lambda: ["t", "lat", "lon", "alt"])
     groundtruth: np.ndarray | None = None
+    speed: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     extra: dict = field(default_factory=dict)  # calib.yaml keys blendgen does not interpret
     issues: list[str] = field(default_factory=list)  # handled gaps reported by the reader
 

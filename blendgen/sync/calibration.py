@@ -5,6 +5,10 @@ calib.yaml (all optional; the defaults below are the priors when a key is absent
     vehicle:
       mount_std_deg: [2.0, 5.0, 2.0]  # roll, pitch, yaw of the vehicle frame in the IMU frame
       camera_height_m: 1.45            # camera centre above the road (with a twin: road-height constraint)
+      speed_std_mps: 0.1               # odometer (speed.csv) noise of a 0.1 s mean of its readings
+      speed_scale_std: 0.02            # prior std of the odometer's scale (tyre radius), estimated
+      speed_latency_s: auto            # a reading stamped t is the speed at t - latency; `auto`:
+                                       # estimated (prior 0 +- 0.2 s; blendgen.sync.odometer)
     gnss:
       latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency;
                                        # `auto`: estimated (profile likelihood over 0..latency_max_s)
@@ -47,6 +51,10 @@ class CalibPriors:
     latency_max_s: float = 0.4
     h_std_scale: float = 1.0  # times the stated horizontal fix noise
     h_std_auto: bool = False  # `h_std_scale: auto`: measured from the innovations
+    speed_std_mps: float = 0.1  # odometer noise (speed.csv), m/s per 0.1 s mean
+    speed_scale_std: float = 0.02  # prior std of the odometer's scale factor
+    speed_latency_s: float = 0.0
+    speed_latency_auto: bool = True
 
 
 def _vec(section: dict, key: str, n: int, default, where: str) -> np.ndarray:
@@ -97,8 +105,22 @@ def read_priors(rec) -> CalibPriors:
         if not 0.0 < cam_h < 10.0:
             raise UserError(f"camera_height_m: expected metres above the road in (0, 10), got {cam_h}",
                             where=where + " vehicle")
+    sp_std = _vec(veh, "speed_std_mps", 1, 0.1, where + " vehicle")[0]
+    sp_scale = _vec(veh, "speed_scale_std", 1, 0.02, where + " vehicle")[0]
+    if not (0.0 < sp_std <= 10.0 and 0.0 <= sp_scale <= 0.5):
+        raise UserError(f"speed_std_mps / speed_scale_std: expected m/s in (0, 10] and a fraction in [0, 0.5], "
+                        f"got {sp_std} / {sp_scale}", where=where + " vehicle")
+    sl = veh.get("speed_latency_s", "auto")
+    sl_auto = isinstance(sl, str) and sl.strip().lower() == "auto"
+    if isinstance(sl, str) and not sl_auto:
+        raise UserError(f"speed_latency_s: expected seconds or 'auto', got {sl!r}", where=where + " vehicle")
+    sl = 0.0 if sl_auto else float(_vec(veh, "speed_latency_s", 1, 0.0, where + " vehicle")[0])
+    if abs(sl) > 2.0:
+        raise UserError(f"speed_latency_s: expected seconds in [-2, 2], got {sl}", where=where + " vehicle")
     return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h,
-                       latency_auto=auto, latency_max_s=float(lat_max), h_std_scale=h_scale, h_std_auto=h_auto)
+                       latency_auto=auto, latency_max_s=float(lat_max), h_std_scale=h_scale, h_std_auto=h_auto,
+                       speed_std_mps=float(sp_std), speed_scale_std=float(sp_scale), speed_latency_s=sl,
+                       speed_latency_auto=sl_auto)
 
 
 def nominal_vehicle_frame(forward_b: np.ndarray, up_b: np.ndarray) -> np.ndarray:
@@ -139,17 +161,26 @@ def describe(cal: dict) -> str:
             f" (the innovations say x{m:.3f})" if m is not None else "")
     la, ls = cal["lever_arm_m"], cal["lever_arm_std_m"]
     lever = f"[{la[0]:+.2f}, {la[1]:+.2f}, {la[2]:+.2f}] m"
-    return out + (f"; lever arm {lever} +- {max(ls):.2f} m" if max(ls) > 0 else f"; lever arm {lever} as given")
+    out += f"; lever arm {lever} +- {max(ls):.2f} m" if max(ls) > 0 else f"; lever arm {lever} as given"
+    if "speed_scale" in cal:
+        out += (f"; odometer scale {cal['speed_scale']:.4f} +- {cal['speed_scale_std']:.4f}, latency "
+                f"{cal['speed_latency_s'] * 1e3:+.0f} " + (f"+- {cal['speed_latency_std_s'] * 1e3:.0f} ms"
+                                                          if cal['speed_latency_std_s'] > 0 else "ms as given"))
+    return out
 
 
 def report(ekf_state, var: np.ndarray, R_bc: np.ndarray) -> dict:
     """The estimated calibration with 1-sigma uncertainties (from the smoothed covariance)."""
-    R_bv, tau, lever_b = ekf_state
+    R_bv, tau, lever_b, *odo = ekf_state
     sd = np.sqrt(np.maximum(var, 0.0))
-    return {
+    out = {
         "camera_mount_rpy_deg": np.round(camera_mount_angles(R_bv, R_bc), 3).tolist(),
         "mount_std_deg": np.round(np.degrees(sd[0:3]), 3).tolist(),
         "imu_to_vehicle_R": np.round(R_bv.T, 6).tolist(),
         "gnss_latency_s": round(float(tau), 4), "gnss_latency_std_s": round(float(sd[3]), 4),
         "lever_arm_m": np.round(R_bv.T @ lever_b, 3).tolist(), "lever_arm_std_m": np.round(sd[4:7], 3).tolist(),
     }
+    if odo:  # only when the recording has an odometer (speed.csv)
+        out["speed_scale"], out["speed_scale_std"] = round(float(odo[0]), 5), round(float(sd[7]), 5)
+        out["speed_latency_s"], out["speed_latency_std_s"] = round(float(odo[1]), 4), round(float(sd[8]), 4)
+    return out

@@ -27,6 +27,7 @@ def register(subparsers) -> None:
     p.add_argument("--no-imu", action="store_true", help="ignore imu.csv")
     p.add_argument("--no-vo", action="store_true", help="do not use visual odometry")
     p.add_argument("--no-gnss", action="store_true", help="ignore gnss.csv (and the LUT)")
+    p.add_argument("--no-speed", action="store_true", help="ignore speed.csv (the vehicle's odometer)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
 
@@ -45,6 +46,7 @@ def settings_from_args(args: argparse.Namespace):
     if args.reanchor_every is not None:
         kw["reanchor_every_s"] = args.reanchor_every if args.reanchor_every > 0 else None
     kw["use_imu"], kw["use_vo"], kw["use_gnss"] = not args.no_imu, not args.no_vo, not args.no_gnss
+    kw["use_speed"] = not getattr(args, "no_speed", False)
     try:
         return Sync(**kw)
     except ValidationError as e:
@@ -78,7 +80,12 @@ def _run(args: argparse.Namespace) -> int:
     upd = s.get("updates", {})
     print(f"sync: {len(res.poses)} poses -> {Path(args.out) / 'poses.csv'} in {s['seconds']:.1f} s "
           f"(VO {good}/{max(len(res.poses) - 1, 0)} pairs, GNSS {upd.get('gnss', 0)} used / "
-          f"{s.get('rejected', {}).get('gnss', 0)} rejected, {len(s.get('reader_issues', []))} reader issues)")
+          f"{s.get('rejected', {}).get('gnss', 0)} rejected, "
+          + (f"odometer {upd.get('speed', 0)} used / {s.get('rejected', {}).get('speed', 0)} rejected, "
+             if s.get("sensors", {}).get("speed") else "")
+          + f"{len(s.get('reader_issues', []))} reader issues)")
+    if "odometer_unused" in s:
+        print("sync: " + s["odometer_unused"])
     if "vo_trust" in s:
         tr = s["vo_trust"]
         print(f"sync: VO trust: {tr['trusted']} (gated against the gyro: {tr['gyro_gated']}, frozen frames: "

@@ -1,11 +1,13 @@
 """Error-state EKF: IMU propagation on SO(3), position / zero-velocity / relative-pose updates.
 
 Nominal state: position p, velocity v (world, z up), orientation R = R_world_body, gyro bias
-bg, accelerometer bias ba, and three calibration quantities that are constant over a drive:
+bg, accelerometer bias ba, and calibration quantities that are constant over a drive:
 the mounting rotation R_bv of the vehicle frame (x forward, z up: the frame in which the car
 neither slides sideways nor jumps) in the IMU body frame, the GNSS receiver latency tau (a fix
-stamped t is the antenna's position at t - tau) and the antenna lever arm (body frame).
-Error state (22): [dp, dv, dtheta, dbg, dba, dmount, dtau, dlever] with the rotation errors
+stamped t is the antenna's position at t - tau), the antenna lever arm (body frame), and the
+scale k and latency L of the vehicle's odometer (a reading stamped t is the forward speed at
+t - L divided by k).
+Error state (24): [dp, dv, dtheta, dbg, dba, dmount, dtau, dlever, dk, dL] with the rotation errors
 local to their frames, R_true = R Exp(dtheta), R_bv_true = R_bv Exp(dmount). Calibration states
 are estimated only after `enable_calibration` (else decoupled and frozen). Six more error
 entries hold a stochastic clone of (p, theta) at the last camera frame, so visual odometry
@@ -29,12 +31,13 @@ from scipy.stats import chi2
 from blendgen.sync import so3
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])
-NC = 22  # core error states (15 navigation + 7 calibration)
+NC = 24  # core error states (15 navigation + 9 calibration)
 N = NC + 6  # + clone (dp_c, dtheta_c)
 IP, IV, ITH, IBG, IBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
 IM, ITAU, ILA = slice(15, 18), slice(18, 19), slice(19, 22)  # mount, GNSS latency, lever arm
-ICP, ICT = slice(22, 25), slice(25, 28)
-CALIB = slice(15, 22)
+IK, IL = slice(22, 23), slice(23, 24)  # odometer scale and latency
+ICP, ICT = slice(24, 27), slice(27, 30)
+CALIB = slice(15, 24)
 
 
 @dataclass
@@ -44,6 +47,11 @@ class EkfConfig:
     acc_walk: float = 3.0e-3      # m/s^3/sqrt(Hz)
     gyro_walk: float = 2.0e-5     # rad/s^2/sqrt(Hz)
     noise_inflation: float = 1.0  # >1 when calib.yaml gives raw datasheet densities (Kalibr advises inflating)
+    # the odometer's scale as a slow random walk (per sqrt(s); tyre pressure, temperature,
+    # slip), and so that an early misfit does not harden: on comma2k19 the first 10 s are one
+    # steady acceleration, where scale and latency trade off (scale 1.0036 against 1.0087), and
+    # held constant that scale carried 3.5 m into a 40 s GNSS outage, rejecting the fixes after it
+    speed_scale_walk: float = 3e-4
     max_imu_dt: float = 0.05      # a longer IMU interval is a gap: no integration across it
     gap_acc_std: float = 2.0      # m/s^2: how much the vehicle may accelerate unseen in a gap
     gap_gyro_std: float = 0.2     # rad/s: how much it may turn unseen in a gap
@@ -84,11 +92,13 @@ class ErrorStateEkf:
         self.R_bv = np.eye(3)
         self.tau = 0.0
         self.lever = np.zeros(3)
+        self.speed_scale = 1.0
+        self.speed_latency = 0.0
         self.calibrating = False
         self.yaw_only_motion = False  # without IMU and VO: roll/pitch stay as initialised
         self.P = np.eye(N) * 1e-6
         self.P[:15, :15] = np.diag(np.asarray(P0_diag, dtype=float))
-        self.P[CALIB, CALIB] = np.eye(7) * 1e-12
+        self.P[CALIB, CALIB] = np.eye(9) * 1e-12
         if not use_imu:  # biases are meaningless without an IMU: freeze them
             self.P[IBG, IBG] = np.eye(3) * 1e-12
             self.P[IBA, IBA] = np.eye(3) * 1e-12
@@ -103,16 +113,25 @@ class ErrorStateEkf:
         k = cfg.noise_inflation
         self._q_acc, self._q_gyro = (k * cfg.acc_noise) ** 2, (k * cfg.gyro_noise) ** 2
         self._q_ba, self._q_bg = (k * cfg.acc_walk) ** 2, (k * cfg.gyro_walk) ** 2
+        self._q_k = 0.0  # the odometer scale's walk, once enable_calibration estimates it
+        self.noise_scale = 1.0  # on the IMU's white-noise variances (the pipeline raises it in GNSS outages)
 
-    def enable_calibration(self, R_bv, mount_std, tau: float, tau_std: float, lever, lever_std) -> None:
-        """Estimate the mount (prior R_bv, per-axis std in rad), latency and lever arm."""
+    def enable_calibration(self, R_bv, mount_std, tau: float, tau_std: float, lever, lever_std,
+                           speed_scale_std: float = 0.0, speed_latency: float = 0.0,
+                           speed_latency_std: float = 0.0) -> None:
+        """Estimate the mount (prior R_bv, per-axis std in rad), GNSS latency, lever arm and the
+        odometer's scale (prior 1) and latency."""
         self.R_bv = so3.orthonormalize(np.asarray(R_bv, dtype=float))
         self.tau = float(tau)
         self.lever = np.asarray(lever, dtype=float).copy()
-        std = np.concatenate([np.broadcast_to(mount_std, 3), [tau_std], np.broadcast_to(lever_std, 3)])
+        self.speed_scale = 1.0
+        self.speed_latency = float(speed_latency)
+        std = np.concatenate([np.broadcast_to(mount_std, 3), [tau_std], np.broadcast_to(lever_std, 3),
+                              [speed_scale_std, speed_latency_std]])
         self.P[CALIB, :] = 0.0
         self.P[:, CALIB] = 0.0
         self.P[CALIB, CALIB] = np.diag(np.maximum(std, 1e-6) ** 2)
+        self._q_k = self.cfg.speed_scale_walk**2 if speed_scale_std > 0 else 0.0
         self.calibrating = True
 
     # ------------------------------------------------------------------ propagation
@@ -128,7 +147,7 @@ class ErrorStateEkf:
             self._propagate_gap(dt)
             self.t = float(t)
             return
-        inflate = 1.0
+        inflate = self.noise_scale
         if (np.any(np.abs(a_m) >= self.cfg.acc_range) or np.any(np.abs(w_m) >= self.cfg.gyro_range)
                 or not (np.all(np.isfinite(a_m)) and np.all(np.isfinite(w_m)))):
             # clipped reading: reuse the last good one and trust the prediction much less
@@ -164,6 +183,7 @@ class ErrorStateEkf:
         q[6:9] = self._q_gyro * dt * inflate
         q[9:12] = self._q_bg * dt
         q[12:15] = self._q_ba * dt
+        q[IK] = self._q_k * dt
         self._apply_F(F, q)
         self.t = float(t)
 
@@ -234,7 +254,7 @@ class ErrorStateEkf:
 
     def _nominal(self):
         return (self.p.copy(), self.v.copy(), self.R.copy(), self.bg.copy(), self.ba.copy(), self.R_bv.copy(),
-                self.tau, self.lever.copy())
+                self.tau, self.lever.copy(), self.speed_scale, self.speed_latency)
 
     def _predict_cov(self, F: np.ndarray, q: np.ndarray, Qth: np.ndarray | None = None) -> None:
         P = self.P
@@ -309,6 +329,8 @@ class ErrorStateEkf:
             self.R_bv = so3.orthonormalize(self.R_bv @ so3.exp(dx[IM]))
             self.tau = self.tau + float(dx[ITAU][0])
             self.lever = self.lever + dx[ILA]
+            self.speed_scale = self.speed_scale + float(dx[IK][0])
+            self.speed_latency = self.speed_latency + float(dx[IL][0])
         self.p_c = self.p_c + dx[ICP]
         self.R_c = so3.orthonormalize(self.R_c @ so3.exp(dx[ICT]))
         # reset Jacobian of the local rotation errors (first order)
@@ -401,6 +423,26 @@ class ErrorStateEkf:
         H[:, IM] = so3.hat(vv)[1:3]
         return self._update("nhc", -vv[1:3], H, np.diag([std_lat**2, std_up**2]))
 
+    def update_vehicle_speed(self, reading: float, std: float, f_b) -> bool:
+        """The odometer (CAN wheel speed): a reading is the vehicle frame's forward velocity L
+        seconds ago over k (k: tyre radius, L: the odometer's clock against the IMU's; both
+        calibration states): k reading = v_x - L a_x, a_x the forward acceleration from the
+        specific force f_b (body frame, averaged over the reading's interval)."""
+        vb = self.R.T @ self.v
+        vv = self.R_bv.T @ vb
+        g_b = self.R.T @ GRAVITY
+        a_v = self.R_bv.T @ (np.asarray(f_b, dtype=float) - self.ba + g_b)  # acceleration, vehicle frame
+        L = self.speed_latency
+        H = np.zeros((1, N))  # of h = v_x - L a_x
+        H[0, IV] = (self.R_bv.T @ self.R.T)[0]
+        H[0, ITH] = (self.R_bv.T @ (so3.hat(vb) - L * so3.hat(g_b)))[0]
+        H[0, IBA] = L * self.R_bv.T[0]
+        H[0, IM] = (so3.hat(vv) - L * so3.hat(a_v))[0]
+        H[0, IK] = -reading
+        H[0, IL] = -a_v[0]
+        r = np.array([self.speed_scale * reading - vv[0] + L * a_v[0]])
+        return self._update("speed", r, H, np.array([[std**2]]))
+
     def update_vehicle_level(self, std: float) -> bool:
         """Weak prior that the vehicle frame's roll is zero (roads are level across on average):
         the only thing that observes the mount's roll on a drive without a calibration stop."""
@@ -467,9 +509,10 @@ class ErrorStateEkf:
         return len(self.history) if self.history is not None else -1
 
     def smooth(self, marks: list[int]):
-        """Rauch-Tung-Striebel pass over the recorded predictions (the 22 core states).
+        """Rauch-Tung-Striebel pass over the recorded predictions (the 24 core states).
 
-        Returns, for each mark, the smoothed (p, v, R, bg, ba, R_bv, tau, lever) and the diagonal of its covariance.
+        Returns, for each mark, the smoothed (p, v, R, bg, ba, R_bv, tau, lever, odometer scale,
+        odometer latency) and the diagonal of its covariance.
         A mark m is the filtered state after m predictions (and the updates that followed).
         Clone correlations are not carried backwards: with VO this is an approximation.
         """
@@ -486,12 +529,13 @@ class ErrorStateEkf:
             post, P_post, F, pred, P_pred = H[j]
             d = np.concatenate([xs[0] - pred[0], xs[1] - pred[1], so3.log(pred[2].T @ xs[2]),
                                 xs[3] - pred[3], xs[4] - pred[4], so3.log(pred[5].T @ xs[5]),
-                                [xs[6] - pred[6]], xs[7] - pred[7]])
+                                [xs[6] - pred[6]], xs[7] - pred[7], [xs[8] - pred[8], xs[9] - pred[9]]])
             C = np.linalg.solve(P_pred.T, (P_post @ F.T).T).T  # P_post F^T P_pred^-1
             dx = C @ d
             xs = (post[0] + dx[IP], post[1] + dx[IV], so3.orthonormalize(post[2] @ so3.exp(dx[ITH])),
                   post[3] + dx[IBG], post[4] + dx[IBA], so3.orthonormalize(post[5] @ so3.exp(dx[IM])),
-                  post[6] + float(dx[ITAU][0]), post[7] + dx[ILA])
+                  post[6] + float(dx[ITAU][0]), post[7] + dx[ILA], post[8] + float(dx[IK][0]),
+                  post[9] + float(dx[IL][0]))
             Ps = P_post + C @ (Ps - P_pred) @ C.T
             Ps = 0.5 * (Ps + Ps.T)
             if j in want:

@@ -20,7 +20,9 @@ receiver model blendgen estimates can be given too:
 that time), `h_std_scale` (the fixes' horizontal noise times this; not the vertical, as in
 blendgen's filter) and `height_corr_s` (the fixes' height-error correlation time: fixes within
 it count as one height measurement, vertical std 2 g_std sqrt(corr x rate), as in blendgen's
-filter with a calibration). Optional dependency (`pip install gtsam`); blendgen's own sync
+filter with a calibration), and `odometer` = (speed.csv rows, std, scale, latency): a forward-speed
+factor on each keyframe (vehicle-frame forward velocity = scale x the reading at t + latency,
+blendgen's estimates of both). Optional dependency (`pip install gtsam`); blendgen's own sync
 never imports it.
 """
 
@@ -35,7 +37,7 @@ from blendgen.sync.pipeline import LEVEL_STD, NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP
 
 def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1, 1.0),
               road=None, nhc=False, mount_std_deg=None, latency_s: float = 0.0, h_std_scale: float = 1.0,
-              height_corr_s: float = 0.0, info: dict | None = None):
+              height_corr_s: float = 0.0, odometer=None, info: dict | None = None):
     """Camera poses at out_t from IMU + GNSS (world-frame fixes g_xyz at times g_t).
 
     g_std: the fixes' stated horizontal std (m), one number or one per fix; the factor's
@@ -127,9 +129,16 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
             graph.add(_road_factor(gtsam, X(k), road_model, T_bc[:3, 3]))
             next_road_t = tk + road_height.EVERY_S
         if use_nhc and np.linalg.norm(state.velocity()) > NHC_MIN_SPEED:
-            graph.add(_nhc_factor(gtsam, X(k), V(k), R_vb, mount_key))
+            graph.add(_vehicle_velocity_factor(gtsam, X(k), V(k), [1, 2], np.zeros(2), [NHC_LAT_STD, NHC_UP_STD],
+                                               R_vb, mount_key))
             if mount_key is not None:  # what observes the mount's roll, as in blendgen's filter
                 graph.add(_level_factor(gtsam, X(k), mount_key))
+        if odometer is not None:
+            sp, sp_std, sp_scale, sp_lat = odometer
+            if sp[0, 0] <= tk + sp_lat <= sp[-1, 0]:
+                target = sp_scale * np.interp(tk + sp_lat, sp[:, 0], sp[:, 1])
+                graph.add(_vehicle_velocity_factor(gtsam, X(k), V(k), [0], np.array([target]), [sp_std],
+                                                   R_vb, mount_key))
         pred = pim.predict(state, bias)
         values.insert(X(k), pred.pose())
         values.insert(V(k), pred.velocity())
@@ -169,10 +178,11 @@ def _road_factor(gtsam, key, road, p_bc):
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, road_height.ROUGH_STD), [key], err)
 
 
-def _nhc_factor(gtsam, xkey, vkey, R_vb=None, mount_key=None):
-    """Vehicle-frame lateral and vertical velocity zero: r = (M R^T v)[1:3] with M = R_vb (the
-    IMU's rotation into the vehicle frame, x forward; identity when None) or the state
-    `mount_key`; d/dw = M [R^T v]x, d/dv = M R^T, d/dm = -M [R^T v]x (M exp(dm))."""
+def _vehicle_velocity_factor(gtsam, xkey, vkey, rows, target, sigmas, R_vb=None, mount_key=None):
+    """Vehicle-frame velocity components `rows` equal `target`: no-sideslip (rows 1, 2 zero) or
+    the odometer (row 0): r = (M R^T v)[rows] - target with M = R_vb (the IMU's rotation into
+    the vehicle frame, x forward; identity when None) or the state `mount_key`;
+    d/dw = M [R^T v]x, d/dv = M R^T, d/dm = -M [R^T v]x (M exp(dm))."""
     M_fixed = np.eye(3) if R_vb is None else np.asarray(R_vb, float)
     keys = [xkey, vkey] + ([mount_key] if mount_key is not None else [])
 
@@ -182,14 +192,14 @@ def _nhc_factor(gtsam, xkey, vkey, R_vb=None, mount_key=None):
         M = values.atRot3(this.keys()[2]).matrix() if mount_key is not None else M_fixed
         vb = R.T @ v
         if H is not None:
-            Mv = (M @ so3.hat(vb))[1:3]
-            H[0] = np.hstack([Mv, np.zeros((2, 3))])
-            H[1] = (M @ R.T)[1:3]
+            Mv = (M @ so3.hat(vb))[rows]
+            H[0] = np.hstack([Mv, np.zeros((len(rows), 3))])
+            H[1] = (M @ R.T)[rows]
             if mount_key is not None:
                 H[2] = -Mv
-        return (M @ vb)[1:3]
+        return (M @ vb)[rows] - target
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.array([NHC_LAT_STD, NHC_UP_STD])), keys, err)
+    return gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)), keys, err)
 
 
 def _level_factor(gtsam, xkey, mount_key):

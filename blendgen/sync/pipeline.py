@@ -22,7 +22,7 @@ from blendgen import atomic
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
 from blendgen.recording.model import Recording
-from blendgen.sync import calibration, road_height, so3
+from blendgen.sync import calibration, odometer, road_height, so3
 from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.latency import LatencyProfile, profile_latency
 from blendgen.sync.lut import Lut
@@ -213,8 +213,12 @@ def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=N
         "georef": list(origin) if origin is not None else None, "reader_issues": list(rec.issues),
         "gnss_outside_lut": int((~g_inside).sum()) if use_gnss else 0,
         "seconds": round(time.perf_counter() - t_wall, 3),
-        "sensors": {"imu": use_imu, "gnss": use_gnss, "vo": use_vo},
+        "sensors": {"imu": use_imu, "gnss": use_gnss, "vo": use_vo,
+                    "speed": "speed_scale" in result.summary.get("calibration", {})},
     })
+    if len(rec.speed) and getattr(settings, "use_speed", True) and not result.summary["sensors"]["speed"]:
+        result.summary["odometer_unused"] = ("speed.csv is not used: the odometer needs the IMU and GNSS of a road "
+                                             "vehicle (sync.road_vehicle)")
     _check_finite(result)
     write_poses(out_dir, result)
     return result
@@ -312,12 +316,16 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     p0 = g_xyz[0].copy() if use_gnss else np.zeros(3)
     # the vehicle frame: forward along the camera's optical axis made level, up from gravity;
     # the filter estimates how the IMU is really mounted in it (road vehicles only)
-    calib, road = None, None
+    calib, road, odo = None, None, np.zeros((0, 5))  # odo: odometer.means of speed.csv
     if use_imu and use_gnss and getattr(settings, "road_vehicle", True):
         pri = calibration.read_priors(rec)
         R_bv0 = calibration.nominal_vehicle_frame(fwd, R0.T @ np.array([0.0, 0.0, 1.0]))
+        if getattr(settings, "use_speed", True) and len(rec.speed):
+            odo = odometer.means(rec.speed, imu)
         calib = (R_bv0, pri.mount_std, pri.latency_s, pri.latency_std_s, R_bv0 @ pri.lever_arm_v,
-                 pri.lever_arm_std_m)
+                 pri.lever_arm_std_m, *((pri.speed_scale_std, pri.speed_latency_s,
+                                         odometer.LATENCY_PRIOR_STD_S if pri.speed_latency_auto else 0.0)
+                                        if len(odo) else (0.0, 0.0, 0.0)))
         # the car stays on the road: with a twin, its height follows the road surface
         # (blendgen.sync.road_height), not the fixes' vertical noise
         road = road_height.build(gt_t, g_xyz, _height_error_correlation_s(gt_t, g_xyz), road_surface,
@@ -328,8 +336,14 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                          [0.15**2, 0.15**2, (yaw_std or 0.05) ** 2],
                          np.full(3, 0.01**2), np.full(3, ACC_BIAS_PRIOR**2)])
     smooth = bool(getattr(settings, "smooth", True))
+    # The odometer pins the speed, so an offset of its clock moves the whole trajectory in
+    # time: the passes that measure the GNSS latency and noise run without it (with it and its
+    # latency fixed at 0, comma2k19's GNSS latency came out 0.12 s instead of 0.068 s, raw
+    # error 0.50 -> 0.78 m); the final pass has it, its latency a filter state
+    two_pass = smooth and use_imu
+    with_odo = (odo, pri.speed_std_mps if calib is not None else 0.0)
     args = (t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam, gt_t, g_xyz, g_inside, g_yaw, g_std,
-            R_bc, p_bc, fwd, imu, vo_cache, calib, trust)
+            R_bc, p_bc, fwd, imu, vo_cache, calib, trust, (np.zeros((0, 5)), 0.0) if two_pass else with_odo)
     # the GNSS latency by profile likelihood (blendgen.sync.latency): forward passes with it
     # fixed, from the smoothed initial state when there is one (the first pass's loose start
     # dominates its cost: comma2k19's profile then had its minimum at 0), then it stays fixed.
@@ -372,6 +386,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                 args = _with_latency(args, lat_prof.tau_s)
             if want_scale:
                 h_scale = noise
+        args = args[:_ARG_ODO] + (with_odo,)
         res2, _, _ = _filter_pass(rec, settings, cfg, x1, P1, *args, False, road=road, h_scale=h_scale)
         # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
         z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
@@ -379,7 +394,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             res = res2
             res.summary["passes"] = 2
         else:
-            if want_latency or want_scale:  # the first pass again, with what was estimated
+            if want_latency or want_scale or len(odo):  # the first pass again, with what was estimated
                 res, _, _ = _filter_pass(rec, settings, cfg, x0, P0, *args, False, road=road, h_scale=h_scale)
             res.summary["second_pass"] = f"discarded: accelerometer bias {z2:.1f} sigma from its prior (first {z1:.1f})"
     if lat_prof is not None:
@@ -447,7 +462,7 @@ def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg)
 
 
 # positions in _filter_pass's argument tuple (built in _filter) and of the latency in `calib`
-_ARG_SMOOTH, _ARG_CALIB, _CALIB_LATENCY = 4, 18, 2
+_ARG_SMOOTH, _ARG_CALIB, _ARG_ODO, _CALIB_LATENCY = 4, 18, 20, 2
 
 
 def _with_latency(args: tuple, tau: float) -> tuple:
@@ -459,8 +474,9 @@ def _with_latency(args: tuple, tau: float) -> tuple:
 
 def _forward(rec, settings, cfg, x0, P0, args, road, tau: float, h_scale: float) -> dict:
     """Summary of one forward pass (no smoother: it does not change the likelihood) with the
-    latency fixed at tau."""
-    a = _with_latency(args[:_ARG_SMOOTH] + (False,) + args[_ARG_SMOOTH + 1:], tau)
+    latency fixed at tau, without the odometer (the GNSS latency and noise are measured against
+    the IMU's clock)."""
+    a = _with_latency(args[:_ARG_SMOOTH] + (False,) + args[_ARG_SMOOTH + 1:_ARG_ODO] + ((np.zeros((0, 5)), 0.0),), tau)
     return _filter_pass(rec, settings, cfg, x0, P0, *a, False, road=road, h_scale=h_scale)[0].summary
 
 
@@ -533,6 +549,11 @@ def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: floa
 
 
 GNSS_REOPEN_S = 10.0   # fixes rejected this long, agreeing with each other: the filter drifted
+# in a GNSS outage (no fix for GNSS_GAP_S) the IMU's white noise counts GAP_IMU_NOISE times
+# its stated density: the drift that dead reckoning builds up must fit the fixes after the gap,
+# or they are rejected (comma2k19 without fixes 10-50 s: 70 of the last 100 rejected, 0.90 m;
+# x3: 0.53 m; x10: 1.39 m). A stated density is a lower bound for a phone-grade IMU.
+GNSS_GAP_S, GAP_IMU_NOISE = 2.0, 3.0
 
 
 def _gnss_reopen(streak: list, std: float) -> np.ndarray | None:
@@ -555,9 +576,9 @@ def _gnss_reopen(streak: list, std: float) -> np.ndarray | None:
 
 def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo, smooth, ids, out_t, out_t_cam,
                  gt_t, g_xyz, g_inside, g_yaw, g_std, R_bc, p_bc, fwd, imu, vo_cache, calib, trust: TrustReport | None,
-                 progress, road=None, h_scale: float = 1.0):
+                 odometer, progress, road=None, h_scale: float = 1.0):
     """One filter pass (+ RTS smoother when `smooth`). h_scale multiplies the fixes'
-    horizontal noise (calib.yaml gnss.h_std_scale)."""
+    horizontal noise (calib.yaml gnss.h_std_scale); odometer: (odometer.means rows, std m/s)."""
     p0, v0, R0, bg0, ba0 = x0
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
@@ -579,12 +600,19 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     rate = 1.0 / max(float(np.median(np.diff(gt_t))), 1e-3) if len(gt_t) > 1 else 1.0
     z_corr_s = _height_error_correlation_s(gt_t, g_xyz) if calib is not None else 0.0
     z_scale = 2.0 * np.sqrt(max(z_corr_s * rate, 1.0))
+    # the vehicle constraints ride on the fixes; beyond 3 fix intervals without one, on the IMU's clock
+    last_fix_t = float(gt_t[0]) if use_gnss and len(gt_t) else np.inf
+    fix_gap_s = 3.0 / rate
 
     # --- event queue: (time, order, kind, index); order makes IMU come before others at equal t
-    ev_t = [imu[1:, 0], gt_t if use_gnss else np.zeros(0), out_t]
+    odo, odo_std = odometer
+    if calib is None:  # a forward speed needs the vehicle frame
+        odo = np.zeros((0, 5))
+    ev_t = [imu[1:, 0], gt_t if use_gnss else np.zeros(0), out_t, odo[:, 0]]
     ev_k = [np.zeros(max(len(imu) - 1, 0), int), np.ones(len(gt_t) if use_gnss else 0, int),
-            np.full(len(out_t), 2)]
-    ev_i = [np.arange(1, len(imu)), np.arange(len(gt_t) if use_gnss else 0), np.arange(len(out_t))]
+            np.full(len(out_t), 2), np.full(len(odo), 3)]
+    ev_i = [np.arange(1, len(imu)), np.arange(len(gt_t) if use_gnss else 0), np.arange(len(out_t)),
+            np.arange(len(odo))]
     T = np.concatenate(ev_t)
     K = np.concatenate(ev_k)
     I = np.concatenate(ev_i)
@@ -597,6 +625,19 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     last_zupt_t = -np.inf
     clone_i = -1  # frame whose image the clone belongs to
     last = None  # latest IMU sample: carries the state to a GNSS fix or frame between samples
+
+    def vehicle_constraints(t, speed):
+        nonlocal next_road_t, next_nhc_t
+        if road is not None and t >= next_road_t:
+            pending.append("road" if road_height.apply(ekf, road, p_bc) else "road_rejected")
+            next_road_t = t + road_height.EVERY_S
+        if calib is not None and speed > NHC_MIN_SPEED and t >= next_nhc_t:
+            # the car neither slides sideways nor leaves the road (in the vehicle frame, the
+            # mount estimated) and is level across on average: this is what separates the
+            # mount from the heading and from the accelerometer bias
+            ekf.update_vehicle_velocity(NHC_LAT_STD, NHC_UP_STD)
+            ekf.update_vehicle_level(LEVEL_STD)
+            next_nhc_t = t + NHC_EVERY_S
 
     def advance(t):
         if last is not None and 0 < t - ekf.t <= cfg.max_imu_dt:
@@ -620,6 +661,12 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 ekf.update_zero_rate(b[1:4], 3 * cfg.gyro_noise * np.sqrt(1.0 / cfg.max_imu_dt))
                 last_zupt_t = t
                 pending.append("zupt")
+            ekf.noise_scale = GAP_IMU_NOISE**2 if t - last_fix_t > GNSS_GAP_S else 1.0
+            if t - last_fix_t > fix_gap_s:
+                # the vehicle's constraints hold without GNSS too: while the fixes are missing
+                # they follow the IMU's clock (applied only at fixes, a 32 s dropout lost the
+                # synthetic drive: 271 m off and every fix after it rejected; now 0.5 m)
+                vehicle_constraints(t, float(np.linalg.norm(ekf.v[:2])))
         elif kind == 1:
             advance(t)
             s = float(g_std[i]) * (1.0 if g_inside[i] else 3.0)
@@ -637,18 +684,10 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     ok = ekf.update_position(g_xyz[i], (s, s, sz), kind="gnss")
                     pending.append("gnss_reopened")
                     gnss_streak.clear()
-            if road is not None and t >= next_road_t:
-                pending.append("road" if road_height.apply(ekf, road, p_bc) else "road_rejected")
-                next_road_t = t + road_height.EVERY_S
             pending.append("gnss" if ok else "gnss_rejected")
             speed = float(np.linalg.norm(ekf.v[:2]))
-            if calib is not None and speed > NHC_MIN_SPEED and t >= next_nhc_t:
-                # the car neither slides sideways nor leaves the road (in the vehicle frame,
-                # the mount estimated) and is level across on average: this is what separates
-                # the mount from the heading and from the accelerometer bias
-                ekf.update_vehicle_velocity(NHC_LAT_STD, NHC_UP_STD)
-                ekf.update_vehicle_level(LEVEL_STD)
-                next_nhc_t = t + NHC_EVERY_S
+            last_fix_t = t
+            vehicle_constraints(t, speed)
             if not g_inside[i]:
                 pending.append("lut_outside")
             if not use_imu and not use_vo:
@@ -658,6 +697,10 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     ekf.update_yaw(g_yaw[i], fwd, 0.1)
                 elif speed > 2.0:
                     ekf.update_yaw(float(np.arctan2(ekf.v[1], ekf.v[0])), fwd, 0.05 + 1.0 / speed)
+        elif kind == 3:
+            advance(t)
+            pending.append("speed" if ekf.update_vehicle_speed(float(odo[i, 1]), odo_std, odo[i, 2:5])
+                           else "speed_rejected")
         else:
             advance(t)
             flags = pending
@@ -742,7 +785,8 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
         summary["gnss_height_corr_s"] = round(z_corr_s, 2)
         if road is not None:
             summary["road_height"] = road.summary()
-        summary["calibration"] = calibration.report((ekf.R_bv, ekf.tau, ekf.lever), np.diag(ekf.P)[CALIB], R_bc)
+        state = (ekf.R_bv, ekf.tau, ekf.lever) + ((ekf.speed_scale, ekf.speed_latency) if len(odo) else ())
+        summary["calibration"] = calibration.report(state, np.diag(ekf.P)[CALIB], R_bc)
     return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary), x0_s, var0
 
 

@@ -216,6 +216,21 @@ def simulate_gnss(traj: Trajectory, rate: float = 10.0, std_m: float = 1.0, seed
     return np.column_stack([t, lat, lon, alt])
 
 
+def simulate_odometer(traj: Trajectory, rate: float = 100.0, scale: float = 0.99, noise_mps: float = 0.03,
+                      quantum_mps: float = 0.01, latency_s: float = 0.0, seed: int = 2) -> np.ndarray:
+    """t, speed of a CAN wheel-speed signal: the vehicle's forward speed at t - latency_s times
+    `scale` (tyre radius), plus white noise, rounded to `quantum_mps`, never negative
+    (comma2k19's CAN speed: 83 Hz, scale 0.991, 0.04 m/s about the ground truth)."""
+    rng = np.random.default_rng(seed + 2000)  # own generator: the other sensors' draws stay as they were
+    t = np.arange(traj.t[0] + 0.05, traj.t[-1] - 0.05, 1.0 / rate)
+    ts = t - latency_s
+    v_fwd = np.einsum("nji,nj->ni", traj.R(ts), traj.velocity(ts))[:, 0]
+    s = scale * v_fwd + rng.normal(0.0, noise_mps, len(t))
+    if quantum_mps > 0:
+        s = np.round(s / quantum_mps) * quantum_mps
+    return np.column_stack([t, np.maximum(s, 0.0)])
+
+
 # ---------------------------------------------------------------------- images
 
 def _periodic_blur(img: np.ndarray, sigma: float) -> np.ndarray:
@@ -413,7 +428,7 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
                         shake_deg: float = 0.0, stabilise_s: float | None = None, margin: float = 0.12,
                         imu_errors: ImuErrors | None = None, gnss_errors: dict | None = None,
                         rolling_shutter_s: float = 0.0, photometric=False,
-                        cam_time_offset_s: float = 0.0):
+                        cam_time_offset_s: float = 0.0, odometer: dict | None = None):
     """An in-memory Recording (images kept in `rec.extra['images']`) and its ground truth.
 
     imu_mount_rpy_deg: the IMU rotated (roll, pitch, yaw; about the vehicle's x, y, z) in the
@@ -435,6 +450,8 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     cam_time_offset_s: the camera clock lags the IMU's (Kalibr timeshift_cam_imu: t_imu = t_cam
     + shift): the frame stamped t is exposed at t + shift on the IMU clock; `rec` keeps the
     calib value 0 (an unknown offset). Ground truth rows: the stamp t, the pose at t + shift.
+    odometer: simulate_odometer arguments (scale, noise_mps, latency_s, ...) for a CAN speed
+    in `rec.speed`; None: no odometer.
     Returns (rec, traj, T_cam_imu). `rec.groundtruth` holds T_world_cam per frame (the body's camera).
     """
     traj = make_trajectory(kind, duration + 1.0, speed=speed)
@@ -461,6 +478,8 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
         rec.imu = data
     if gnss:
         rec.gnss = simulate_gnss(traj, std_m=gnss_std, seed=seed + 1, dropout=dropout, **(gnss_errors or {}))
+    if odometer is not None:
+        rec.speed = simulate_odometer(traj, seed=seed, **odometer)
     t0 = 0.5
     ft = np.arange(t0, t0 + duration, 1.0 / fps) if frames else np.zeros(0)
     rec.frames_t = ft

@@ -2,8 +2,9 @@
 
 Read:  processed_log/IMU/{gyro,accelerometer}/{t,value}  (device frame: x forward, y right, z down)
        processed_log/GNSS/live_gnss_ublox (or _qcom)/{t,value}: lat, lon, alt, unix time [ms], (unused), accuracy [m]
+       processed_log/CAN/speed/{t,value}: the car's speed from its CAN bus (m/s), when present
        global_pose/frame_{times,positions,orientations}: ECEF position and R_ecef_device quaternion (w,x,y,z)
-Written: imu.csv in the device frame, gnss.csv (lat/lon/alt, heading, h_std), groundtruth.csv as
+Written: imu.csv in the device frame, gnss.csv (lat/lon/alt, heading, h_std), speed.csv, groundtruth.csv as
 T_world_cam in a local ENU frame about the first ground-truth position (recorded in calib.yaml as
 import.groundtruth_origin), calib.yaml with the openpilot road camera (EON, 1164x874, f=910) and
 T_cam_imu = device -> OpenCV camera axes. This example segment has no video, so frames.csv is absent.
@@ -81,6 +82,14 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
         gnss_cols += ["h_std_m"]
         gnss += [np.where(gv[:, 5] > 0, gv[:, 5], np.nan)]
 
+    speed = None
+    can = seg / "processed_log" / "CAN" / "speed"
+    if (can / "t").is_file():
+        ts, sv = _series(can, 1)
+        ts, sv = common.dedupe_sorted(ts, sv[:, :1])
+        ok = np.isfinite(sv[:, 0]) & (sv[:, 0] >= 0)
+        speed = np.column_stack([ts[ok], sv[ok, 0]])
+
     gp = seg / "global_pose"
     t_gt = _load(gp / "frame_times").ravel()
     pos = _load(gp / "frame_positions", 3)
@@ -111,6 +120,10 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
     extra = {}
     notes = ["no video in this segment: frames.csv is not written",
              "camera intrinsics are openpilot's EON road camera defaults (not per-device calibrated)"]
+    if speed is not None and len(speed):
+        folder.write_speed(dst, speed)
+    else:
+        notes.append("no CAN speed (processed_log/CAN/speed): speed.csv is not written")
     if dropped:
         notes.append(f"{dropped} GNSS row(s) without a fix were dropped")
     if gv.shape[1] >= 4 and np.all(gv[:, 3] > 1e11):

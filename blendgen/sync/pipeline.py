@@ -549,7 +549,7 @@ def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: floa
 
 
 GNSS_REOPEN_S = 10.0   # fixes rejected this long, agreeing with each other: the filter drifted
-# in a GNSS outage (no fix for GNSS_GAP_S) the IMU's white noise counts GAP_IMU_NOISE times
+# in a GNSS outage (no fix for GNSS_GAP_S, or 3 fix intervals if longer) the IMU's white noise counts GAP_IMU_NOISE times
 # its stated density: the drift that dead reckoning builds up must fit the fixes after the gap,
 # or they are rejected (comma2k19 without fixes 10-50 s: 70 of the last 100 rejected, 0.90 m;
 # x3: 0.53 m; x10: 1.39 m). A stated density is a lower bound for a phone-grade IMU.
@@ -661,7 +661,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 ekf.update_zero_rate(b[1:4], 3 * cfg.gyro_noise * np.sqrt(1.0 / cfg.max_imu_dt))
                 last_zupt_t = t
                 pending.append("zupt")
-            ekf.noise_scale = GAP_IMU_NOISE**2 if t - last_fix_t > GNSS_GAP_S else 1.0
+            ekf.noise_scale = GAP_IMU_NOISE**2 if t - last_fix_t > max(GNSS_GAP_S, fix_gap_s) else 1.0
             if t - last_fix_t > fix_gap_s:
                 # the vehicle's constraints hold without GNSS too: while the fixes are missing
                 # they follow the IMU's clock (applied only at fixes, a 32 s dropout lost the

@@ -17,7 +17,7 @@ from blendgen.recording.importers import check_recording, import_recording  # no
 T0 = 1_700_000_000 * 10**9
 
 
-def _msgs(ros, store, n_img=5, compressed=False):
+def _msgs(ros, store, n_img=5, compressed=False, odom_topics=("/vehicle/odom",)):
     M = store.types
     Time, Header = M["builtin_interfaces/msg/Time"], M["std_msgs/msg/Header"]
     V3, Q = M["geometry_msgs/msg/Vector3"], M["geometry_msgs/msg/Quaternion"]
@@ -59,10 +59,22 @@ def _msgs(ros, store, n_img=5, compressed=False):
             header=hdr(t, "gps"), status=M["sensor_msgs/msg/NavSatStatus"](status=-1 if i == 3 else 0, service=1),
             latitude=48.1 + 1e-5 * i, longitude=11.5, altitude=520.0,
             position_covariance=np.diag([4.0, 4.0, 9.0]).ravel(), position_covariance_type=2)))
+    P, Tw = M["geometry_msgs/msg/Pose"], M["geometry_msgs/msg/Twist"]
+    cov = np.zeros(36)
+    for i, topic in ((i, tp) for tp in odom_topics for i in range(20)):
+        t = T0 + i * 50_000_000  # wheel odometry at 20 Hz; the last two readings reversing
+        vx = 5.0 + 0.1 * i if i < 18 else -0.5
+        out.append((topic, t, M["nav_msgs/msg/Odometry"](
+            header=hdr(t, "odom"), child_frame_id="base_link",
+            pose=M["geometry_msgs/msg/PoseWithCovariance"](
+                pose=P(position=M["geometry_msgs/msg/Point"](x=0, y=0, z=0), orientation=Q(x=0, y=0, z=0, w=1)),
+                covariance=cov),
+            twist=M["geometry_msgs/msg/TwistWithCovariance"](
+                twist=Tw(linear=V3(x=vx, y=0.0, z=0.0), angular=V3(x=0.0, y=0.0, z=0.0)), covariance=cov))))
     return sorted(out, key=lambda m: m[1])
 
 
-def write_bag(path: Path, ros: int, compressed=False) -> Path:
+def write_bag(path: Path, ros: int, compressed=False, **kw) -> Path:
     if ros == 2:
         from rosbags.rosbag2 import Writer
 
@@ -73,7 +85,7 @@ def write_bag(path: Path, ros: int, compressed=False) -> Path:
 
         store = get_typestore(Stores.ROS1_NOETIC)
         writer, ser = Writer(path), store.serialize_ros1
-    msgs = _msgs(ros, store, compressed=compressed)
+    msgs = _msgs(ros, store, compressed=compressed, **kw)
     with writer:
         conns = {}
         for topic, t, msg in msgs:
@@ -95,6 +107,9 @@ def test_rosbag(tmp_path, ros, compressed):
     assert (rec.camera.fx, rec.camera.cy, rec.camera.dist[0]) == (30.0, 11.5, pytest.approx(0.1))
     assert rec.imu.shape == (60, 7) and rec.imu[-1, 3] == pytest.approx(5.9)
     assert len(rec.gnss) == 3 and rec.gnss_col("h_std_m")[0] == pytest.approx(2.0)  # no-fix row dropped
+    # the vehicle's odometer: twist.linear.x, the reversing readings dropped
+    assert rec.speed.shape == (18, 2) and rec.speed[-1, 1] == pytest.approx(6.7)
+    assert "2 speed reading(s) < 0 (reversing) dropped" in str(read_recording(rec.root).extra["import"]["notes"])
     text = "\n".join(map(str, check_recording(rec.root)))
     assert "camera-IMU extrinsics not calibrated" in text and "ERROR" not in text
 
@@ -108,3 +123,15 @@ def test_rosbag_truncated_and_ambiguous(tmp_path):
         import_recording("rosbag", cut, tmp_path / "r1", show_progress=False)
     with pytest.raises(UserError, match="--imu-topic '/nope' is not in the bag"):
         import_recording("rosbag", bag, tmp_path / "r2", imu_topic="/nope", show_progress=False)
+
+
+def test_rosbag_speed_topic_is_not_guessed(tmp_path):
+    """Two odometry topics (wheels and, say, an INS): no speed.csv unless one is named."""
+    bag = write_bag(tmp_path / "bag2", 2, odom_topics=("/vehicle/odom", "/ins/odom"))
+    rec = read_recording(import_recording("rosbag", bag, tmp_path / "a", show_progress=False))
+    assert len(rec.speed) == 0 and "choose one with --speed-topic" in str(rec.extra["import"]["notes"])
+    rec = read_recording(import_recording("rosbag", bag, tmp_path / "b", speed_topic="/vehicle/odom",
+                                          show_progress=False))
+    assert rec.speed.shape == (18, 2)
+    with pytest.raises(UserError, match="--speed-topic '/odom' is not in the bag"):
+        import_recording("rosbag", bag, tmp_path / "c", speed_topic="/odom", show_progress=False)

@@ -15,7 +15,7 @@ _OPTIONS = {
     "kitti": ["kitti_cam"],
     "comma2k19": ["gnss_source"],
     "gopro": ["hfov_deg"],
-    "rosbag": ["image_topic", "imu_topic", "gnss_topic", "hfov_deg"],
+    "rosbag": ["image_topic", "imu_topic", "gnss_topic", "speed_topic", "hfov_deg"],
 }
 
 
@@ -60,6 +60,8 @@ def register(subparsers) -> None:
     g.add_argument("--image-topic")
     g.add_argument("--imu-topic")
     g.add_argument("--gnss-topic")
+    g.add_argument("--speed-topic", help="rosbag: the vehicle's speed (Odometry or TwistStamped; picked by type "
+                                         "when the bag has only one)")
     p.set_defaults(func=run)
 
 

@@ -2,7 +2,9 @@
 
 Reads with the `rosbags` library (pure Python, no ROS install): sensor_msgs Image (raw
 encodings, written as PNG) or CompressedImage (bytes kept, no re-encoding), Imu, NavSatFix,
-and CameraInfo for the intrinsics. Message times are header stamps (the bag's receive time
+CameraInfo for the intrinsics, and the vehicle's speed (speed.csv) from nav_msgs Odometry or
+geometry_msgs TwistStamped (twist.linear.x: forward in the vehicle's own frame; readings while
+reversing are dropped, speed.csv is unsigned). Message times are header stamps (the bag's receive time
 when a stamp is zero). Topics are found by type; pass a topic when a bag has several.
 """
 
@@ -23,6 +25,7 @@ COMPRESSED = "sensor_msgs/msg/CompressedImage"
 IMU = "sensor_msgs/msg/Imu"
 NAVSAT = "sensor_msgs/msg/NavSatFix"
 CAMINFO = "sensor_msgs/msg/CameraInfo"
+SPEED_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/TwistStamped")
 DEFAULT_HFOV_DEG = 70.0
 
 _CHANNELS = {"mono8": (1, np.uint8), "mono16": (1, np.uint16), "bgr8": (3, np.uint8), "rgb8": (3, np.uint8),
@@ -71,7 +74,8 @@ def image_to_bgr(msg, where: str) -> np.ndarray:
     return img
 
 
-def _pick(topics: dict[str, str], types: tuple[str, ...], wanted: str | None, what: str) -> str | None:
+def _pick(topics: dict[str, str], types: tuple[str, ...], wanted: str | None, what: str,
+          several_ok: bool = False) -> str | None:
     if wanted:
         if wanted not in topics:
             raise UserError(f"--{what}-topic {wanted!r} is not in the bag; topics: {sorted(topics)}")
@@ -80,13 +84,15 @@ def _pick(topics: dict[str, str], types: tuple[str, ...], wanted: str | None, wh
         return wanted
     cands = sorted(t for t, ty in topics.items() if ty in types)
     if len(cands) > 1:
+        if several_ok:  # optional stream: none rather than a guess
+            return None
         raise UserError(f"several {what} topics {cands}: choose one with --{what}-topic")
     return cands[0] if cands else None
 
 
 def import_rosbag(src, dst, *, image_topic: str | None = None, imu_topic: str | None = None,
-                  gnss_topic: str | None = None, hfov_deg: float | None = None, force: bool = False,
-                  show_progress: bool = True) -> Path:
+                  gnss_topic: str | None = None, speed_topic: str | None = None, hfov_deg: float | None = None,
+                  force: bool = False, show_progress: bool = True) -> Path:
     import cv2
 
     try:
@@ -109,14 +115,17 @@ def import_rosbag(src, dst, *, image_topic: str | None = None, imu_topic: str | 
         img_t = _pick(topics, (IMAGE, COMPRESSED), image_topic, "image")
         imu_t = _pick(topics, (IMU,), imu_topic, "imu")
         gnss_t = _pick(topics, (NAVSAT,), gnss_topic, "gnss")
+        # odometry topics are often fused estimates, not the wheels: with several, none unless named
+        speed_t = _pick(topics, SPEED_TYPES, speed_topic, "speed", several_ok=True)
+        speed_cands = sorted(t for t, ty in topics.items() if ty in SPEED_TYPES)
         info_t = sorted(t for t, ty in topics.items() if ty == CAMINFO)
         if img_t and len(info_t) > 1:  # prefer the camera_info beside the image topic
             base = img_t.rsplit("/", 1)[0]
             info_t = [t for t in info_t if t.startswith(base)] or info_t[:1]
         if not (img_t or imu_t or gnss_t):
             raise UserError(f"no Image/CompressedImage, Imu or NavSatFix topics; topics: {topics}", where=str(src))
-        wanted = [c for c in reader.connections if c.topic in {img_t, imu_t, gnss_t, *info_t[:1]}]
-        frames_t, files, imu, gnss, cam_info = [], [], [], [], None
+        wanted = [c for c in reader.connections if c.topic in {img_t, imu_t, gnss_t, speed_t, *info_t[:1]}]
+        frames_t, files, imu, gnss, speed, cam_info = [], [], [], [], [], None
         shape = None
         total = sum(c.msgcount for c in wanted)
         it = reader.messages(connections=wanted)
@@ -156,6 +165,9 @@ def import_rosbag(src, dst, *, image_topic: str | None = None, imu_topic: str | 
                 cov = np.asarray(msg.position_covariance, dtype=float)
                 std = float(np.sqrt(max((cov[0] + cov[4]) / 2, 0))) if msg.position_covariance_type > 0 else np.nan
                 gnss.append([t, msg.latitude, msg.longitude, msg.altitude, std if std > 0 else np.nan])
+            elif conn.topic == speed_t:
+                tw = msg.twist.twist if conn.msgtype == SPEED_TYPES[0] else msg.twist
+                speed.append([t, float(tw.linear.x)])
             elif cam_info is None:
                 cam_info = msg
     except UserError:
@@ -165,7 +177,19 @@ def import_rosbag(src, dst, *, image_topic: str | None = None, imu_topic: str | 
     finally:
         reader.close()
 
-    notes = [f"topics used: image {img_t}, imu {imu_t}, gnss {gnss_t}, camera_info {info_t[:1] or None}"]
+    notes = [f"topics used: image {img_t}, imu {imu_t}, gnss {gnss_t}, speed {speed_t}, "
+             f"camera_info {info_t[:1] or None}"]
+    if speed_t is None and len(speed_cands) > 1:
+        notes.append(f"several odometry/twist topics {speed_cands}: none used as the vehicle's speed "
+                     "(choose one with --speed-topic)")
+    if speed:
+        arr = np.asarray(speed)
+        arr = arr[np.argsort(arr[:, 0], kind="stable")]
+        arr = arr[np.concatenate([[True], np.diff(arr[:, 0]) > 0]) & np.isfinite(arr[:, 1])]
+        back = arr[:, 1] < 0
+        if back.any():
+            notes.append(f"{int(back.sum())} speed reading(s) < 0 (reversing) dropped: speed.csv is unsigned")
+        folder.write_speed(dst, arr[~back])
     if imu:
         arr = np.asarray(imu)
         arr = arr[np.argsort(arr[:, 0], kind="stable")]

@@ -43,7 +43,7 @@ ODO_FRAMES = {"scale": 0.99, "latency_s": -0.04, "noise_mps": 0.03}
 def _sync(rec, **kw):
     c0 = time.process_time()
     with tempfile.TemporaryDirectory() as d, single_thread_blas():
-        res = run_sync(rec, Sync(), Path(d), georef=GEOREF, progress=False, **kw)
+        res = run_sync(rec, Sync(use_speed=True), Path(d), georef=GEOREF, progress=False, **kw)
     return res, time.process_time() - c0
 
 

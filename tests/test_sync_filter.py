@@ -85,7 +85,7 @@ def test_gnss_dropout_32s_keeps_the_vehicle_constraints(tmp_path):
     t = res.times
     assert "gnss" not in res.summary["rejected"] and res.summary["updates"]["nhc"] > 300
     assert pos[(t > 8) & (t < 40)].max() < 1.5 and np.median(pos[t > 42]) < 0.6
-    res, pos_odo, _, _ = _run(tmp_path / "odo", "drive", 50, seed=3, dropout=(8.0, 40.0),
+    res, pos_odo, _, _ = _run(tmp_path / "odo", "drive", 50, Sync(use_speed=True), seed=3, dropout=(8.0, 40.0),
                               odometer={"scale": 0.98, "latency_s": -0.06})
     assert pos_odo[(t > 8) & (t < 40)].max() < pos[(t > 8) & (t < 40)].max()
 

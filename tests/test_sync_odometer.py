@@ -116,7 +116,7 @@ def _sync(odometer, tmp_path, **vehicle):
     rec, traj, T_cam_imu = synthetic_recording("drive", 40.0, frames=False, seed=1, odometer=odometer)
     if vehicle:
         rec.extra["vehicle"] = vehicle
-    res = run_sync(rec, Sync(), tmp_path, georef=GEOREF, progress=False)
+    res = run_sync(rec, Sync(use_speed=True), tmp_path, georef=GEOREF, progress=False)
     T_bc = np.linalg.inv(T_cam_imu)
     err = [Twc[:2, 3] - (traj.pose(t) @ T_bc)[:2, 3] for _, t, Twc in res.poses]
     return res, float(np.sqrt(np.mean(np.sum(np.square(err), axis=1))))
@@ -141,7 +141,7 @@ def test_odometer_scale_and_latency_are_recovered(tmp_path):
     assert "latency -60 ms as given" in describe(res.summary["calibration"])
 
 
-def test_command_prints_the_odometer_and_can_leave_it_out(tmp_path, capsys):
+def test_command_uses_the_odometer_when_asked(tmp_path, capsys):
     from blendgen.cli import main
 
     rec, _, _ = synthetic_recording("drive", 20.0, frames=False, seed=0, odometer={"scale": 0.98})
@@ -151,12 +151,12 @@ def test_command_prints_the_odometer_and_can_leave_it_out(tmp_path, capsys):
     folder.write_imu(root, rec.imu)
     folder.write_gnss(root, rec.gnss)
     folder.write_speed(root, rec.speed)
-    assert main(["sync", str(root), "--out", str(tmp_path / "a"), "--quiet"]) == 0
+    assert main(["sync", str(root), "--out", str(tmp_path / "a"), "--quiet", "--speed"]) == 0
     out = capsys.readouterr().out
     assert "odometer 209 used / 0 rejected" in out and "odometer scale 1.02" in out
-    assert main(["sync", str(root), "--out", str(tmp_path / "b"), "--quiet", "--no-speed"]) == 0
+    assert main(["sync", str(root), "--out", str(tmp_path / "b"), "--quiet"]) == 0  # off by default, said
     out = capsys.readouterr().out
-    assert "odometer" not in out
+    assert "odometer scale" not in out and "speed.csv is not used (sync.use_speed: true / --speed" in out
     # without GNSS there is no vehicle frame to put the speed in: said, not silently dropped
-    assert main(["sync", str(root), "--out", str(tmp_path / "c"), "--quiet", "--no-gnss"]) == 0
+    assert main(["sync", str(root), "--out", str(tmp_path / "c"), "--quiet", "--no-gnss", "--speed"]) == 0
     assert "speed.csv is not used: the odometer needs the IMU and GNSS" in capsys.readouterr().out

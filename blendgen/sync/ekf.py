@@ -118,13 +118,13 @@ class ErrorStateEkf:
 
     def enable_calibration(self, R_bv, mount_std, tau: float, tau_std: float, lever, lever_std,
                            speed_scale_std: float = 0.0, speed_latency: float = 0.0,
-                           speed_latency_std: float = 0.0) -> None:
+                           speed_latency_std: float = 0.0, speed_scale: float = 1.0) -> None:
         """Estimate the mount (prior R_bv, per-axis std in rad), GNSS latency, lever arm and the
-        odometer's scale (prior 1) and latency."""
+        odometer's scale and latency."""
         self.R_bv = so3.orthonormalize(np.asarray(R_bv, dtype=float))
         self.tau = float(tau)
         self.lever = np.asarray(lever, dtype=float).copy()
-        self.speed_scale = 1.0
+        self.speed_scale = float(speed_scale)
         self.speed_latency = float(speed_latency)
         std = np.concatenate([np.broadcast_to(mount_std, 3), [tau_std], np.broadcast_to(lever_std, 3),
                               [speed_scale_std, speed_latency_std]])

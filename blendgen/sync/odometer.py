@@ -15,6 +15,20 @@ import numpy as np
 
 EVERY_S = 0.1
 LATENCY_PRIOR_STD_S = 0.2  # `speed_latency_s: auto`: estimated about 0 with this std
+SCALE_RANGE = (0.8, 1.25)
+
+
+def initial_scale(odo: np.ndarray, track: np.ndarray | None) -> float:
+    """Least-squares scale k of the odometer means (`means` rows) against a smoothed forward-speed
+    track (t, v) of a pass without them, where both say the car moves (> 2 m/s); 1 without enough."""
+    if track is None or len(odo) < 2 or len(track) < 2:
+        return 1.0
+    s = np.interp(track[:, 0], odo[:, 0], odo[:, 1], left=np.nan, right=np.nan)
+    ok = np.isfinite(s) & (s > 2.0) & (track[:, 1] > 2.0)
+    if ok.sum() < 20:
+        return 1.0
+    k = float(s[ok] @ track[ok, 1]) / float(s[ok] @ s[ok])
+    return float(np.clip(k, *SCALE_RANGE))
 
 
 def means(speed: np.ndarray, imu: np.ndarray, every_s: float = EVERY_S) -> np.ndarray:

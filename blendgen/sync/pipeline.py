@@ -52,6 +52,7 @@ class SyncResult:
     cov: np.ndarray  # (N, 6) variance of position (m^2) and rotation error (rad^2) per pose
     quality: list[dict]  # per pose: vo status, inliers, parallax, flags
     summary: dict = field(default_factory=dict)
+    speed_track: np.ndarray | None = None  # smoothed (t on the IMU clock, vehicle forward speed) per pose
 
     @property
     def times(self) -> np.ndarray:
@@ -216,9 +217,12 @@ def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=N
         "sensors": {"imu": use_imu, "gnss": use_gnss, "vo": use_vo,
                     "speed": "speed_scale" in result.summary.get("calibration", {})},
     })
-    if len(rec.speed) and getattr(settings, "use_speed", True) and not result.summary["sensors"]["speed"]:
-        result.summary["odometer_unused"] = ("speed.csv is not used: the odometer needs the IMU and GNSS of a road "
-                                             "vehicle (sync.road_vehicle)")
+    if len(rec.speed) and not result.summary["sensors"]["speed"]:
+        result.summary["odometer_unused"] = (
+            "speed.csv is not used: the odometer needs the IMU and GNSS of a road vehicle (sync.road_vehicle)"
+            if getattr(settings, "use_speed", False) else
+            "speed.csv is not used (sync.use_speed: true / --speed uses it; off by default: in stop-and-go "
+            "traffic it made the smoothed track worse, docs/sync.md)")
     _check_finite(result)
     write_poses(out_dir, result)
     return result
@@ -320,7 +324,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     if use_imu and use_gnss and getattr(settings, "road_vehicle", True):
         pri = calibration.read_priors(rec)
         R_bv0 = calibration.nominal_vehicle_frame(fwd, R0.T @ np.array([0.0, 0.0, 1.0]))
-        if getattr(settings, "use_speed", True) and len(rec.speed):
+        if getattr(settings, "use_speed", False) and len(rec.speed):
             odo = odometer.means(rec.speed, imu)
         calib = (R_bv0, pri.mount_std, pri.latency_s, pri.latency_std_s, R_bv0 @ pri.lever_arm_v,
                  pri.lever_arm_std_m, *((pri.speed_scale_std, pri.speed_latency_s,
@@ -386,7 +390,12 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                 args = _with_latency(args, lat_prof.tau_s)
             if want_scale:
                 h_scale = noise
-        args = args[:_ARG_ODO] + (with_odo,)
+        if len(odo):
+            # the odometer's scale starts from the first pass's speed: from its prior (1 +- 0.02)
+            # the final pass integrated a 2 % wrong speed before the fixes pinned it, and the
+            # smoother does not re-linearise (stop-and-go: 1.05 m off at the start)
+            k0 = odometer.initial_scale(odo, res.speed_track)
+            args = args[:_ARG_CALIB] + (args[_ARG_CALIB][:9] + (k0,),) + args[_ARG_CALIB + 1:_ARG_ODO] + (with_odo,)
         res2, _, _ = _filter_pass(rec, settings, cfg, x1, P1, *args, False, road=road, h_scale=h_scale)
         # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
         z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
@@ -761,11 +770,12 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 raise StageError(f"filter became numerically unstable at t={t:.3f}")
             bar.update(1)
     bar.close()
-    x0_s, var0 = None, None
+    x0_s, var0, speed_track = None, None, None
     if smooth:
         T_bc = make_pose(R_bc, p_bc)
         sm = ekf.smooth(marks)
         x0_s, var0 = sm[0]
+        speed_track = np.array([[t, (post[5].T @ post[2].T @ post[1])[0]] for t, (post, _) in zip(out_t, sm[1:])])
         for k, ((p, v, R, *_), var) in enumerate(sm[1:]):
             if np.all(np.isfinite(p)) and np.all(np.isfinite(R)):
                 poses[k] = (poses[k][0], poses[k][1], make_pose(R, p) @ T_bc)
@@ -787,7 +797,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             summary["road_height"] = road.summary()
         state = (ekf.R_bv, ekf.tau, ekf.lever) + ((ekf.speed_scale, ekf.speed_latency) if len(odo) else ())
         summary["calibration"] = calibration.report(state, np.diag(ekf.P)[CALIB], R_bc)
-    return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary), x0_s, var0
+    return SyncResult(poses, np.array(covs).reshape(-1, 6), quality, summary, speed_track), x0_s, var0
 
 
 def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:

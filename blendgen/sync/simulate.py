@@ -225,7 +225,8 @@ def simulate_odometer(traj: Trajectory, rate: float = 100.0, scale: float = 0.99
     t = np.arange(traj.t[0] + 0.05, traj.t[-1] - 0.05, 1.0 / rate)
     ts = t - latency_s
     v_fwd = np.einsum("nji,nj->ni", traj.R(ts), traj.velocity(ts))[:, 0]
-    s = scale * v_fwd + rng.normal(0.0, noise_mps, len(t))
+    # wheels that do not turn read 0: no noise while standing (a wheel-speed sensor counts teeth)
+    s = np.where(np.abs(v_fwd) < 0.05, 0.0, scale * v_fwd + rng.normal(0.0, noise_mps, len(t)))
     if quantum_mps > 0:
         s = np.round(s / quantum_mps) * quantum_mps
     return np.column_stack([t, np.maximum(s, 0.0)])

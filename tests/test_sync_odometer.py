@@ -14,7 +14,7 @@ from blendgen.recording.model import Recording
 from blendgen.sync import so3
 from blendgen.sync.calibration import describe, read_priors
 from blendgen.sync.ekf import N, EkfConfig, ErrorStateEkf
-from blendgen.sync.odometer import means
+from blendgen.sync.odometer import initial_scale, means
 from blendgen.sync.pipeline import run_sync
 from blendgen.sync.simulate import GEOREF, synthetic_recording
 
@@ -32,6 +32,18 @@ def test_means_bin_the_readings_and_the_imu():
     np.testing.assert_allclose(m[:5, 2], 0.5, atol=1e-9)
     np.testing.assert_allclose(m[5:, 2], 1.5, atol=1e-9)
     assert means(np.zeros((0, 2)), imu).shape == (0, 5)
+
+
+def test_initial_scale_from_the_first_pass_speed():
+    t = np.arange(0.0, 30.0, 0.1)
+    v = 8.0 + np.sin(t)
+    odo = np.column_stack([t + 0.05, v / 1.03, np.zeros((len(t), 3))])
+    track = np.column_stack([t, v])
+    assert initial_scale(odo, track) == pytest.approx(1.03, abs=0.003)
+    assert initial_scale(odo, track[:10]) == 1.0  # too few moving poses: the prior
+    assert initial_scale(odo, None) == 1.0
+    track[:, 1] = 0.5  # standing / creeping: no scale from it
+    assert initial_scale(odo, track) == 1.0
 
 
 def _ekf() -> ErrorStateEkf:

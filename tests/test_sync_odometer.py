@@ -172,3 +172,16 @@ def test_command_uses_the_odometer_when_asked(tmp_path, capsys):
     # without GNSS there is no vehicle frame to put the speed in: said, not silently dropped
     assert main(["sync", str(root), "--out", str(tmp_path / "c"), "--quiet", "--no-gnss", "--speed"]) == 0
     assert "speed.csv is not used: the odometer needs the IMU and GNSS" in capsys.readouterr().out
+
+
+def test_stop_and_go_with_the_odometer(tmp_path):
+    """Stop-and-go (0 -> 8 m/s in 2 s, 15 s standing, twice): with the odometer the track is not
+    worse than without. Before the final pass was iterated from its own smoothed start it was:
+    1.1 m off at the start (the filter split pitch and accelerometer bias against the speed)."""
+    errs = {}
+    for key, odo in (("without", None), ("with", {"scale": 0.98, "latency_s": -0.05})):
+        rec, traj, T_cam_imu = synthetic_recording("stop_and_go", 50.0, frames=False, seed=0, odometer=odo)
+        res = run_sync(rec, Sync(use_speed=True), tmp_path / key, georef=GEOREF, progress=False)
+        T_bc = np.linalg.inv(T_cam_imu)
+        errs[key] = np.linalg.norm([Twc[:2, 3] - (traj.pose(t) @ T_bc)[:2, 3] for _, t, Twc in res.poses], axis=1)
+    assert errs["with"].max() < 0.3 and np.sqrt(np.mean(errs["with"] ** 2)) <= np.sqrt(np.mean(errs["without"] ** 2))

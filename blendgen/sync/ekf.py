@@ -411,33 +411,37 @@ class ErrorStateEkf:
         H[0, ITH] = dyaw_df @ (-self.R @ so3.hat(forward_body))
         return self._update(kind, r, H, np.array([[std**2]]))
 
+    def _vehicle_velocity(self):
+        """The velocity in the vehicle frame, vv = R_bv^T R^T v, its body-frame form and its
+        Jacobian (3 x N: velocity, attitude, mount)."""
+        vb = self.R.T @ self.v
+        vv = self.R_bv.T @ vb
+        H = np.zeros((3, N))
+        H[:, IV] = self.R_bv.T @ self.R.T
+        H[:, ITH] = self.R_bv.T @ so3.hat(vb)
+        H[:, IM] = so3.hat(vv)
+        return vv, H
+
     def update_vehicle_velocity(self, std_lat: float, std_up: float) -> bool:
         """Non-holonomic constraint in the vehicle frame (the mount R_bv applied): a car neither
         slides sideways nor leaves the road surface, so its velocity has no y or z component
         there. With the mount estimated this makes the mount's pitch and yaw observable."""
-        vb = self.R.T @ self.v
-        vv = self.R_bv.T @ vb
-        H = np.zeros((2, N))
-        H[:, IV] = (self.R_bv.T @ self.R.T)[1:3]
-        H[:, ITH] = (self.R_bv.T @ so3.hat(vb))[1:3]
-        H[:, IM] = so3.hat(vv)[1:3]
-        return self._update("nhc", -vv[1:3], H, np.diag([std_lat**2, std_up**2]))
+        vv, H = self._vehicle_velocity()
+        return self._update("nhc", -vv[1:3], H[1:3], np.diag([std_lat**2, std_up**2]))
 
     def update_vehicle_speed(self, reading: float, std: float, f_b) -> bool:
         """The odometer (CAN wheel speed): a reading is the vehicle frame's forward velocity L
         seconds ago over k (k: tyre radius, L: the odometer's clock against the IMU's; both
         calibration states): k reading = v_x - L a_x, a_x the forward acceleration from the
         specific force f_b (body frame, averaged over the reading's interval)."""
-        vb = self.R.T @ self.v
-        vv = self.R_bv.T @ vb
+        vv, Hv = self._vehicle_velocity()
         g_b = self.R.T @ GRAVITY
         a_v = self.R_bv.T @ (np.asarray(f_b, dtype=float) - self.ba + g_b)  # acceleration, vehicle frame
         L = self.speed_latency
-        H = np.zeros((1, N))  # of h = v_x - L a_x
-        H[0, IV] = (self.R_bv.T @ self.R.T)[0]
-        H[0, ITH] = (self.R_bv.T @ (so3.hat(vb) - L * so3.hat(g_b)))[0]
+        H = Hv[:1].copy()  # of h = v_x - L a_x
+        H[0, ITH] -= L * (self.R_bv.T @ so3.hat(g_b))[0]
         H[0, IBA] = L * self.R_bv.T[0]
-        H[0, IM] = (so3.hat(vv) - L * so3.hat(a_v))[0]
+        H[0, IM] -= L * so3.hat(a_v)[0]
         H[0, IK] = -reading
         H[0, IL] = -a_v[0]
         r = np.array([self.speed_scale * reading - vv[0] + L * a_v[0]])

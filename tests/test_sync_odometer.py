@@ -153,7 +153,7 @@ def test_odometer_scale_and_latency_are_recovered(tmp_path):
     assert "latency -60 ms as given" in describe(res.summary["calibration"])
 
 
-def test_command_uses_the_odometer_when_asked(tmp_path, capsys):
+def test_command_uses_the_odometer_by_default(tmp_path, capsys):
     from blendgen.cli import main
 
     rec, _, _ = synthetic_recording("drive", 20.0, frames=False, seed=0, odometer={"scale": 0.98})
@@ -163,14 +163,14 @@ def test_command_uses_the_odometer_when_asked(tmp_path, capsys):
     folder.write_imu(root, rec.imu)
     folder.write_gnss(root, rec.gnss)
     folder.write_speed(root, rec.speed)
-    assert main(["sync", str(root), "--out", str(tmp_path / "a"), "--quiet", "--speed"]) == 0
+    assert main(["sync", str(root), "--out", str(tmp_path / "a"), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "odometer 209 used / 0 rejected" in out and "odometer scale 1.02" in out
-    assert main(["sync", str(root), "--out", str(tmp_path / "b"), "--quiet"]) == 0  # off by default, said
+    assert main(["sync", str(root), "--out", str(tmp_path / "b"), "--quiet", "--no-speed"]) == 0  # left out, said
     out = capsys.readouterr().out
-    assert "odometer scale" not in out and "speed.csv is not used (sync.use_speed: true / --speed" in out
+    assert "odometer scale" not in out and "speed.csv is not used (sync.use_speed: false / --no-speed)" in out
     # without GNSS there is no vehicle frame to put the speed in: said, not silently dropped
-    assert main(["sync", str(root), "--out", str(tmp_path / "c"), "--quiet", "--no-gnss", "--speed"]) == 0
+    assert main(["sync", str(root), "--out", str(tmp_path / "c"), "--quiet", "--no-gnss"]) == 0
     assert "speed.csv is not used: the odometer needs the IMU and GNSS" in capsys.readouterr().out
 
 

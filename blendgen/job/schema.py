@@ -68,9 +68,8 @@ class Sync(Section):
     use_imu: bool = True
     use_gnss: bool = True
     use_vo: bool = True
-    # the vehicle's odometer (recording speed.csv): opt-in, in stop-and-go traffic it made the
-    # smoothed track worse (docs/sync.md, "The vehicle's odometer")
-    use_speed: bool = False
+    # the vehicle's odometer (recording speed.csv), with the IMU and GNSS of a road vehicle
+    use_speed: bool = True
     gnss_std_m: PosFloat | None = None  # default: gnss.csv h_std_m, else 1.5 m
     smooth: bool = True  # Rauch-Tung-Striebel pass after the filter (uses later data for earlier poses)
     pose_rate_hz: Annotated[float, Field(gt=0, le=200)] = 10.0  # output rate when the recording has no frames

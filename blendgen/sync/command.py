@@ -27,7 +27,7 @@ def register(subparsers) -> None:
     p.add_argument("--no-imu", action="store_true", help="ignore imu.csv")
     p.add_argument("--no-vo", action="store_true", help="do not use visual odometry")
     p.add_argument("--no-gnss", action="store_true", help="ignore gnss.csv (and the LUT)")
-    p.add_argument("--speed", action="store_true", help="use speed.csv, the vehicle's odometer (off by default)")
+    p.add_argument("--no-speed", action="store_true", help="ignore speed.csv (the vehicle's odometer)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
 
@@ -46,7 +46,7 @@ def settings_from_args(args: argparse.Namespace):
     if args.reanchor_every is not None:
         kw["reanchor_every_s"] = args.reanchor_every if args.reanchor_every > 0 else None
     kw["use_imu"], kw["use_vo"], kw["use_gnss"] = not args.no_imu, not args.no_vo, not args.no_gnss
-    kw["use_speed"] = bool(getattr(args, "speed", False))
+    kw["use_speed"] = not getattr(args, "no_speed", False)
     try:
         return Sync(**kw)
     except ValidationError as e:

@@ -220,9 +220,7 @@ def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=N
     if len(rec.speed) and not result.summary["sensors"]["speed"]:
         result.summary["odometer_unused"] = (
             "speed.csv is not used: the odometer needs the IMU and GNSS of a road vehicle (sync.road_vehicle)"
-            if getattr(settings, "use_speed", False) else
-            "speed.csv is not used (sync.use_speed: true / --speed uses it; off by default: in stop-and-go "
-            "traffic it made the smoothed track worse, docs/sync.md)")
+            if getattr(settings, "use_speed", True) else "speed.csv is not used (sync.use_speed: false / --no-speed)")
     _check_finite(result)
     write_poses(out_dir, result)
     return result
@@ -324,7 +322,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     if use_imu and use_gnss and getattr(settings, "road_vehicle", True):
         pri = calibration.read_priors(rec)
         R_bv0 = calibration.nominal_vehicle_frame(fwd, R0.T @ np.array([0.0, 0.0, 1.0]))
-        if getattr(settings, "use_speed", False) and len(rec.speed):
+        if getattr(settings, "use_speed", True) and len(rec.speed):
             odo = odometer.means(rec.speed, imu)
         calib = (R_bv0, pri.mount_std, pri.latency_s, pri.latency_std_s, R_bv0 @ pri.lever_arm_v,
                  pri.lever_arm_std_m, *((pri.speed_scale_std, pri.speed_latency_s,

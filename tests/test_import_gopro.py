@@ -127,6 +127,16 @@ def test_real_gopro_karma(tmp_path):
     # gravity: the level, forward-looking gimbal camera sees the specific force "up" = image -y
     f_cam = R_CAM_SENSOR @ rec.imu[:, 4:7].mean(axis=0)
     assert np.linalg.norm(f_cam) == pytest.approx(9.8, abs=0.3) and f_cam[1] < -9.3
+    # GoPro's IMU frame is X left, Y back, Z up: the drone speeds up from ~1 to ~7 m/s along the
+    # camera's axis in the first 4 s (the fixes), so the forward specific force is positive
+    # (+1.45 m/s^2; read as X right, Y forward it was -1.45), and in the right turn at the end
+    # (camera y, down, turning +8 deg/s) the centripetal force points to the image's right
+    t, f = rec.imu[:, 0], rec.imu[:, 4:7] @ R_CAM_SENSOR.T
+    w = rec.imu[:, 1:4] @ R_CAM_SENSOR.T
+    assert f[t < 4.0, 2].mean() > 1.0
+    turn = t > 10.8
+    assert np.degrees(w[turn, 1].mean()) > 5.0 and f[turn, 0].mean() > 0.3
+    assert rec.extra["vehicle"] == {"road_vehicle": False}  # Karma drone telemetry
     lat, lon = rec.gnss_col("lat"), rec.gnss_col("lon")
     assert len(lat) > 40 and np.all(np.abs(lat - 33.1255) < 0.01) and np.all(np.abs(lon + 117.331) < 0.01)
     assert rec.gnss[0, 0] > -0.5 and rec.gnss[-1, 0] < 13.0  # GNSS on the video clock

@@ -123,6 +123,18 @@ def read_priors(rec) -> CalibPriors:
                        speed_latency_auto=sl_auto)
 
 
+def road_vehicle(rec) -> bool:
+    """calib.yaml `vehicle: {road_vehicle: false}`: the recording says its sensors were not on a
+    road vehicle (the GoPro importer writes it for Karma drone telemetry), so the vehicle-frame
+    constraints and the calibration states are off whatever the job says."""
+    veh = rec.extra.get("vehicle") or {}
+    v = veh.get("road_vehicle", True) if isinstance(veh, dict) else True
+    if not isinstance(v, bool):
+        where = str(rec.root / "calib.yaml") if rec.root is not None else "calib.yaml"
+        raise UserError(f"road_vehicle: expected true or false, got {v!r}", where=where + " vehicle")
+    return v
+
+
 def nominal_vehicle_frame(forward_b: np.ndarray, up_b: np.ndarray) -> np.ndarray:
     """R_body_vehicle with x along the forward axis made horizontal, z up."""
     z = up_b / np.linalg.norm(up_b)

@@ -95,10 +95,13 @@ def _run(args: argparse.Namespace) -> int:
         from blendgen.sync.time_offset import describe as describe_offset
 
         print("sync: " + describe_offset(s["camera_imu_time_offset"]))
-    if "calibration" in s:
-        from blendgen.sync.calibration import describe
+    from blendgen.sync.calibration import describe, road_vehicle
 
+    if "calibration" in s:
         print("sync: " + describe(s["calibration"]))
+    elif not road_vehicle(rec):
+        print("sync: not a road vehicle (calib.yaml vehicle.road_vehicle: false): no no-sideslip, level or "
+              "road-height constraints, no mount estimate")
     if s.get("road_height"):
         r = s["road_height"]
         print(f"sync: road height: {r['point']} {r['height_m']:.3f} +- {r['height_std_m']:.3f} m above the twin's road"

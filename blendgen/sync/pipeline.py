@@ -219,7 +219,8 @@ def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=N
     })
     if len(rec.speed) and not result.summary["sensors"]["speed"]:
         result.summary["odometer_unused"] = (
-            "speed.csv is not used: the odometer needs the IMU and GNSS of a road vehicle (sync.road_vehicle)"
+            "speed.csv is not used: the odometer needs the IMU and GNSS of a road vehicle (sync.road_vehicle, "
+            "calib.yaml vehicle.road_vehicle)"
             if getattr(settings, "use_speed", True) else "speed.csv is not used (sync.use_speed: false / --no-speed)")
     _check_finite(result)
     write_poses(out_dir, result)
@@ -319,7 +320,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     # the vehicle frame: forward along the camera's optical axis made level, up from gravity;
     # the filter estimates how the IMU is really mounted in it (road vehicles only)
     calib, road, odo = None, None, np.zeros((0, 5))  # odo: odometer.means of speed.csv
-    if use_imu and use_gnss and getattr(settings, "road_vehicle", True):
+    if use_imu and use_gnss and getattr(settings, "road_vehicle", True) and calibration.road_vehicle(rec):
         pri = calibration.read_priors(rec)
         R_bv0 = calibration.nominal_vehicle_frame(fwd, R0.T @ np.array([0.0, 0.0, 1.0]))
         if getattr(settings, "use_speed", True) and len(rec.speed):

@@ -3,9 +3,11 @@
 The `gpmd` track is read straight from the MP4 sample tables (mp4.py) and parsed as KLV
 (gpmf.py). Used streams:
   ACCL (m/s^2), GYRO (rad/s): camera IMU. Columns come in the sensor's axis order (HERO5: z, x, y,
-      named in STNM; HERO6+: ORIN, lower case = negated). blendgen writes them in the sensor frame
-      x right, y forward, z up (checked against gravity on the HERO5/Karma sample) and
-      T_cam_imu rotates that frame to the OpenCV camera axes.
+      named in STNM; HERO6+: ORIN, lower case = negated). blendgen writes them in GoPro's IMU
+      frame (gpmf-parser's "IMU Orientation" figure: X left, Y back towards the screen, Z up) and
+      T_cam_imu rotates that frame to the OpenCV camera axes. Checked on the HERO5/Karma sample:
+      gravity is image "up", the forward specific force follows the GNSS speed-up, and with the
+      old reading (X right, Y forward) 28 of 47 fixes were rejected, now none.
   GPS5 (lat, lon, alt, 2D speed, 3D speed) with GPSP (DOP x100) from the camera's receiver, or
   the GoPro Karma drone's GPRI (MAVLink GPS_RAW: time, lat, lon, alt, eph, epv, vel, cog, fix, sats).
   CORI (camera orientation quaternions, HERO8+) is written to `cori.csv` beside the recording
@@ -32,8 +34,8 @@ from blendgen.recording.importers import common, gpmf, mp4
 from blendgen.recording.model import ImuNoise
 
 DEFAULT_HFOV_DEG = 94.0
-# sensor frame (x right, y forward, z up) -> OpenCV camera (x right, y down, z forward)
-R_CAM_SENSOR = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+# GoPro IMU frame (X left, Y back, Z up) -> OpenCV camera (x right, y down, z forward)
+R_CAM_SENSOR = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
 HERO5_ORDER = "ZXY"  # HERO5 streams without ORIN: "Gyroscope (z,x,y)", "Accelerometer (up/down, right/left, forward/back)"
 
 
@@ -160,12 +162,16 @@ def import_gopro(src, dst, *, hfov_deg: float | None = None, force: bool = False
     hf = float(hfov_deg) if hfov_deg else DEFAULT_HFOV_DEG
     camera = common.default_camera(w, h, hf)
     extra = {"video": video_name}
+    if "GPRI" in pk:  # only a Karma drone writes GPRI: sync must not hold it to a road vehicle's motion
+        extra["vehicle"] = {"road_vehicle": False}
+        notes.append("Karma drone telemetry (GPRI): calib.yaml vehicle.road_vehicle false, sync applies no "
+                     "road-vehicle constraints")
     if utc_origin is not None:
         extra["time_origin_utc"] = datetime.fromtimestamp(utc_origin, tz=timezone.utc).isoformat()
     extra["import"] = common.import_meta(
         "gopro", src,
         camera=f"assumed pinhole with {hf:g} deg horizontal field of view (GoPro intrinsics are not in the file)",
-        T_cam_imu="assumed GoPro sensor axes (x right, y forward, z up) rotated to camera axes, lever arm 0",
+        T_cam_imu="assumed GoPro IMU axes (X left, Y back, Z up) rotated to camera axes, lever arm 0",
         notes=notes)
     folder.write_calib(dst, camera, make_pose(R_CAM_SENSOR, np.zeros(3)), ImuNoise(update_rate=rate), extra=extra)
     return dst

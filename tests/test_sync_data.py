@@ -8,7 +8,7 @@ import pytest
 
 from blendgen.job.schema import Sync
 from blendgen.recording.folder import read_recording
-from blendgen.sync.metrics import comma_errors
+from blendgen.sync.metrics import comma_errors, recording_horizon_errors
 from blendgen.sync.pipeline import run_sync
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -78,23 +78,8 @@ def test_udacity_video_vo_tracks_all_frames(tmp_path):
     assert np.all(np.isfinite(P)) and steps.max() < 1.0
 
 
-def karma_horizon_errors(rec, res):
-    """Elevation (deg) of the sea horizon, at two points on it, above each synced camera's
-    horizontal plane (truth: minus the dip, ~0.2 deg). The sea is the left third of the frame."""
-    import cv2
-
-    from blendgen.sync.metrics import horizon_errors, sea_horizon
-
-    cap, lines, k = cv2.VideoCapture(str(rec.root / rec.video)), {}, 0
-    while True:
-        ok, im = cap.read()
-        if not ok:
-            break
-        h = sea_horizon(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY), (10, 240), (150, 330))
-        if h is not None:
-            lines[k] = h
-        k += 1
-    return horizon_errors(lines, {i: T for i, (_, _, T) in enumerate(res.poses)}, rec.camera)
+# the Karma clip's sea: the left third of the frame, the horizon near the middle row
+KARMA_SEA = ((10, 240), (150, 330))
 
 
 def test_gopro_karma_follows_its_fixes_and_the_sea_horizon(tmp_path):
@@ -109,6 +94,9 @@ def test_gopro_karma_follows_its_fixes_and_the_sea_horizon(tmp_path):
     res = run_sync(rec, Sync(), tmp_path / "out", progress=False)
     assert res.summary["rejected"].get("gnss", 0) == 0 and res.summary["updates"]["gnss"] == 47
     assert "calibration" not in res.summary  # a drone: no road-vehicle constraints or mount
-    e = karma_horizon_errors(rec, res)
+    # the lens is a guessed 94 deg pinhole: VO at the floors for exact intrinsics pulled the camera
+    # to 1.9 deg off the horizon, IMU + GNSS alone 1.2 deg; with the assumed-lens floors 1.3 deg
+    assert "lens is the importer's assumption" in res.summary["vo_trust"]["trusted"]
+    e = recording_horizon_errors(rec, res.poses, *KARMA_SEA)
     assert len(e) >= 80
-    assert abs(np.median(e.mean(axis=1))) < 3.0 and abs(np.median(e[:, 1] - e[:, 0])) < 1.0
+    assert abs(np.median(e.mean(axis=1))) < 1.6 and abs(np.median(e[:, 1] - e[:, 0])) < 1.0

@@ -53,6 +53,18 @@ def test_calib_yaml_latency_auto_and_bad_values():
         read_priors(_rec({"latency_s": "auto", "latency_max_s": 0.0}))
 
 
+def test_calib_yaml_road_vehicle():
+    from blendgen.sync.calibration import road_vehicle
+
+    rec = _rec({})
+    assert road_vehicle(rec)
+    rec.extra["vehicle"] = {"road_vehicle": False}
+    assert not road_vehicle(rec)
+    rec.extra["vehicle"] = {"road_vehicle": "no"}
+    with pytest.raises(UserError, match="road_vehicle: expected true or false"):
+        road_vehicle(rec)
+
+
 def _drive_error(out, latency_true: float, mode, seed: int = 0):
     rec, traj, T_cam_imu = synthetic_recording("drive", 60, frames=False, seed=seed,
                                                gnss_errors={"latency_s": latency_true})

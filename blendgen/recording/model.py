@@ -75,5 +75,11 @@ class Recording:
             return datetime.fromtimestamp(float(t), tz=timezone.utc)
         return None
 
+    @property
+    def intrinsics_assumed(self) -> bool:
+        """The importer guessed the lens (a field of view, a pinhole): not a calibration."""
+        meta = self.extra.get("import") or {}
+        return str(meta.get("camera_calibration", "")).startswith("assumed")
+
     def gnss_col(self, name: str) -> np.ndarray | None:
         return self.gnss[:, self.gnss_columns.index(name)] if name in self.gnss_columns else None

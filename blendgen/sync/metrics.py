@@ -210,3 +210,18 @@ def horizon_errors(lines: dict, poses: dict, camera: Camera, half_span_px: float
         rays = Ki @ np.column_stack([np.vstack([p - half_span_px * u, p + half_span_px * u]), np.ones(2)]).T
         out.append(np.degrees(np.arcsin(up_c @ (rays / np.linalg.norm(rays, axis=0)))))
     return np.array(out).reshape(-1, 2)
+
+
+def recording_horizon_errors(rec, poses: list, cols: tuple[int, int], rows: tuple[int, int]) -> np.ndarray:
+    """`horizon_errors` over a recording's frames (sea in pixel columns `cols`, horizon within
+    `rows`) for the synced poses [(id, t, T_world_cam)], one per frame."""
+    import cv2
+
+    from blendgen.recording.folder import iter_frames
+
+    lines = {}
+    for i, img in iter_frames(rec, skip_bad=True):
+        h = None if img is None else sea_horizon(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), cols, rows)
+        if h is not None:
+            lines[i] = h
+    return horizon_errors(lines, {i: T for i, (_, _, T) in enumerate(poses)}, rec.camera)

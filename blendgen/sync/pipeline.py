@@ -290,6 +290,9 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         if use_imu:
             trust, toff, out_t = _trust_and_time_offset(rec, [vo_cache.get(i) for i in range(len(out_t))], imu,
                                                         out_t_cam, out_t, R_bc, cfg)
+            if rec.intrinsics_assumed:
+                trust.reason += ("; the lens is the importer's assumption, so VO is weighted at no better than "
+                                 "0.5 deg rotation / 2 deg direction per pair (calibrate the camera for more)")
     if toff is None and rec.n_frames and rec.time_offset_estimate:
         toff = not_estimated(rec.time_offset_cam_imu, "it needs frames, VO and an IMU")
     starts = [a[0] for a in (imu[:, 0], gt_t if use_gnss else np.zeros(0), out_t) if len(a)]
@@ -595,6 +598,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     """One filter pass (+ RTS smoother when `smooth`). h_scale multiplies the fixes'
     horizontal noise (calib.yaml gnss.h_std_scale); odometer: (odometer.means rows, std m/s)."""
     p0, v0, R0, bg0, ba0 = x0
+    lens_assumed = rec.intrinsics_assumed
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
         ekf.enable_calibration(*calib)
@@ -736,7 +740,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     # correction out (image camera -> body camera) and use what is left
                     if ekf.has_clone and clone_i >= 0:
                         C0, C1 = trust.correction[clone_i], trust.correction[i]
-                        rot_cov, dir_cov = vo_noise(res)
+                        rot_cov, dir_cov = vo_noise(res, lens_assumed)
                         u = C0 @ res.u_dir if res.has_direction else None
                         if u is not None:
                             dir_cov = C0 @ dir_cov @ C0.T + trust.correction_std**2 * (np.eye(3) - np.outer(u, u))
@@ -748,7 +752,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 else:
                     if res.has_rotation and ekf.has_clone:
                         # noise from this pair's own fit (inliers, residuals, parallax), not a constant
-                        rot_std, dir_std = vo_noise(res)
+                        rot_std, dir_std = vo_noise(res, lens_assumed)
                         # features that do not move mean "standing" only if the IMU agrees and
                         # the filter is slow: a far scene (highway, drone) barely moves either
                         imu_quiet = (not use_imu) or bool(

@@ -30,7 +30,8 @@ from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import VoConfig, VoResult, make_vo
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
-from blendgen.sync.vo_trust import GyroIntegrator, TrustReport, assess, vo_noise
+from blendgen.sync.vo_trust import (VO_DIR_FLOOR_ASSUMED_LENS, VO_ROT_FLOOR_ASSUMED_LENS, GyroIntegrator, TrustReport,
+                                     assess, vo_noise)
 
 ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
 # vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
@@ -291,8 +292,10 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             trust, toff, out_t = _trust_and_time_offset(rec, [vo_cache.get(i) for i in range(len(out_t))], imu,
                                                         out_t_cam, out_t, R_bc, cfg)
             if rec.intrinsics_assumed:
-                trust.reason += ("; the lens is the importer's assumption, so VO is weighted at no better than "
-                                 "0.5 deg rotation / 2 deg direction per pair (calibrate the camera for more)")
+                trust.reason += (f"; the lens is the importer's assumption, so VO is weighted at no better than "
+                                 f"{np.degrees(VO_ROT_FLOOR_ASSUMED_LENS):.1f} deg rotation / "
+                                 f"{np.degrees(VO_DIR_FLOOR_ASSUMED_LENS):.1f} deg direction per pair "
+                                 f"(calibrate the camera for more)")
     if toff is None and rec.n_frames and rec.time_offset_estimate:
         toff = not_estimated(rec.time_offset_cam_imu, "it needs frames, VO and an IMU")
     starts = [a[0] for a in (imu[:, 0], gt_t if use_gnss else np.zeros(0), out_t) if len(a)]

@@ -1,6 +1,6 @@
 """Sync benchmark: what accuracy costs in time.
 
-    .venv/bin/python benchmarks/bench_sync.py [--quick] [--section hard|comma]
+    .venv/bin/python benchmarks/bench_sync.py [--quick] [--section hard|comma|karma|vo]
 
 1. A synthetic drive (60 s, --quick 20 s) like the built-in demo: 480x270 frames at 5 fps
    ray-cast through a textured street, IMU 200 Hz with noise and bias, GNSS 10 Hz with 1 m
@@ -11,15 +11,16 @@
    Accuracy: ATE, RPE (frame to frame), median rotation error, reprojection error of a point
    20 m ahead on the optical axis at 1280x720 -- absolute (twin frame) and after a 4-DoF
    (yaw + translation) alignment, the usual VIO convention.
-2. VO throughput at 960x540 on one core (cv2.setNumThreads(1), CPU time) per front end and
-   feature count (accuracy per setting: benchmarks/bench_vo.py).
+2. VO throughput at 960x540 on one core (cv2.setNumThreads(1), CPU time, best of 3 medians)
+   per front end and feature count (accuracy per setting: benchmarks/bench_vo.py). `--section vo`.
 3. comma2k19 (real IMU + GNSS, if ../shared/data is there): blendgen vs GTSAM vs raw GNSS; the
    peer as before and given blendgen's estimates (GNSS latency, fix-noise scale, height
    correlation, vehicle frame for no-sideslip, the CAN speed with blendgen's odometer scale and
    latency); blendgen with and without the odometer. `--section comma` runs only this.
 3b. The real GoPro Karma drone clip (camera + IMU + GNSS, no ground truth): the synced camera
    against the sea horizon (`metrics.recording_horizon_errors`) and the track against the fixes,
-   with and without VO, and VO at the floors for an exact lens although this one is assumed.
+   with and without VO, VO weighted as if the assumed lens were exact, and the automotive IMU
+   bias priors instead of the GoPro importer's.
    `--section karma` runs only this.
 4. A shaky drive with electronically stabilised frames: camera orientation vs the image's,
    with the gyro checks, IMU + GNSS alone, and VO taken as rigid (before issue 14).
@@ -297,7 +298,7 @@ def karma(quick: bool):
         return None
     import pymap3d
 
-    import blendgen.sync.vo_trust as vt
+    import blendgen.sync.pipeline as pl
     from blendgen.recording.folder import read_recording
     from blendgen.recording.importers import import_recording
     from blendgen.sync.metrics import recording_horizon_errors
@@ -307,18 +308,22 @@ def karma(quick: bool):
         rec = read_recording(import_recording("gopro", src, Path(d) / "rec", show_progress=False))
         g = rec.gnss
         fix = np.column_stack(pymap3d.geodetic2enu(g[:, 1], g[:, 2], g[:, 3], g[0, 1], g[0, 2], g[0, 3]))
-        floors = (vt.VO_ROT_FLOOR_ASSUMED_LENS, vt.VO_DIR_FLOOR_ASSUMED_LENS)
-        for name, s, exact in (("blendgen (VO at the assumed-lens floors)", Sync(), False),
-                               ("IMU + GNSS, no VO", Sync(use_vo=False), False),
-                               ("VO at the exact-lens floors (before)", Sync(), True)):
-            if exact:
-                vt.VO_ROT_FLOOR_ASSUMED_LENS, vt.VO_DIR_FLOOR_ASSUMED_LENS = vt.VO_ROT_FLOOR, vt.VO_DIR_FLOOR
+        noise, vo_noise = copy.copy(rec.imu_noise), pl.vo_noise
+        automotive = copy.copy(noise)
+        automotive.accelerometer_bias_std, automotive.gyroscope_bias_std = 0.1, 0.01
+        exact_lens = lambda res, lens_assumed=False: vo_noise(res)  # noqa: E731
+        for name, s, imu_noise, vo_w in (
+                ("blendgen (VO rotation only at the assumed-lens floor)", Sync(), noise, vo_noise),
+                ("IMU + GNSS, no VO", Sync(use_vo=False), noise, vo_noise),
+                ("VO weighted as for an exact lens (rotation + direction)", Sync(), noise, exact_lens),
+                ("automotive IMU bias priors (0.1 m/s^2, 0.01 rad/s)", Sync(), automotive, vo_noise)):
+            rec.imu_noise, pl.vo_noise = imu_noise, vo_w
             try:
                 c0 = time.process_time()
                 res = run_sync(rec, s, Path(d) / "out", progress=False)
                 cpu = time.process_time() - c0
             finally:
-                vt.VO_ROT_FLOOR_ASSUMED_LENS, vt.VO_DIR_FLOOR_ASSUMED_LENS = floors
+                rec.imu_noise, pl.vo_noise = noise, vo_noise
             t = np.array([p[1] for p in res.poses])
             xyz = np.array([p[2][:3, 3] for p in res.poses])
             at_fix = np.column_stack([np.interp(g[:, 0], t, xyz[:, k]) for k in range(3)])
@@ -467,13 +472,18 @@ def hard(quick: bool):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20 s drive, fewer VO timing frames")
-    ap.add_argument("--section", choices=("all", "hard", "comma", "karma"), default="all",
+    ap.add_argument("--section", choices=("all", "hard", "comma", "karma", "vo"), default="all",
                     help="hard: only the easy-vs-hard synthetic comparison; comma: only comma2k19 (blendgen "
-                         "and the GTSAM peer with blendgen's estimates); table printed, nothing written")
+                         "and the GTSAM peer with blendgen's estimates); karma: only the GoPro Karma clip; vo: only "
+                         "the VO throughput; table printed, nothing written")
     args = ap.parse_args()
     if args.section == "hard":
         print("5. easy vs hard synthetic drive")
         print("\n".join(hard(args.quick)[2]))
+        return
+    if args.section == "vo":
+        print("2. VO throughput")
+        vo_throughput(args.quick)
         return
     if args.section == "karma":
         print("3b. GoPro Karma clip")

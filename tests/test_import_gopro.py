@@ -137,6 +137,7 @@ def test_real_gopro_karma(tmp_path):
     turn = t > 10.8
     assert np.degrees(w[turn, 1].mean()) > 5.0 and f[turn, 0].mean() > 0.3
     assert rec.extra["vehicle"] == {"road_vehicle": False}  # Karma drone telemetry
+    assert rec.imu_noise.accelerometer_bias_std == 0.3 and rec.imu_noise.gyroscope_bias_std == 0.03
     lat, lon = rec.gnss_col("lat"), rec.gnss_col("lon")
     assert len(lat) > 40 and np.all(np.abs(lat - 33.1255) < 0.01) and np.all(np.abs(lon + 117.331) < 0.01)
     assert rec.gnss[0, 0] > -0.5 and rec.gnss[-1, 0] < 13.0  # GNSS on the video clock

@@ -94,9 +94,10 @@ def test_gopro_karma_follows_its_fixes_and_the_sea_horizon(tmp_path):
     res = run_sync(rec, Sync(), tmp_path / "out", progress=False)
     assert res.summary["rejected"].get("gnss", 0) == 0 and res.summary["updates"]["gnss"] == 47
     assert "calibration" not in res.summary  # a drone: no road-vehicle constraints or mount
-    # the lens is a guessed 94 deg pinhole: VO at the floors for exact intrinsics pulled the camera
-    # to 1.9 deg off the horizon, IMU + GNSS alone 1.2 deg; with the assumed-lens floors 1.3 deg
+    # the lens is a guessed 94 deg pinhole: VO weighted as for an exact lens pulled the camera to
+    # 1.9 deg off the horizon (IMU + GNSS alone 1.2); rotation only, at the assumed-lens floor, and
+    # a consumer IMU's bias priors (the importer's): 0.35 deg (truth: the dip, ~0.2)
     assert "lens is the importer's assumption" in res.summary["vo_trust"]["trusted"]
     e = recording_horizon_errors(rec, res.poses, *KARMA_SEA)
     assert len(e) >= 80
-    assert abs(np.median(e.mean(axis=1))) < 1.6 and abs(np.median(e[:, 1] - e[:, 0])) < 1.0
+    assert abs(np.median(e.mean(axis=1))) < 0.8 and abs(np.median(e[:, 1] - e[:, 0])) < 0.5

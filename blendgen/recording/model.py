@@ -27,6 +27,10 @@ class ImuNoise:
     gyroscope_noise_density: float = 1.7e-4  # rad/s/sqrt(Hz)
     gyroscope_random_walk: float = 2.0e-5  # rad/s^2/sqrt(Hz)
     update_rate: float = 200.0  # Hz
+    # blendgen's priors on the turn-on biases (1 sigma; not Kalibr's): a calibrated automotive
+    # MEMS unit; consumer cameras' datasheets allow +-40 mg (the GoPro importer writes 0.3 m/s^2)
+    accelerometer_bias_std: float = 0.1  # m/s^2
+    gyroscope_bias_std: float = 0.01  # rad/s
 
 
 @dataclass

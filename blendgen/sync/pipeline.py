@@ -30,10 +30,8 @@ from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import VoConfig, VoResult, make_vo
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
-from blendgen.sync.vo_trust import (VO_DIR_FLOOR_ASSUMED_LENS, VO_ROT_FLOOR_ASSUMED_LENS, GyroIntegrator, TrustReport,
-                                     assess, vo_noise)
+from blendgen.sync.vo_trust import VO_ROT_FLOOR_ASSUMED_LENS, GyroIntegrator, TrustReport, assess, vo_noise
 
-ACC_BIAS_PRIOR = 0.1  # m/s^2, 1 sigma: a calibrated automotive MEMS accelerometer
 # vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
 # velocity of a car, and how far from level across a road is (crown, banking)
 NHC_LAT_STD, NHC_UP_STD, NHC_EVERY_S = 0.3, 0.1, 0.1
@@ -292,10 +290,9 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             trust, toff, out_t = _trust_and_time_offset(rec, [vo_cache.get(i) for i in range(len(out_t))], imu,
                                                         out_t_cam, out_t, R_bc, cfg)
             if rec.intrinsics_assumed:
-                trust.reason += (f"; the lens is the importer's assumption, so VO is weighted at no better than "
-                                 f"{np.degrees(VO_ROT_FLOOR_ASSUMED_LENS):.1f} deg rotation / "
-                                 f"{np.degrees(VO_DIR_FLOOR_ASSUMED_LENS):.1f} deg direction per pair "
-                                 f"(calibrate the camera for more)")
+                trust.reason += (f"; the lens is the importer's assumption, so VO gives rotation only, no better "
+                                 f"than {np.degrees(VO_ROT_FLOOR_ASSUMED_LENS):.1f} deg per pair, and no direction "
+                                 f"of travel (calibrate the camera for more)")
     if toff is None and rec.n_frames and rec.time_offset_estimate:
         toff = not_estimated(rec.time_offset_cam_imu, "it needs frames, VO and an IMU")
     starts = [a[0] for a in (imu[:, 0], gt_t if use_gnss else np.zeros(0), out_t) if len(a)]
@@ -341,9 +338,10 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                                  pri.camera_height_m)
     # the levelling above cannot see the car's own longitudinal acceleration: start with a
     # loose tilt prior, then (with the smoother) run again from the smoothed initial state
+    acc_bias_std = float(rec.imu_noise.accelerometer_bias_std)
     P0 = np.concatenate([np.full(3, 4.0 if use_gnss else 1e-4), np.full(3, 4.0),
                          [0.15**2, 0.15**2, (yaw_std or 0.05) ** 2],
-                         np.full(3, 0.01**2), np.full(3, ACC_BIAS_PRIOR**2)])
+                         np.full(3, float(rec.imu_noise.gyroscope_bias_std) ** 2), np.full(3, acc_bias_std**2)])
     smooth = bool(getattr(settings, "smooth", True))
     # The odometer pins the speed, so an offset of its clock moves the whole trajectory in
     # time: the passes that measure the GNSS latency and noise run without it (with it and its
@@ -375,15 +373,15 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     res.summary["passes"] = 1
     if smooth and use_imu:
         # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior
-        # stays the original one (mean 0, ACC_BIAS_PRIOR) and the tilt prior no tighter than that
+        # stays the original one (mean 0, calib.yaml imu.accelerometer_bias_std) and the tilt prior no tighter than that
         # bias allows: starting from the first pass's bias with a tight prior counted the data
         # twice and compounded the pitch / bias ambiguity (comma2k19: -0.47 -> -0.96 m/s^2).
         p, v, R, bg = x0_s[:4]
         x1 = (p, v, R, bg, np.zeros(3))
-        floor = np.concatenate([np.full(6, 1e-4), np.full(3, (ACC_BIAS_PRIOR / 9.81) ** 2), np.full(3, 1e-8),
+        floor = np.concatenate([np.full(6, 1e-4), np.full(3, (acc_bias_std / 9.81) ** 2), np.full(3, 1e-8),
                                 np.zeros(3)])
         P1 = np.maximum(var0[:15] * 4.0, floor)
-        P1[12:15] = ACC_BIAS_PRIOR**2
+        P1[12:15] = acc_bias_std**2
         if want_latency or want_scale:
             # position and velocity loose again: their smoothed values were fitted with the
             # prior latency, and a tight start would pull the profile towards it
@@ -410,7 +408,7 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
             res2, _, _ = _filter_pass(rec, settings, cfg, (*x2_s[:4], np.zeros(3)), P1, *args, False, road=road,
                                       h_scale=h_scale)
         # keep the pass whose accelerometer bias sits closer to its prior (never the worse one)
-        z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / ACC_BIAS_PRIOR for r in (res, res2))
+        z1, z2 = (float(np.max(np.abs(r.summary["accel_bias"]))) / acc_bias_std for r in (res, res2))
         if z2 <= max(z1, 3.0):
             res = res2
             res.summary["passes"] = 2
@@ -744,7 +742,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     if ekf.has_clone and clone_i >= 0:
                         C0, C1 = trust.correction[clone_i], trust.correction[i]
                         rot_cov, dir_cov = vo_noise(res, lens_assumed)
-                        u = C0 @ res.u_dir if res.has_direction else None
+                        u = C0 @ res.u_dir if dir_cov is not None else None
                         if u is not None:
                             dir_cov = C0 @ dir_cov @ C0.T + trust.correction_std**2 * (np.eye(3) - np.outer(u, u))
                         ok = ekf.update_relative(C0 @ res.R_c1c2 @ C1.T, u, R_bc, p_bc, C1 @ rot_cov @ C1.T,

@@ -31,29 +31,30 @@ VO_DIR_INFLATE = 3.5
 # ~8e-4 rad/s and tilts the camera (60 s drive: 0.09 -> 0.16 deg with floors of 0.01 / 0.1 deg)
 VO_ROT_FLOOR = np.radians(0.08)
 VO_DIR_FLOOR = np.radians(0.5)
-# ... and with a lens the importer only assumed (a field of view, no distortion): the real GoPro
-# Karma clip's camera ended 1.9 deg off the sea horizon with VO at the floors above, 1.2 without
-# VO, 1.3 with these (docs/sync.md "The GoPro Karma clip against its sea horizon")
+# ... and with a lens the importer only assumed (a field of view, a pinhole): a larger rotation
+# floor, and no direction of travel, whose bias from an unknown principal point and distortion
+# (~1 deg per 7 px at f = 400 px) no number of pairs averages out. The real GoPro Karma clip's
+# camera against its sea horizon (docs/sync.md): VO at the floors above 1.90 deg off, without VO
+# 1.20, rotation only at this floor 1.15
 VO_ROT_FLOOR_ASSUMED_LENS = np.radians(0.5)
-VO_DIR_FLOOR_ASSUMED_LENS = np.radians(2.0)
 VO_ROT_NO_COV = 0.003             # rad: a pair without a fit covariance (should not happen)
 
 
 def vo_noise(res: VoResult, lens_assumed: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """(3x3 rotation covariance, 3x3 direction covariance or None) for a VO pair.
-    lens_assumed: the intrinsics are a guess (Recording.intrinsics_assumed): larger floors."""
-    rot_floor, dir_floor = ((VO_ROT_FLOOR_ASSUMED_LENS, VO_DIR_FLOOR_ASSUMED_LENS) if lens_assumed
-                            else (VO_ROT_FLOOR, VO_DIR_FLOOR))
+    lens_assumed: the intrinsics are a guess (Recording.intrinsics_assumed): a larger rotation
+    floor and no direction."""
+    rot_floor = VO_ROT_FLOOR_ASSUMED_LENS if lens_assumed else VO_ROT_FLOOR
     if res.rot_cov is not None:
         rot = VO_ROT_INFLATE**2 * res.rot_cov + rot_floor**2 * np.eye(3)
     else:
         rot = VO_ROT_NO_COV**2 * np.eye(3)
-    if not res.has_direction or res.u_dir is None:
+    if lens_assumed or not res.has_direction or res.u_dir is None:
         return rot, None
     u = np.asarray(res.u_dir, dtype=float)
     tangent = np.eye(3) - np.outer(u, u)
     dcov = res.dir_cov if res.dir_cov is not None else np.radians(0.7) ** 2 * tangent
-    return rot, VO_DIR_INFLATE**2 * dcov + dir_floor**2 * tangent
+    return rot, VO_DIR_INFLATE**2 * dcov + VO_DIR_FLOOR**2 * tangent
 
 
 # ----------------------------------------------------------------------------- gyro checks

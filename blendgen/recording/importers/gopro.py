@@ -173,7 +173,11 @@ def import_gopro(src, dst, *, hfov_deg: float | None = None, force: bool = False
         camera=f"assumed pinhole with {hf:g} deg horizontal field of view (GoPro intrinsics are not in the file)",
         T_cam_imu="assumed GoPro IMU axes (X left, Y back, Z up) rotated to camera axes, lever arm 0",
         notes=notes)
-    folder.write_calib(dst, camera, make_pose(R_CAM_SENSOR, np.zeros(3)), ImuNoise(update_rate=rate), extra=extra)
+    # an uncalibrated consumer IMU: turn-on biases as its class's datasheets allow (+-40 mg, a few
+    # deg/s); held to the automotive 0.1 m/s^2 the Karma clip's camera tilted 1.2 deg against the
+    # sea horizon, taking the accelerometer's bias for tilt (0.35 deg with these; docs/sync.md)
+    noise = ImuNoise(update_rate=rate, accelerometer_bias_std=0.3, gyroscope_bias_std=0.03)
+    folder.write_calib(dst, camera, make_pose(R_CAM_SENSOR, np.zeros(3)), noise, extra=extra)
     return dst
 
 

@@ -373,9 +373,10 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     res.summary["passes"] = 1
     if smooth and use_imu:
         # second pass, relinearised at the smoothed initial state. The accelerometer-bias prior
-        # stays the original one (mean 0, calib.yaml imu.accelerometer_bias_std) and the tilt prior no tighter than that
-        # bias allows: starting from the first pass's bias with a tight prior counted the data
-        # twice and compounded the pitch / bias ambiguity (comma2k19: -0.47 -> -0.96 m/s^2).
+        # stays the original one (mean 0, calib.yaml imu.accelerometer_bias_std) and the tilt
+        # prior no tighter than that bias allows: starting from the first pass's bias with a
+        # tight prior counted the data twice and compounded the pitch / bias ambiguity
+        # (comma2k19: -0.47 -> -0.96 m/s^2).
         p, v, R, bg = x0_s[:4]
         x1 = (p, v, R, bg, np.zeros(3))
         floor = np.concatenate([np.full(6, 1e-4), np.full(3, (acc_bias_std / 9.81) ** 2), np.full(3, 1e-8),

@@ -34,8 +34,8 @@ VO_DIR_FLOOR = np.radians(0.5)
 # ... and with a lens the importer only assumed (a field of view, a pinhole): a larger rotation
 # floor, and no direction of travel, whose bias from an unknown principal point and distortion
 # (~1 deg per 7 px at f = 400 px) no number of pairs averages out. The real GoPro Karma clip's
-# camera against its sea horizon (docs/sync.md): VO at the floors above 1.90 deg off, without VO
-# 1.20, rotation only at this floor 1.15
+# camera against its sea horizon (docs/sync.md; automotive IMU bias priors): VO at the floors
+# above 1.90 deg off, without VO 1.20, rotation only at this floor 1.15
 VO_ROT_FLOOR_ASSUMED_LENS = np.radians(0.5)
 VO_ROT_NO_COV = 0.003             # rad: a pair without a fit covariance (should not happen)
 

@@ -90,6 +90,12 @@ def _pick(topics: dict[str, str], types: tuple[str, ...], wanted: str | None, wh
     return cands[0] if cands else None
 
 
+def _by_time(rows: list) -> np.ndarray:
+    """Message rows (t first) sorted by time, repeated stamps dropped."""
+    arr = np.asarray(rows, dtype=float)
+    return common.dedupe_sorted(arr[:, 0], arr)[1]
+
+
 def import_rosbag(src, dst, *, image_topic: str | None = None, imu_topic: str | None = None,
                   gnss_topic: str | None = None, speed_topic: str | None = None, hfov_deg: float | None = None,
                   force: bool = False, show_progress: bool = True) -> Path:
@@ -183,22 +189,16 @@ def import_rosbag(src, dst, *, image_topic: str | None = None, imu_topic: str | 
         notes.append(f"several odometry/twist topics {speed_cands}: none used as the vehicle's speed "
                      "(choose one with --speed-topic)")
     if speed:
-        arr = np.asarray(speed)
-        arr = arr[np.argsort(arr[:, 0], kind="stable")]
-        arr = arr[np.concatenate([[True], np.diff(arr[:, 0]) > 0]) & np.isfinite(arr[:, 1])]
+        arr = _by_time(speed)
+        arr = arr[np.isfinite(arr[:, 1])]
         back = arr[:, 1] < 0
         if back.any():
             notes.append(f"{int(back.sum())} speed reading(s) < 0 (reversing) dropped: speed.csv is unsigned")
         folder.write_speed(dst, arr[~back])
     if imu:
-        arr = np.asarray(imu)
-        arr = arr[np.argsort(arr[:, 0], kind="stable")]
-        arr = arr[np.concatenate([[True], np.diff(arr[:, 0]) > 0])]
-        folder.write_imu(dst, arr)
+        folder.write_imu(dst, _by_time(imu))
     if gnss:
-        arr = np.asarray(gnss)
-        arr = arr[np.argsort(arr[:, 0], kind="stable")]
-        arr = arr[np.concatenate([[True], np.diff(arr[:, 0]) > 0])]
+        arr = _by_time(gnss)
         cols = ["t", "lat", "lon", "alt"] + (["h_std_m"] if np.any(np.isfinite(arr[:, 4])) else [])
         folder.write_gnss(dst, arr[:, : len(cols)], cols)
     camera, cam_note = None, "no images"

@@ -129,11 +129,18 @@ def _read_calib(root: Path) -> Recording:
         except ValueError:
             raise UserError(f"time_origin_utc: {quote(str(data['time_origin_utc']))} is not an ISO 8601 "
                             "time; expected e.g. 2024-06-21T10:30:00Z", where=str(path)) from None
+    rs = data["camera"].get("rolling_shutter_s", 0.0) if isinstance(data.get("camera"), dict) else 0.0
+    rs_auto = rs == "auto"
+    rs = 0.0 if rs_auto else rs
+    if isinstance(rs, bool) or not isinstance(rs, (int, float)) or not 0 <= rs < 1:
+        raise UserError(f"camera.rolling_shutter_s: expected the readout time from the top row to the bottom "
+                        f"row in seconds (0 for a global shutter, e.g. 0.03) or 'auto', got {rs!r}", where=str(path))
     known = {"camera", "T_cam_imu", "imu", "timeshift_cam_imu", "timeshift_cam_imu_estimate",
              "timeshift_cam_imu_search_s"}
     ts, est, search = _read_timeshift(data, path)
     rec = Recording(root=root, camera=camera, T_cam_imu=T, imu_noise=noise, time_offset_cam_imu=ts,
-                     time_offset_estimate=est, time_offset_search_s=search,
+                     time_offset_estimate=est, time_offset_search_s=search, rolling_shutter_s=float(rs),
+                     rolling_shutter_estimate=rs_auto,
                      extra={k: v for k, v in data.items() if k not in known})
     rec.issues.extend(f"{path.name}: missing {m}" for m in missing_calib)
     return rec
@@ -384,7 +391,7 @@ def _check_times(t: np.ndarray, path: Path, rec: Recording, gaps: bool = False) 
 # ----------------------------------------------------------------------------- writing
 
 def write_calib(root: Path, camera: Camera | None, T_cam_imu=None, imu_noise: ImuNoise | None = None,
-                time_offset: float = 0.0, extra: dict | None = None) -> None:
+                time_offset: float = 0.0, extra: dict | None = None, rolling_shutter_s: float = 0.0) -> None:
     data: dict = {}
     if camera is not None:
         data["camera"] = {
@@ -394,6 +401,8 @@ def write_calib(root: Path, camera: Camera | None, T_cam_imu=None, imu_noise: Im
             "distortion_coeffs": [float(v) for v in camera.dist],
             "resolution": [int(camera.width), int(camera.height)],
         }
+        if rolling_shutter_s > 0:
+            data["camera"]["rolling_shutter_s"] = float(rolling_shutter_s)
     data["T_cam_imu"] = np.asarray(T_cam_imu if T_cam_imu is not None else np.eye(4), dtype=float).tolist()
     data["imu"] = {k: float(v) for k, v in vars(imu_noise or ImuNoise()).items()}
     data["timeshift_cam_imu"] = float(time_offset)

@@ -44,6 +44,8 @@ class Recording:
     # it from VO vs gyro within time_offset_cam_imu +- time_offset_search_s (blendgen.sync.time_offset)
     time_offset_estimate: bool = False
     time_offset_search_s: float = 0.1
+    rolling_shutter_s: float = 0.0  # camera readout, top row to bottom row; a frame's stamp is its top row
+    rolling_shutter_estimate: bool = False  # calib `rolling_shutter_s: auto`: sync estimates it (sync.readout)
     frames_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     frame_files: list[str] | None = None  # image files relative to root, or None with a video
     video: str | None = None  # video file relative to root (frames.csv then holds t, index)

@@ -95,6 +95,10 @@ def _run(args: argparse.Namespace) -> int:
         from blendgen.sync.time_offset import describe as describe_offset
 
         print("sync: " + describe_offset(s["camera_imu_time_offset"]))
+    if "rolling_shutter" in s:
+        from blendgen.sync.readout import describe as describe_readout
+
+        print("sync: " + describe_readout(s["rolling_shutter"]))
     from blendgen.sync.calibration import describe, road_vehicle
 
     if "calibration" in s:

@@ -11,6 +11,7 @@ IMU clock (t_imu = t_cam + timeshift_cam_imu).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,7 @@ from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.latency import LatencyProfile, profile_latency
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
+from blendgen.sync.readout import estimate_readout
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import VoConfig, VoResult, make_vo
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
@@ -262,7 +264,26 @@ def vo_method(settings, rec: Recording) -> str:
 
 
 def _vo_config(settings, rec: Recording) -> VoConfig:
-    return VoConfig(n_features=int(settings.orb_features), method=vo_method(settings, rec))
+    return VoConfig(n_features=int(settings.orb_features), method=vo_method(settings, rec),
+                    readout_s=float(rec.rolling_shutter_s))
+
+
+def _rs_spins(imu: np.ndarray, t_frames: np.ndarray, readout_s: float, R_bc: np.ndarray,
+              knots: int = 16) -> np.ndarray | None:
+    """The camera's turn during each frame's readout (camera axes) from the gyro (IMU clock frame
+    times): (frames, knots, 3) rotation vectors from the top row's time to `knots` times evenly
+    over the readout, the gyro rate interpolated and integrated (small angles: rotation vectors
+    add). What the rolling-shutter correction of VO needs (`vo.rs_bearings`). Integrated, not
+    one rate per frame: shake of a few Hz changes the rate within the readout."""
+    if readout_s <= 0 or len(imu) < 2:
+        return None
+    sub = 4  # integration steps per knot interval
+    s = np.linspace(0.0, readout_s, sub * (knots - 1) + 1)
+    tt = np.asarray(t_frames, float)[:, None] + s[None, :]
+    w = np.stack([np.interp(tt, imu[:, 0], imu[:, k]) for k in (1, 2, 3)], axis=-1) @ R_bc  # R_bc^T w_imu
+    ds = s[1] - s[0]
+    rv = np.concatenate([np.zeros((len(tt), 1, 3)), np.cumsum(0.5 * (w[:, 1:] + w[:, :-1]) * ds, axis=1)], axis=1)
+    return rv[:, ::sub]
 
 
 def _quality(vo: VoResult | None, flags: list[str]) -> dict:
@@ -281,15 +302,24 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     if use_imu:
         cfg.max_imu_dt = max(5.0 * float(np.median(np.diff(imu[:, 0]))), 0.02)
     vo_cache: dict[int, VoResult | None] = {}
-    trust, toff = None, None
+    trust, toff, readout = None, None, None
     if use_vo:
         # VO first, over all frames: each pair is checked against the gyro, and whether the
         # frames move rigidly with the IMU at all is decided, before the filter trusts any
-        _vo_all(rec, settings, len(out_t), vo_cache, progress)
+        if rec.rolling_shutter_estimate and use_imu:
+            rec, readout = _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache, progress)
+        else:
+            _vo_all(rec, settings, len(out_t), vo_cache, progress,
+                    _rs_spins(imu, out_t, rec.rolling_shutter_s, R_bc) if use_imu else None)
         if use_imu:
             trust, toff, out_t = _trust_and_time_offset(rec, [vo_cache.get(i) for i in range(len(out_t))], imu,
                                                         out_t_cam, out_t, R_bc, cfg)
+            if rec.rolling_shutter_s > 0:
+                trust.reason += (f"; rows turned back to the frame's top row with the gyro (rolling shutter, "
+                                 f"{rec.rolling_shutter_s * 1e3:.1f} ms readout"
+                                 f"{', estimated' if readout is not None else ''})")
             if rec.intrinsics_assumed:
+                trust.reason = trust.reason.replace("VO rotation + direction", "VO rotation", 1)
                 trust.reason += (f"; the lens is the importer's assumption, so VO gives rotation only, no better "
                                  f"than {np.degrees(VO_ROT_FLOOR_ASSUMED_LENS):.1f} deg per pair, and no direction "
                                  f"of travel (calibrate the camera for more)")
@@ -433,12 +463,31 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         res.summary["vo_method"] = vo_method(settings, rec)
     if toff is not None:
         res.summary["camera_imu_time_offset"] = toff.summary()
+    if readout is not None:
+        res.summary["rolling_shutter"] = readout.summary()
     if trust is not None:
         res.summary["vo_trust"] = trust.summary()
         if trust.stabilised:
             # composites must follow the image: the body's camera turned by the stabiliser's correction
             res.poses = [(fid, t, T @ make_pose(C, np.zeros(3))) for (fid, t, T), C in zip(res.poses, trust.correction)]
     return res
+
+
+def _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache: dict, progress: bool):
+    """calib `rolling_shutter_s: auto`: VO without correction (inliers kept), the readout from
+    VO against the gyro (`blendgen.sync.readout`), then VO again with it when it is not 0.
+    Returns (the recording with the readout used, the Readout report)."""
+    _vo_all(rec, settings, len(out_t), vo_cache, progress, keep_matches=True)
+    ro = estimate_readout([vo_cache.get(i) for i in range(len(out_t))], GyroIntegrator(imu, cfg.max_imu_dt),
+                          out_t, R_bc, lambda r: _rs_spins(imu, out_t, r, R_bc), rec.camera.height)
+    rec = dataclasses.replace(rec, rolling_shutter_s=ro.readout_s, rolling_shutter_estimate=False)
+    if ro.readout_s > 0:
+        vo_cache.clear()
+        _vo_all(rec, settings, len(out_t), vo_cache, progress, _rs_spins(imu, out_t, ro.readout_s, R_bc))
+    for r in vo_cache.values():  # the uncorrected pairs stand; their inliers are not needed any more
+        if r is not None:
+            r.matches = None
+    return rec, ro
 
 
 def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg):
@@ -531,20 +580,20 @@ def _profile_latency(rec, settings, cfg, x0, P0, args, pri, road, h_scale: float
     return prof
 
 
-def _vo_step(vo, img) -> VoResult | None:
+def _vo_step(vo, img, spin=None) -> VoResult | None:
     """VO of the pair ending at `img`; a frame that does not decode (None) restarts the tracker."""
     if img is None:
         vo.reset()
         return None
-    return vo.track(img)
+    return vo.track(img, spin)
 
 
-def _vo_all(rec, settings, n: int, cache: dict, progress: bool) -> None:
-    vo = make_vo(rec.camera, _vo_config(settings, rec))
+def _vo_all(rec, settings, n: int, cache: dict, progress: bool, spins=None, keep_matches: bool = False) -> None:
+    vo = make_vo(rec.camera, dataclasses.replace(_vo_config(settings, rec), keep_matches=keep_matches))
     frames = _frames(rec)
     bar = _bar(progress, n, "VO")
     for i in range(n):
-        cache[i] = _vo_step(vo, next(frames)[1])
+        cache[i] = _vo_step(vo, next(frames)[1], spins[i] if spins is not None else None)
         bar.update(1)
     bar.close()
 
@@ -641,6 +690,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
 
     vo = make_vo(rec.camera, _vo_config(settings, rec)) if use_vo and not vo_cache else None
     frames = _frames(rec) if vo is not None else None
+    spins = _rs_spins(imu, out_t, rec.rolling_shutter_s, R_bc) if vo is not None and use_imu else None
     poses, covs, quality = [], [], []
     pending = []  # flags since the last pose
     last_zupt_t = -np.inf
@@ -729,7 +779,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             res = None
             if use_vo:
                 if vo is not None:
-                    vo_cache[i] = _vo_step(vo, next(frames)[1])
+                    vo_cache[i] = _vo_step(vo, next(frames)[1], spins[i] if spins is not None else None)
                 res = vo_cache[i]
                 if res is None:
                     flags.append("decode_failed")

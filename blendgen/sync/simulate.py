@@ -469,7 +469,9 @@ def synthetic_recording(kind: str = "drive", duration: float = 20.0, *, fps: flo
     T_cam_imu = default_T_cam_imu() @ make_pose(R_body_imu, np.zeros(3))
     T_imu_cam = invert_pose(T_cam_imu)
     cam = Camera.from_hfov(resolution[0], resolution[1], hfov_deg)
-    rec = Recording(root=None, camera=cam if frames else None, T_cam_imu=T_cam_imu)
+    # the readout is a camera property a calibration gives (calib.yaml camera.rolling_shutter_s)
+    rec = Recording(root=None, camera=cam if frames else None, T_cam_imu=T_cam_imu,
+                    rolling_shutter_s=float(rolling_shutter_s))
     if imu:
         data = simulate_imu(traj, seed=seed, errors=imu_errors)
         data[:, 1:4] = data[:, 1:4] @ R_body_imu  # body -> IMU axes (R^T x, row-wise)

@@ -100,11 +100,12 @@ class _Pairs:
         self.w_vo = (Rotation.from_matrix(np.array([results[k].R_c1c2 for k in ks])).as_rotvec()
                      if len(ks) else np.zeros((0, 3)))
 
-    def residuals(self, shift: float, idx=None) -> tuple[np.ndarray, np.ndarray]:
+    def residuals(self, shift: float, idx=None, w_vo=None) -> tuple[np.ndarray, np.ndarray]:
         """(VO minus bias-corrected gyro rotation vectors in camera axes, gyro rates (rad/s)),
-        over the pairs `idx` (default all)."""
+        over the pairs `idx` (default all); `w_vo`: other VO rotation vectors for all pairs."""
         idx = slice(None) if idx is None else idx
-        ta, tb, dt, w_vo = self.ta[idx], self.tb[idx], self.dt[idx], self.w_vo[idx]
+        ta, tb, dt = self.ta[idx], self.tb[idx], self.dt[idx]
+        w_vo = (self.w_vo if w_vo is None else w_vo)[idx]
         Rg, _ = self.gyro.between(ta + shift, tb + shift)
         Rc = np.einsum("ji,njk,kl->nil", self.R_bc, Rg, self.R_bc)  # R_bc^T Rg R_bc
         w_g = Rotation.from_matrix(Rc).as_rotvec()
@@ -163,33 +164,10 @@ def estimate_time_offset(results: list, gyro: GyroIntegrator, t_cam, R_bc: np.nd
     # smallest robust spread over the coarse grid, i.e. at the best-aligned candidate
     grid = np.linspace(lo, hi, max(int(np.ceil(2 * search_s / step - 1e-9)), 2) + 1)
     sigma = min(_sigma(P.residuals(float(s))[0]) for s in grid)
-    memo: dict = {}
-
-    def minimise(idx=None, memo=None):
-        def cost(s: float) -> float:
-            s = round(float(s), 9)
-            if memo is None:
-                return _huber_nll(P.residuals(s, idx)[0], sigma)
-            if s not in memo:
-                memo[s] = _huber_nll(P.residuals(s, idx)[0], sigma)
-            return memo[s]
-
-        coarse = profile_latency(cost, lo, hi, step=step)
-        # finer about the coarse minimum: the residuals are linear in the shift only for small errors
-        f_lo, f_hi = max(lo, coarse.tau_s - step), min(hi, coarse.tau_s + step)
-        return coarse, profile_latency(cost, f_lo, f_hi, step=(f_hi - f_lo) / 8.0), f_hi - f_lo
-
-    coarse, fine, f_span = minimise(None, memo)
-    m = min(memo.values())
-    out.profile = sorted((t, c - m) for t, c in memo.items())
+    coarse, fine, f_span, out.profile, out.std_jackknife_s = profile_jackknife(
+        lambda s, idx: _huber_nll(P.residuals(s, idx)[0], sigma), lo, hi, step, out.pairs)
     out.estimate_s = fine.tau_s
     out.std_curvature_s = fine.std_s if np.isfinite(fine.std_s) else None
-    # the curvature assumes independent pairs and a right model; real residuals are neither
-    # (GoPro Karma: halves of the clip gave -74 +- 0.6 and +12 +- 1.3 ms): delete-one-block
-    # jackknife over JACKKNIFE_BLOCKS contiguous blocks; the larger of the two is the 1-sigma
-    blocks = np.array_split(np.arange(out.pairs), JACKKNIFE_BLOCKS)
-    th = np.array([minimise(np.setdiff1d(np.arange(out.pairs), b))[1].tau_s for b in blocks])
-    out.std_jackknife_s = float(np.sqrt((len(th) - 1) / len(th) * np.sum((th - th.mean()) ** 2)))
     out.std_s = None if out.std_curvature_s is None else max(out.std_curvature_s, out.std_jackknife_s)
     if coarse.at_limit:
         out.reason = f"the cost is lowest at the end of the search range (calib +- {search_s * 1e3:.0f} ms)"
@@ -214,6 +192,38 @@ def estimate_time_offset(results: list, gyro: GyroIntegrator, t_cam, R_bc: np.nd
                       f"{out.std_jackknife_s * 1e3:.2f} ms)")
         out.residual_used_deg = _rms_deg(P.residuals(out.shift_s)[0])
     return out
+
+
+def profile_jackknife(cost, lo: float, hi: float, step: float, n_pairs: int):
+    """Minimise cost(x, idx), a negative log-likelihood over the pairs idx (None: all), over
+    [lo, hi]: a grid of `step`, then one of an eighth of the span about its best point, each with
+    its parabola (`latency.profile_latency`). The curvature's 1-sigma assumes independent pairs
+    and a right model; real residuals are neither (GoPro Karma: halves of the clip gave -74 +-
+    0.6 and +12 +- 1.3 ms), so also the delete-one-block jackknife over JACKKNIFE_BLOCKS
+    contiguous blocks of pairs. Returns (coarse, fine, the fine grid's span, the profile as
+    sorted (x, cost above its minimum), the jackknife's 1-sigma)."""
+    memo: dict = {}
+
+    def minimise(idx=None, memo=None):
+        def c(x: float) -> float:
+            x = round(float(x), 9)
+            if memo is None:
+                return cost(x, idx)
+            if x not in memo:
+                memo[x] = cost(x, idx)
+            return memo[x]
+
+        coarse = profile_latency(c, lo, hi, step=step)
+        # finer about the coarse minimum: the residuals are linear in x only for small errors
+        f_lo, f_hi = max(lo, coarse.tau_s - step), min(hi, coarse.tau_s + step)
+        return coarse, profile_latency(c, f_lo, f_hi, step=(f_hi - f_lo) / 8.0), f_hi - f_lo
+
+    coarse, fine, f_span = minimise(None, memo)
+    m = min(memo.values())
+    blocks = np.array_split(np.arange(n_pairs), JACKKNIFE_BLOCKS)
+    th = np.array([minimise(np.setdiff1d(np.arange(n_pairs), b))[1].tau_s for b in blocks])
+    std_jack = float(np.sqrt((len(th) - 1) / len(th) * np.sum((th - th.mean()) ** 2)))
+    return coarse, fine, f_span, sorted((x, c - m) for x, c in memo.items()), std_jack
 
 
 def not_estimated(calib_s: float, why: str) -> TimeOffset:

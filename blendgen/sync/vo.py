@@ -61,6 +61,8 @@ class VoConfig:
     # a frame at 960x540); "off", or photo_normalise's local modes (unbiased too, 30 % noisier)
     photo_norm: str = "gain"
     photo_norm_box: int = 16               # photo_normalise's local mean over a box of width / this
+    readout_s: float = 0.0                 # rolling shutter: top-to-bottom readout time (0: global shutter)
+    keep_matches: bool = False             # keep each pair's inlier pixels and bearings (readout estimate)
 
 
 @dataclass
@@ -79,6 +81,9 @@ class VoResult:
     # rotation error of R_c1c2 (right perturbation, rad^2) and of u_dir (3x3, rank 2)
     rot_cov: np.ndarray | None = field(default=None, repr=False)
     dir_cov: np.ndarray | None = field(default=None, repr=False)
+    # with VoConfig.keep_matches, for "ok" and "rotation": the inliers' pixels and bearings (z = 1)
+    # in both frames, (p1, p2, q1, q2), what blendgen.sync.readout refits the rotation from
+    matches: tuple | None = field(default=None, repr=False)
 
     @property
     def has_rotation(self) -> bool:
@@ -170,15 +175,17 @@ class OrbVo:
             best_back[targets[m.queryIdx]] = m.trainIdx
         return cand[best_back[cand[:, 1]] == cand[:, 0]]
 
-    def track(self, image: np.ndarray) -> VoResult:
-        """Relative motion from the previous image to this one (first call: status 'first')."""
+    def track(self, image: np.ndarray, spin: np.ndarray | None = None) -> VoResult:
+        """Relative motion from the previous image to this one (first call: status 'first').
+        `spin`: the camera's angular velocity (rad/s, camera axes) while this frame was read
+        out; with `cfg.readout_s` > 0 it undoes the rolling shutter's rotation (`rs_bearings`)."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         prev = self.prev
         rep = _repeated(prev[0], len(prev[1]), gray, self.cfg.min_features) if prev is not None else None
         if rep is not None:
             return rep
         px, desc = self._features(gray)
-        b = self._bearings(px)
+        b = rs_bearings(self._bearings(px), px, spin, self.cfg.readout_s, self.camera.height)
         self.prev = (gray, px, b, desc)
         if prev is None:
             return VoResult("first", n_features=len(px))
@@ -209,6 +216,37 @@ def orb_level_to_full(pts: np.ndarray, octave: np.ndarray, scale_factor: float, 
     hk = np.rint(np.float32(h) / s).astype(np.float64)
     x_l = np.asarray(pts, dtype=np.float64) / s.astype(np.float64)[:, None]
     return np.column_stack([(x_l[:, 0] + 0.5) * (w / wk) - 0.5, (x_l[:, 1] + 0.5) * (h / hk) - 0.5])
+
+
+def rs_bearings(q: np.ndarray, px: np.ndarray, spin: np.ndarray | None, readout_s: float,
+                height: int) -> np.ndarray:
+    """Bearings (z = 1) of a rolling-shutter frame as the camera saw them when its top row was
+    exposed (the frame's time stamp). Row v is exposed tau = readout_s * (v + 0.5) / height later,
+    the camera having turned by R(tau) in its own axes meanwhile, so its bearing seen from the top
+    row's orientation is R(tau) b_row.
+
+    `spin`: the camera's turn during the readout, from the gyro (camera axes): a (K, 3) table of
+    rotation vectors R(tau_k) at K >= 2 times tau_k evenly from 0 to readout_s (row 0 to the
+    bottom row), interpolated per point; or one (3,) angular velocity (rad/s), R(tau) =
+    exp([spin] tau). The table matters: camera shake of a few Hz changes the rate within a 30 ms
+    readout (at 6 Hz by 1 rad of phase), and a constant rate then over-corrects the middle rows
+    (measured: relative rotations 3-5 % too large, docs/sync.md). Rotation only: the camera's
+    travel during the readout (0.24 m at 8 m/s over 30 ms) is not modelled."""
+    if spin is None or readout_s <= 0 or len(q) == 0:
+        return q
+    spin = np.asarray(spin, float)
+    tau = readout_s * (px[:, 1] + 0.5) / height
+    if spin.ndim == 1:
+        rv = tau[:, None] * spin[None, :]
+    else:
+        knots = np.linspace(0.0, readout_s, len(spin))
+        rv = np.stack([np.interp(tau, knots, spin[:, k]) for k in range(3)], axis=1)
+    th = np.linalg.norm(rv, axis=1, keepdims=True)
+    k = rv / np.maximum(th, 1e-12)
+    # Rodrigues, one rotation per point
+    out = (q * np.cos(th) + np.cross(k, q) * np.sin(th)
+           + k * np.sum(k * q, axis=1, keepdims=True) * (1.0 - np.cos(th)))
+    return out / out[:, 2:]
 
 
 def make_vo(camera: Camera, cfg: VoConfig | None = None):
@@ -301,6 +339,7 @@ class KltVo:
         self.win = (self.cfg.klt_win, self.cfg.klt_win)
         self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, self.cfg.klt_iters, 0.03)
         self.barren: np.ndarray | None = None  # per cell: frames to skip (no corners found there)
+        self.spin = None  # the previous frame's rolling-shutter angular velocity
         self.prev = None  # (gray full-res, tracking image, corners (N, 2) float32 at tracking scale)
         self.blocks = None  # photo_norm "gain": the previous tracking image's block means
         self.gain = 1.0     # its exposure gain to the last frame (frame_gain)
@@ -409,8 +448,10 @@ class KltVo:
             return kept
         return np.vstack([kept.reshape(-1, 2), pts[new]])
 
-    def track(self, image: np.ndarray) -> VoResult:
+    def track(self, image: np.ndarray, spin: np.ndarray | None = None) -> VoResult:
+        """As `OrbVo.track` (`spin`: the rolling-shutter correction's angular velocity)."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        prev_spin = self.spin
         prev = self.prev
         rep = _repeated(prev[0], len(prev[2]), gray, self.cfg.min_features) if prev is not None else None
         if rep is not None:
@@ -422,6 +463,7 @@ class KltVo:
         if prev is None or len(prev[2]) == 0:
             pts = self._replenish(small, np.zeros((0, 2), np.float32))
             self.prev = (gray, pyr, pts)
+            self.spin = spin
             return VoResult("first" if prev is None else "few_features", n_features=len(pts))
         _, pyr0, p0 = prev
         if blocks0 is not None and self.blocks is not None:
@@ -453,10 +495,12 @@ class KltVo:
             kept = b
         else:
             f1, f2 = self._to_full(a), self._to_full(b)
-            res = solve_pair(res, f1, f2, self._bearings(f1), self._bearings(f2), self.cfg, self.f)
+            ro, H = self.cfg.readout_s, self.camera.height
+            res = solve_pair(res, f1, f2, rs_bearings(self._bearings(f1), f1, prev_spin, ro, H),
+                             rs_bearings(self._bearings(f2), f2, spin, ro, H), self.cfg, self.f)
             # RANSAC outliers (moving objects, bad tracks) are not tracked further
             kept = b[res.inliers] if res.inliers is not None and res.status in ("ok", "rotation") else b
-        self.prev = (gray, pyr, self._replenish(small, kept.astype(np.float32)))
+        self.prev, self.spin = (gray, pyr, self._replenish(small, kept.astype(np.float32))), spin
         return res
 
 
@@ -510,6 +554,8 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
         res.residual_px = _rotation_residual_px(R21, q1[inl_r], q2[inl_r], f)
         res.inliers = inl_r
         res.rot_cov = _rotation_covariance(q1[inl_r], max(res.residual_px, 0.1) / f)
+        if cfg.keep_matches:
+            res.matches = (p1[inl_r], p2[inl_r], q1[inl_r], q2[inl_r])
         return res
     # RANSAC's E comes from one minimal sample: refit R, t on all its inliers (Sampson error).
     # All, not only those recoverPose would keep (in front, nearer than 50 baselines): far
@@ -524,6 +570,8 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
     res.rot_cov, res.dir_cov = _pair_covariance(R21, t.ravel(), n1[ransac], n2[ransac])
     # tracks to keep: all that fit the epipolar geometry (far points are fine for tracking)
     res.inliers = ransac
+    if cfg.keep_matches:
+        res.matches = (p1[ransac], p2[ransac], q1[ransac], q2[ransac])
     return res
 
 

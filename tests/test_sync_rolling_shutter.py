@@ -181,3 +181,20 @@ def test_readout_zero_for_a_global_shutter_and_unused_when_unseen(tmp_path):
     assert gs["method"] == "estimated" and gs["readout_s"] == 0.0 and "global shutter" in gs["reason"], gs
     smooth = _readout_sync(tmp_path / "smooth", 0.03, 0.0)["rolling_shutter"]
     assert smooth["method"] == "not estimated" and smooth["readout_s"] == 0.0, smooth
+
+
+def test_readout_not_estimated_on_stabilised_video(tmp_path):
+    """Electronically stabilised frames (the image does not turn with the body) say nothing
+    about the readout: `auto` is not estimated and the stabiliser is still found."""
+    import cv2
+
+    from blendgen.job.schema import Sync
+    from blendgen.sync.pipeline import run_sync
+    from blendgen.sync.simulate import GEOREF, synthetic_recording
+
+    cv2.setNumThreads(1)
+    rec, _, _ = synthetic_recording("drive", 6.0, fps=10.0, shake_deg=1.0, stabilise_s=0.3)
+    rec.rolling_shutter_estimate = True
+    s = run_sync(rec, Sync(), tmp_path, georef=GEOREF, progress=False).summary
+    assert s["rolling_shutter"]["method"] == "not estimated" and "stabilised" in s["rolling_shutter"]["reason"]
+    assert s["vo_trust"]["stabiliser_detected"]

@@ -28,7 +28,7 @@ from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.latency import LatencyProfile, profile_latency
 from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
-from blendgen.sync.readout import estimate_readout
+from blendgen.sync.readout import Readout, estimate_readout
 from blendgen.sync.threads import single_thread_blas
 from blendgen.sync.vo import VoConfig, VoResult, make_vo
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
@@ -478,8 +478,13 @@ def _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache: dict, prog
     VO against the gyro (`blendgen.sync.readout`), then VO again with it when it is not 0.
     Returns (the recording with the readout used, the Readout report)."""
     _vo_all(rec, settings, len(out_t), vo_cache, progress, keep_matches=True)
-    ro = estimate_readout([vo_cache.get(i) for i in range(len(out_t))], GyroIntegrator(imu, cfg.max_imu_dt),
-                          out_t, R_bc, lambda r: _rs_spins(imu, out_t, r, R_bc), rec.camera.height)
+    results, gyro = [vo_cache.get(i) for i in range(len(out_t))], GyroIntegrator(imu, cfg.max_imu_dt)
+    if assess(results, gyro.pair_rotations(out_t), R_bc, out_t, cfg.gyro_noise).stabilised:
+        # the image does not turn with the body: VO against the gyro says nothing about rows
+        ro = Readout(0.0, "not estimated", reason="the video is stabilised (the image does not turn with the body)")
+    else:
+        ro = estimate_readout(results, gyro, out_t, R_bc, lambda r: _rs_spins(imu, out_t, r, R_bc),
+                              rec.camera.height)
     rec = dataclasses.replace(rec, rolling_shutter_s=ro.readout_s, rolling_shutter_estimate=False)
     if ro.readout_s > 0:
         vo_cache.clear()

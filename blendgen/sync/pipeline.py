@@ -481,7 +481,8 @@ def _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache: dict, prog
     results, gyro = [vo_cache.get(i) for i in range(len(out_t))], GyroIntegrator(imu, cfg.max_imu_dt)
     if assess(results, gyro.pair_rotations(out_t), R_bc, out_t, cfg.gyro_noise).stabilised:
         # the image does not turn with the body: VO against the gyro says nothing about rows
-        ro = Readout(0.0, "not estimated", reason="the video is stabilised (the image does not turn with the body)")
+        ro = Readout(0.0, "not estimated", reason="the frames do not turn with the body at the calib time offset "
+                                                  "(stabilised video, or a wrong timeshift_cam_imu)")
     else:
         ro = estimate_readout(results, gyro, out_t, R_bc, lambda r: _rs_spins(imu, out_t, r, R_bc),
                               rec.camera.height)

@@ -16,8 +16,8 @@ turns); a smooth drive or a drone's slow pans leave the cost flat and the readou
 used. It is estimated at the camera-IMU time offset in use: the two trade against each other
 (a readout r looks much like a shift of r / 2; on the synthetic drive the joint cost's valley
 runs from (0 ms, +5 ms) to (40 ms, -5 ms), its minimum at the truth). With the calib offset 20
-ms off the frames do not turn with the body there and the readout is not estimated: find the
-offset first (docs/sync.md, "Rolling shutter").
+ms off the frames do not turn with the body there and the readout is not estimated; a joint
+estimate of both is not built (docs/sync.md, "Rolling shutter").
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ MIN_PAIRS = 20
 MAX_PAIRS = 300       # pairs refitted per candidate (evenly over the recording)
 GN_ITERS = 3
 GN_DAMPING = 1e-2
-LATTICE_S = STEP_S / 4  # refits on this lattice (the profile's grids lie on it), linear between
+LATTICE_S = STEP_S / 4  # refits on this lattice, linear between (the grids of 5 and 2.5 ms lie on it)
 ZERO_BOUND_S = 0.01   # a minimum at 0 is an estimate when the cost is 2 higher (~95 %) by this readout
 
 
@@ -47,7 +47,7 @@ class Readout:
     """How the readout used by sync was found (`summary["rolling_shutter"]`)."""
 
     readout_s: float                    # used
-    method: str                         # "calib.yaml", "estimated" or "not estimated"
+    method: str                         # "estimated" or "not estimated"
     estimate_s: float | None = None
     std_s: float | None = None          # the larger of the curvature's and the jackknife's
     std_curvature_s: float | None = None

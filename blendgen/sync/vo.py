@@ -177,8 +177,8 @@ class OrbVo:
 
     def track(self, image: np.ndarray, spin: np.ndarray | None = None) -> VoResult:
         """Relative motion from the previous image to this one (first call: status 'first').
-        `spin`: the camera's angular velocity (rad/s, camera axes) while this frame was read
-        out; with `cfg.readout_s` > 0 it undoes the rolling shutter's rotation (`rs_bearings`)."""
+        `spin`: the camera's turn while this frame was read out (camera axes, `rs_bearings`);
+        with `cfg.readout_s` > 0 it undoes the rolling shutter's rotation."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         prev = self.prev
         rep = _repeated(prev[0], len(prev[1]), gray, self.cfg.min_features) if prev is not None else None
@@ -339,7 +339,7 @@ class KltVo:
         self.win = (self.cfg.klt_win, self.cfg.klt_win)
         self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, self.cfg.klt_iters, 0.03)
         self.barren: np.ndarray | None = None  # per cell: frames to skip (no corners found there)
-        self.spin = None  # the previous frame's rolling-shutter angular velocity
+        self.spin = None  # the previous frame's readout turn (rs_bearings)
         self.prev = None  # (gray full-res, tracking image, corners (N, 2) float32 at tracking scale)
         self.blocks = None  # photo_norm "gain": the previous tracking image's block means
         self.gain = 1.0     # its exposure gain to the last frame (frame_gain)

@@ -473,23 +473,37 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
     return res
 
 
+READOUT_RELINEARISE = 4  # at most this many readout estimates with the time offset unknown too
+
+
 def _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache: dict, progress: bool):
     """calib `rolling_shutter_s: auto`: VO without correction (inliers kept), the readout from
     VO against the gyro (`blendgen.sync.readout`), then VO again with it when it is not 0.
     Returns (the recording with the readout used, the Readout report)."""
     _vo_all(rec, settings, len(out_t), vo_cache, progress, keep_matches=True)
     results, gyro = [vo_cache.get(i) for i in range(len(out_t))], GyroIntegrator(imu, cfg.max_imu_dt)
-    if assess(results, gyro.pair_rotations(out_t), R_bc, out_t, cfg.gyro_noise).stabilised:
+    joint = rec.time_offset_estimate  # the time offset is unknown too: the two trade (r ~ 2 x shift)
+    if not joint and assess(results, gyro.pair_rotations(out_t), R_bc, out_t, cfg.gyro_noise).stabilised:
         # the image does not turn with the body: VO against the gyro says nothing about rows
         ro = Readout(0.0, "not estimated", reason="the frames do not turn with the body at the calib time offset "
                                                   "(stabilised video, or a wrong timeshift_cam_imu)")
     else:
-        ro = estimate_readout(results, gyro, out_t, R_bc, lambda r: _rs_spins(imu, out_t, r, R_bc),
-                              rec.camera.height)
+        # with the offset unknown, each candidate's shift is profiled out, and the gyro tables
+        # of the correction are built again at the shift found until it settles (they move with it)
+        moved, n = 0.0, READOUT_RELINEARISE if joint else 1
+        for it in range(n):
+            t_ref = np.asarray(out_t, float) + moved
+            ro = estimate_readout(results, gyro, t_ref, R_bc, lambda r, t=t_ref: _rs_spins(imu, t, r, R_bc),
+                                  rec.camera.height, shift_search_s=rec.time_offset_search_s if joint else 0.0)
+            ro.shift_s += moved  # from the calib offset
+            if ro.method != "estimated" or abs(ro.shift_s - moved) < 5e-4 or it == n - 1:
+                break
+            moved = ro.shift_s
+    t_spin = np.asarray(out_t, float) + ro.shift_s  # where the gyro says the rows were read
     rec = dataclasses.replace(rec, rolling_shutter_s=ro.readout_s, rolling_shutter_estimate=False)
     if ro.readout_s > 0:
         vo_cache.clear()
-        _vo_all(rec, settings, len(out_t), vo_cache, progress, _rs_spins(imu, out_t, ro.readout_s, R_bc))
+        _vo_all(rec, settings, len(out_t), vo_cache, progress, _rs_spins(imu, t_spin, ro.readout_s, R_bc))
     for r in vo_cache.values():  # the uncorrected pairs stand; their inliers are not needed any more
         if r is not None:
             r.matches = None

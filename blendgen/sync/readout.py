@@ -13,11 +13,11 @@ max] by the same profile and jackknife.
 
 The readout is seen through the camera's rotation *during* a frame, so it needs rotation (shake,
 turns); a smooth drive or a drone's slow pans leave the cost flat and the readout is then not
-used. It is estimated at the camera-IMU time offset in use: the two trade against each other
-(a readout r looks much like a shift of r / 2; on the synthetic drive the joint cost's valley
-runs from (0 ms, +5 ms) to (40 ms, -5 ms), its minimum at the truth). With the calib offset 20
-ms off the frames do not turn with the body there and the readout is not estimated; a joint
-estimate of both is not built (docs/sync.md, "Rolling shutter").
+used. The readout trades against the camera-IMU time offset (a readout r looks much like a
+shift of r / 2; on the synthetic drive the joint cost's valley runs from (0 ms, +5 ms) to (40
+ms, -5 ms), its minimum at the truth): with the offset unknown too, each candidate's cost is
+minimised over the shift (`shift_search_s`), and the caller rebuilds the gyro tables at the
+shift found and estimates again (`pipeline._estimate_readout`; docs/sync.md, "Rolling shutter").
 """
 
 from __future__ import annotations
@@ -25,9 +25,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
 from blendgen.sync import so3
+from blendgen.sync.latency import profile_latency
 from blendgen.sync.time_offset import _huber_nll, _Pairs, _rms_deg, _sigma, profile_jackknife
 from blendgen.sync.vo import _kabsch, _sampson, _sampson_jac, rs_bearings
 
@@ -54,6 +56,7 @@ class Readout:
     std_jackknife_s: float | None = None
     pairs: int = 0
     reason: str = ""
+    shift_s: float = 0.0                # with a shift search: the best shift of the frame times
     residual_zero_deg: float | None = None  # RMS VO-gyro rotation difference per pair without correction
     residual_used_deg: float | None = None  # ... at the readout used
     profile: list = field(default_factory=list)
@@ -63,6 +66,7 @@ class Readout:
         return {"readout_s": r(self.readout_s, 5), "method": self.method, "estimate_s": r(self.estimate_s, 5),
                 "std_s": r(self.std_s, 5), "std_curvature_s": r(self.std_curvature_s, 5),
                 "std_jackknife_s": r(self.std_jackknife_s, 5), "pairs": self.pairs, "reason": self.reason,
+                "shift_s": r(self.shift_s, 5),
                 "residual_zero_deg": r(self.residual_zero_deg, 4), "residual_used_deg": r(self.residual_used_deg, 4),
                 "profile": [[round(a, 5), round(b, 3)] for a, b in self.profile]}
 
@@ -117,12 +121,15 @@ def refit_rotation(res, spin1, spin2, readout_s: float, height: int) -> np.ndarr
 
 
 def estimate_readout(results: list, gyro, t_imu, R_bc: np.ndarray, spins_at, height: int,
-                     max_s: float = MAX_S) -> Readout:
+                     max_s: float = MAX_S, shift_search_s: float = 0.0) -> Readout:
     """The readout that best aligns VO's per-pair rotations with the gyro.
 
     results: VoResult (or None) per frame, entry k the pair (k-1, k), solved without correction
     and with `matches` kept; t_imu: frame stamps on the IMU clock; spins_at(readout): the
-    per-frame turn tables (`pipeline._rs_spins`); height: image rows."""
+    per-frame turn tables (`pipeline._rs_spins`); height: image rows. shift_search_s > 0: the
+    camera-IMU time offset is unknown too: each candidate's cost is minimised over a shift of
+    t_imu within +- shift_search_s (the gyro tables stay those of t_imu: `Readout.shift_s` says
+    where to build them again)."""
     out = Readout(readout_s=0.0, method="not estimated")
     t_imu = np.asarray(t_imu, float)
     if len(t_imu) > 1:
@@ -130,7 +137,8 @@ def estimate_readout(results: list, gyro, t_imu, R_bc: np.ndarray, spins_at, hei
     usable = [k for k in range(1, len(results)) if results[k] is not None and results[k].matches is not None]
     keep = set(np.array(usable)[np.unique(np.linspace(0, len(usable) - 1, MAX_PAIRS).round().astype(int))]
                .tolist()) if usable else set()
-    P = _Pairs([r if k in keep else None for k, r in enumerate(results)], gyro, t_imu, R_bc, None, 0.0, 0.0)
+    S = float(shift_search_s)
+    P = _Pairs([r if k in keep else None for k, r in enumerate(results)], gyro, t_imu, R_bc, None, -S, S)
     out.pairs = len(P.k)
     if out.pairs < MIN_PAIRS:
         out.reason = f"{out.pairs} usable VO pairs with a rotation (at least {MIN_PAIRS} needed)"
@@ -155,10 +163,31 @@ def estimate_readout(results: list, gyro, t_imu, R_bc: np.ndarray, spins_at, hei
 
     step = min(STEP_S, max_s / 4)
     grid = np.linspace(0.0, max_s, max(int(np.ceil(max_s / step - 1e-9)), 2) + 1)
+    d_step = min(float(np.median(P.dt)) / 4.0, S / 2.0) if S > 0 else 0.0
+    d_grid = np.linspace(-S, S, max(int(np.ceil(2 * S / d_step - 1e-9)), 2) + 1) if S > 0 else [0.0]
     # one noise scale for every candidate, as in time_offset: the smallest spread over the grid
-    sigma = min(_sigma(P.residuals(0.0, None, w_vo(r))[0]) for r in grid)
+    sigma = min(_sigma(P.residuals(float(d), None, w_vo(r))[0]) for r in grid for d in d_grid)
+
+    def best_shift(r: float, idx) -> tuple[float, float]:
+        """(shift, cost) minimising the cost of readout r over the shift (0 without a search)."""
+        if S <= 0:
+            return 0.0, _huber_nll(P.residuals(0.0, idx, w_vo(r))[0], sigma)
+        seen: dict = {}
+
+        def at(d: float) -> float:
+            seen[d] = _huber_nll(P.residuals(d, idx, w_vo(r))[0], sigma)
+            return seen[d]
+
+        # sharp in the shift (Huber: V-shaped away from its minimum): a grid, then Brent to 0.2 ms
+        c = profile_latency(at, -S, S, step=d_step)
+        minimize_scalar(at, bounds=(max(-S, c.tau_s - d_step), min(S, c.tau_s + d_step)), method="bounded",
+                        options={"xatol": 2e-4})
+        d = min(seen, key=seen.get)
+        return d, seen[d]
+
     coarse, fine, f_span, out.profile, out.std_jackknife_s = profile_jackknife(
-        lambda r, idx: _huber_nll(P.residuals(0.0, idx, w_vo(r))[0], sigma), 0.0, max_s, step, out.pairs)
+        lambda r, idx: best_shift(r, idx)[1], 0.0, max_s, step, out.pairs)
+    out.shift_s = best_shift(fine.tau_s, None)[0]
     out.residual_zero_deg = _rms_deg(P.residuals(0.0, None, w_vo(0.0))[0])
     out.estimate_s = fine.tau_s
     out.std_curvature_s = fine.std_s if np.isfinite(fine.std_s) else None
@@ -188,7 +217,8 @@ def estimate_readout(results: list, gyro, t_imu, R_bc: np.ndarray, spins_at, hei
                       f"{out.std_curvature_s * 1e3:.1f}, jackknife {out.std_jackknife_s * 1e3:.1f})")
     else:
         out.readout_s, out.method = fine.tau_s, "estimated"
-        out.reason = (f"VO-gyro rotation profile over 0-{max_s * 1e3:.0f} ms (step {step * 1e3:.1f} ms, then "
+        out.reason = (f"VO-gyro rotation profile over 0-{max_s * 1e3:.0f} ms"
+                      + (", the time offset profiled out" if S > 0 else "") + f" (step {step * 1e3:.1f} ms, then "
                       f"{f_span / 8 * 1e3:.2f} ms, parabola; 1-sigma: curvature {out.std_curvature_s * 1e3:.2f} ms, "
                       f"jackknife {out.std_jackknife_s * 1e3:.2f} ms)")
         out.residual_used_deg = _rms_deg(P.residuals(0.0, None, w_vo(out.readout_s))[0])

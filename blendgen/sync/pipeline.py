@@ -478,8 +478,9 @@ READOUT_RELINEARISE = 4  # at most this many readout estimates with the time off
 
 def _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache: dict, progress: bool):
     """calib `rolling_shutter_s: auto`: VO without correction (inliers kept), the readout from
-    VO against the gyro (`blendgen.sync.readout`), then VO again with it when it is not 0.
-    Returns (the recording with the readout used, the Readout report)."""
+    VO against the gyro (`blendgen.sync.readout`), jointly with the time offset when that is
+    `auto` too, then VO again with it when it is not 0. Returns (the recording with the readout
+    used, the Readout report; its shift_s is from the calib offset)."""
     _vo_all(rec, settings, len(out_t), vo_cache, progress, keep_matches=True)
     results, gyro = [vo_cache.get(i) for i in range(len(out_t))], GyroIntegrator(imu, cfg.max_imu_dt)
     joint = rec.time_offset_estimate  # the time offset is unknown too: the two trade (r ~ 2 x shift)

@@ -259,11 +259,15 @@ def comma(quick: bool):
     return out
 
 
+def md_head(*cols: str) -> list[str]:
+    """A markdown table's header row and its separator."""
+    return ["|" + "|".join(f" {c} " if c else " " for c in cols) + "|", "|" + "---|" * len(cols)]
+
+
 def comma_md(cm) -> list[str]:
     """The comma2k19 table (markdown rows)."""
-    md = ["| | CPU s | horizontal RMSE, offset removed (m) | raw horizontal RMSE (m) | RPE 1 s (m) "
-          "| camera heading median (deg) | 3-D rotation median (deg) | pitch median (deg) |",
-          "|---|---|---|---|---|---|---|---|"]
+    md = md_head("", "CPU s", "horizontal RMSE, offset removed (m)", "raw horizontal RMSE (m)", "RPE 1 s (m)",
+                 "camera heading median (deg)", "3-D rotation median (deg)", "pitch median (deg)")
     for k, (secs, e) in cm.items():
         s = e["sync"]
         md.append(f"| {k} | {secs:.1f} | {s['h_rmse_m']:.3f} | {s.get('h_rmse_raw_m', float('nan')):.3f} | "
@@ -339,9 +343,8 @@ def karma(quick: bool):
 
 
 def karma_md(rows) -> list[str]:
-    md = ["| | CPU s | fixes used / rejected | track vs fixes, RMS (m) | frames with a horizon "
-          "| horizon elevation, median (deg) | p90 of abs (deg) | roll across, median (deg) |",
-          "|---|---|---|---|---|---|---|---|"]
+    md = md_head("", "CPU s", "fixes used / rejected", "track vs fixes, RMS (m)", "frames with a horizon",
+                 "horizon elevation, median (deg)", "p90 of abs (deg)", "roll across, median (deg)")
     for r in rows:
         md.append(f"| {r['name']} | {r['cpu']:.1f} | {r['used']} / {r['rejected']} | {r['fix_rms']:.2f} | {r['n']} "
                   f"| {r['elev']:+.2f} | {r['elev_p90']:.2f} | {r['roll']:+.2f} |")
@@ -384,8 +387,8 @@ def flat_road(pts):
     return np.zeros(len(np.atleast_2d(pts)))
 
 
-HARD_HEADER = ["| drive | variant | CPU s | ATE (m) | ATE4 (m) | ATE horiz. (m) | height (m, mean +- std) | RPE (m) "
-               "| rot (deg) | px | px4 |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+HARD_HEADER = md_head("drive", "variant", "CPU s", "ATE (m)", "ATE4 (m)", "ATE horiz. (m)", "height (m, mean +- std)",
+                      "RPE (m)", "rot (deg)", "px", "px4")
 
 
 # a CAN wheel speed like comma2k19's (scale 0.991, ~0.04 s early, 0.04 m/s about the truth)
@@ -553,9 +556,8 @@ def main() -> None:
           f"## Synthetic drive ({dur:.0f} s, {nframes} frames 480x270 at 5 fps, IMU 200 Hz, GNSS 10 Hz 1 m noise)", "",
           "ATE/rot/px: absolute, in the twin frame. ATE4/rot4/px4: after a 4-DoF (yaw + translation)",
           "alignment. px: reprojection error of a point 20 m ahead on the optical axis at 1280x720.", "",
-          "| variant | ms/frame | ATE (m) | ATE4 (m) | ATE horiz. (m) | ATE4 horiz. (m) | RPE (m) | rot (deg) "
-          "| rot4 (deg) | px | px4 |",
-          "|---|---|---|---|---|---|---|---|---|---|---|"]
+          *md_head("variant", "ms/frame", "ATE (m)", "ATE4 (m)", "ATE horiz. (m)", "ATE4 horiz. (m)", "RPE (m)",
+                   "rot (deg)", "rot4 (deg)", "px", "px4")]
     for r in rows:
         md.append(f"| {r['name']} | {r['ms_per_frame']:.1f} | {r['ate']:.3f} | {r['ate4']:.3f} | {r['ateh']:.3f} | "
                   f"{r['ateh4']:.3f} | {r['rpe']:.3f} | "
@@ -563,7 +565,7 @@ def main() -> None:
     md += ["", "## VO throughput at 960x540, one core (cv2.setNumThreads(1), CPU time)", "",
            "Median CPU time per frame, the best of 3 runs (the machine is shared). Accuracy per setting:",
            "`docs/benchmarks/vo.md` (`benchmarks/bench_vo.py`).", "",
-           "| method | features | ms/frame (median) | frames/s | pairs ok |", "|---|---|---|---|---|"]
+           *md_head("method", "features", "ms/frame (median)", "frames/s", "pairs ok")]
     for v in vo:
         md.append(f"| {v['method'].upper()} | {v['features']} | {v['ms']:.1f} | {v['fps']:.1f} | {v['ok']}/{v['pairs']} |")
     if cm:
@@ -581,8 +583,8 @@ def main() -> None:
                "docs/sync.md \"The GoPro Karma clip against its sea horizon\".", "", *karma_md(kr)]
     md += ["", f"## Stabilised video (synthetic, {st_dur:.0f} s at 10 fps, 1 deg shake, stabiliser 0.3 s)", "",
            "Camera orientation against the orientation of the warped image (what composites must follow).", "",
-           "| variant | median (deg) | p90 (deg) | max (deg) | stabiliser detected | image/gyro rotation gain |",
-           "|---|---|---|---|---|---|"]
+           *md_head("variant", "median (deg)", "p90 (deg)", "max (deg)", "stabiliser detected",
+                    "image/gyro rotation gain")]
     for r in st:
         md.append(f"| {r['name']} | {r['med']:.3f} | {r['p90']:.3f} | {r['max']:.3f} | {r['stab']} | {r['gain']} |")
     md += ["", f"## Easy vs hard synthetic drive ({hd_dur:.0f} s, `simulate.hard_recording`)", "",

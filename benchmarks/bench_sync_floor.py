@@ -141,9 +141,9 @@ def main() -> None:
         from blendgen.sync import vo
 
         vo.orb_level_to_full = lambda pts, octave, sf, shape: pts + 0.5 * (sf ** np.asarray(octave, float) - 1.0)[:, None]
-        pl._vo_config = lambda settings, rec: vo.VoConfig(n_features=int(settings.orb_features),
-                                                          method=pl.vo_method(settings, rec), n_levels=6,
-                                                          orb_scale_factor=1.2)
+        pl._vo_config = lambda settings, rec, *_: vo.VoConfig(n_features=int(settings.orb_features),
+                                                             method=pl.vo_method(settings, rec), n_levels=6,
+                                                             orb_scale_factor=1.2)
     if args.true_mount:  # the synthetic IMU's axes are the vehicle's
         calibration.nominal_vehicle_frame = lambda forward_b, up_b: np.eye(3)
     import cv2

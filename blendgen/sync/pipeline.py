@@ -11,9 +11,8 @@ IMU clock (t_imu = t_cam + timeshift_cam_imu).
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -263,9 +262,9 @@ def vo_method(settings, rec: Recording) -> str:
     return "klt" if fps >= 0.99 * KLT_MIN_FPS else "orb"
 
 
-def _vo_config(settings, rec: Recording) -> VoConfig:
+def _vo_config(settings, rec: Recording, keep_matches: bool = False) -> VoConfig:
     return VoConfig(n_features=int(settings.orb_features), method=vo_method(settings, rec),
-                    readout_s=float(rec.rolling_shutter_s))
+                    readout_s=float(rec.rolling_shutter_s), keep_matches=keep_matches)
 
 
 def _rs_spins(imu: np.ndarray, t_frames: np.ndarray, readout_s: float, R_bc: np.ndarray,
@@ -319,7 +318,6 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                                  f"{rec.rolling_shutter_s * 1e3:.1f} ms readout"
                                  f"{', estimated' if readout is not None else ''})")
             if rec.intrinsics_assumed:
-                trust.reason = trust.reason.replace("VO rotation + direction", "VO rotation", 1)
                 trust.reason += (f"; the lens is the importer's assumption, so VO gives rotation only, no better "
                                  f"than {np.degrees(VO_ROT_FLOOR_ASSUMED_LENS):.1f} deg per pair, and no direction "
                                  f"of travel (calibrate the camera for more)")
@@ -501,7 +499,7 @@ def _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache: dict, prog
                 break
             moved = ro.shift_s
     t_spin = np.asarray(out_t, float) + ro.shift_s  # where the gyro says the rows were read
-    rec = dataclasses.replace(rec, rolling_shutter_s=ro.readout_s, rolling_shutter_estimate=False)
+    rec = replace(rec, rolling_shutter_s=ro.readout_s, rolling_shutter_estimate=False)
     if ro.readout_s > 0:
         vo_cache.clear()
         _vo_all(rec, settings, len(out_t), vo_cache, progress, _rs_spins(imu, t_spin, ro.readout_s, R_bc))
@@ -522,7 +520,7 @@ def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg)
     shift0 = float(rec.time_offset_cam_imu)
 
     def check(t):
-        return assess(results, gyro.pair_rotations(t), R_bc, t, cfg.gyro_noise)
+        return assess(results, gyro.pair_rotations(t), R_bc, t, cfg.gyro_noise, direction=not rec.intrinsics_assumed)
 
     trust = check(out_t)
     toff = TimeOffset(shift_s=shift0, calib_s=shift0, method="calib.yaml")
@@ -610,7 +608,7 @@ def _vo_step(vo, img, spin=None) -> VoResult | None:
 
 
 def _vo_all(rec, settings, n: int, cache: dict, progress: bool, spins=None, keep_matches: bool = False) -> None:
-    vo = make_vo(rec.camera, dataclasses.replace(_vo_config(settings, rec), keep_matches=keep_matches))
+    vo = make_vo(rec.camera, _vo_config(settings, rec, keep_matches))
     frames = _frames(rec)
     bar = _bar(progress, n, "VO")
     for i in range(n):
@@ -709,9 +707,6 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     I = np.concatenate(ev_i)
     order = np.lexsort((K, T))
 
-    vo = make_vo(rec.camera, _vo_config(settings, rec)) if use_vo and not vo_cache else None
-    frames = _frames(rec) if vo is not None else None
-    spins = _rs_spins(imu, out_t, rec.rolling_shutter_s, R_bc) if vo is not None and use_imu else None
     poses, covs, quality = [], [], []
     pending = []  # flags since the last pose
     last_zupt_t = -np.inf
@@ -799,9 +794,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
             pending = []
             res = None
             if use_vo:
-                if vo is not None:
-                    vo_cache[i] = _vo_step(vo, next(frames)[1], spins[i] if spins is not None else None)
-                res = vo_cache[i]
+                res = vo_cache[i]  # VO ran over all frames before the filter (_filter)
                 if res is None:
                     flags.append("decode_failed")
                 elif res.status == "repeated":

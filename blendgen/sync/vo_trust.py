@@ -153,7 +153,8 @@ def gyro_rotations(imu: np.ndarray, t: np.ndarray, max_dt: float) -> list:
     return GyroIntegrator(imu, max_dt).pair_rotations(t)
 
 
-def assess(results: list, gyro_R_body: list, R_bc: np.ndarray, t: np.ndarray, gyro_noise: float) -> TrustReport:
+def assess(results: list, gyro_R_body: list, R_bc: np.ndarray, t: np.ndarray, gyro_noise: float,
+           direction: bool = True) -> TrustReport:
     """Check every VO pair's rotation against the gyro's over the same frame interval and
     decide, over the whole recording, whether the frames move rigidly with the IMU.
 
@@ -165,6 +166,7 @@ def assess(results: list, gyro_R_body: list, R_bc: np.ndarray, t: np.ndarray, gy
     STAB_GAIN) and the disagreement is far above the noise, the video is electronically
     stabilised: VO then says nothing about the body, and the per-frame correction (the image
     camera in the body's camera) is estimated from the VO-gyro difference, high-passed.
+    `direction`: whether the filter takes VO's direction of travel too (for the reason line).
     """
     n = len(results)
     rep = TrustReport(flags=[None] * n)
@@ -229,8 +231,8 @@ def assess(results: list, gyro_R_body: list, R_bc: np.ndarray, t: np.ndarray, gy
                       f"disagree with the gyro, gain {rep.gain:.2f}): those pairs are not used")
     else:
         nb = sum(1 for f in rep.flags if f)
-        rep.reason = (f"VO rotation + direction, {len(rows) - nb} of {len(rows)} checked pairs consistent "
-                      f"with the gyro" + (f" ({nb} gated)" if nb else ""))
+        rep.reason = (f"VO rotation{' + direction' if direction else ''}, {len(rows) - nb} of {len(rows)} "
+                      f"checked pairs consistent with the gyro" + (f" ({nb} gated)" if nb else ""))
     # the gain's standard error from each pair's VO covariance (least squares over the pairs)
     gain_se = float(np.sqrt(sum(w @ r[3] @ w for r, w in zip(rows, W_gc)))) / gg if gg > 0 else np.inf
     if not rep.stabilised and len(rows) >= MIN_PAIRS and abs(rep.gain - 1.0) > max(FOCAL_HINT_GAIN,

@@ -488,18 +488,14 @@ def main() -> None:
         print("2. VO throughput")
         vo_throughput(args.quick)
         return
-    if args.section == "karma":
-        print("3b. GoPro Karma clip")
-        kr = karma(args.quick)
-        if kr:
-            print("\n".join(karma_md(kr)))
-        return
-    if args.section == "comma":
-        print("3. comma2k19")
-        cm = comma(args.quick)
-        if cm:
-            print("\n".join(comma_md(cm)))
-        return
+    for name, title, run_section, to_md in (("karma", "3b. GoPro Karma clip", karma, karma_md),
+                                            ("comma", "3. comma2k19", comma, comma_md)):
+        if args.section == name:
+            print(title)
+            out = run_section(args.quick)
+            if out:
+                print("\n".join(to_md(out)))
+            return
     cmd = "nice -n 5 .venv/bin/python benchmarks/bench_sync.py" + (" --quick" if args.quick else "")
     print("1. synthetic drive")
     rows, dur, nframes = synthetic(args.quick)

@@ -295,7 +295,9 @@ KARMA_SEA = ((10, 240), (150, 330))  # the clip's sea: pixel columns, and the ro
 def karma(quick: bool):
     """The Karma clip (if ../shared/data is there): per variant CPU s, fixes used / rejected, the
     track's RMS distance to the fixes, and the sea horizon's elevation above the synced camera's
-    horizontal plane (truth: minus the dip, ~0.2 deg) and the roll across it."""
+    horizontal plane (truth: minus the dip, ~0.2 deg) and the roll across it, all measured
+    through the HERO5 Linear lens the clip was shot with (`karma_lens_check`). Then the lens
+    check itself. Returns (rows, lens rows)."""
     src = DATA / "gopro_karma.mp4"
     if not src.exists():
         print("  gopro_karma.mp4 not found: skipped (needs ../shared/data/real/gopro_karma.mp4)")
@@ -310,28 +312,44 @@ def karma(quick: bool):
     rows = []
     with tempfile.TemporaryDirectory() as d:
         rec = read_recording(import_recording("gopro", src, Path(d) / "rec", show_progress=False))
+        lin = read_recording(import_recording("gopro", src, Path(d) / "rec_linear", lens="linear",
+                                              show_progress=False))
         g = rec.gnss
         fix = np.column_stack(pymap3d.geodetic2enu(g[:, 1], g[:, 2], g[:, 3], g[0, 1], g[0, 2], g[0, 3]))
-        noise, vo_noise = copy.copy(rec.imu_noise), pl.vo_noise
+        noise, vo_noise, along = copy.copy(rec.imu_noise), pl.vo_noise, pl.ALONG_MIN_M
         automotive = copy.copy(noise)
         automotive.accelerometer_bias_std, automotive.gyroscope_bias_std = 0.1, 0.01
-        exact_lens = lambda res, lens_assumed=False: vo_noise(res)  # noqa: E731
-        for name, s, imu_noise, vo_w in (
-                ("blendgen (VO rotation only at the assumed-lens floor)", Sync(), noise, vo_noise),
-                ("IMU + GNSS, no VO", Sync(use_vo=False), noise, vo_noise),
-                ("VO weighted as for an exact lens (rotation + direction)", Sync(), noise, exact_lens),
-                ("automotive IMU bias priors (0.1 m/s^2, 0.01 rad/s)", Sync(), automotive, vo_noise)):
-            rec.imu_noise, pl.vo_noise = imu_noise, vo_w
+        calibrated = lambda res, lens="calibrated": vo_noise(res)  # noqa: E731
+        for name, r, s, imu_noise, vo_w, along_m in (
+                ("blendgen, lens assumed (VO rotation only, at the assumed-lens floor)", rec, Sync(), noise, vo_noise,
+                 along),
+                ("IMU + GNSS, no VO", rec, Sync(use_vo=False), noise, vo_noise, along),
+                ("lens assumed, rotation pairs not refitted along the travel (before)", rec, Sync(), noise, vo_noise,
+                 np.inf),
+                ("lens assumed, VO weighted as for a calibrated lens (rotation + direction)", rec, Sync(), noise,
+                 calibrated, along),
+                ("lens assumed, automotive IMU bias priors (0.1 m/s^2, 0.01 rad/s)", rec, Sync(), automotive,
+                 vo_noise, along),
+                ("blendgen, `--lens linear` (the model's profile: VO rotation, no direction)", lin, Sync(), noise,
+                 vo_noise, along),
+                ("`--lens linear` with the database's placeholder readout, 33.4 ms (not written)", lin, Sync(),
+                 noise, vo_noise, along),
+                ("`--lens linear`, VO weighted as for a calibrated lens (rotation + direction)", lin, Sync(), noise,
+                 calibrated, along)):
+            readout = r.rolling_shutter_s
+            r.imu_noise, pl.vo_noise, pl.ALONG_MIN_M = imu_noise, vo_w, along_m
+            if "placeholder readout" in name:
+                r.rolling_shutter_s = 1.0 / 29.97
             try:
                 c0 = time.process_time()
-                res = run_sync(rec, s, Path(d) / "out", progress=False)
+                res = run_sync(r, s, Path(d) / "out", progress=False)
                 cpu = time.process_time() - c0
             finally:
-                rec.imu_noise, pl.vo_noise = noise, vo_noise
+                r.imu_noise, pl.vo_noise, pl.ALONG_MIN_M, r.rolling_shutter_s = noise, vo_noise, along, readout
             t = np.array([p[1] for p in res.poses])
             xyz = np.array([p[2][:3, 3] for p in res.poses])
             at_fix = np.column_stack([np.interp(g[:, 0], t, xyz[:, k]) for k in range(3)])
-            e = recording_horizon_errors(rec, res.poses, *KARMA_SEA)
+            e = recording_horizon_errors(lin, res.poses, *KARMA_SEA)
             rows.append({"name": name, "cpu": cpu, "used": res.summary["updates"].get("gnss", 0),
                          "rejected": res.summary["rejected"].get("gnss", 0),
                          "fix_rms": float(np.sqrt(np.mean(np.sum((at_fix - fix)[:, :2] ** 2, axis=1)))),
@@ -339,15 +357,75 @@ def karma(quick: bool):
                          "elev_p90": float(np.percentile(np.abs(e.mean(axis=1)), 90)),
                          "roll": float(np.median(e[:, 1] - e[:, 0]))})
             print(f"  karma {name:45s} CPU {cpu:5.1f} s: {rows[-1]}")
-    return rows
+        lens_rows = karma_lens_check(rec, src)
+    return rows, lens_rows
 
 
-def karma_md(rows) -> list[str]:
+KARMA_LENSES = ("linear", "wide", "wide --eis")  # the 16:9 HERO5 Black profiles
+
+
+def karma_lens_check(rec, src) -> list[dict]:
+    """Which lens shot the Karma clip: VO's rotation chained over 10 frames (1/3 s) against the
+    gyro's, per camera axis, with a constant gyro bias fitted. Only the yaw (camera y) turns
+    enough to measure (9 deg over the clip): its gain is the lens's scale error."""
+    from blendgen.recording.folder import iter_frames
+    from blendgen.recording.importers import gopro_lens
+    from blendgen.sync import so3
+    from blendgen.sync.vo import VoConfig, make_vo
+    from blendgen.sync.vo_trust import gyro_rotations
+
+    frames = [img for _, img in iter_frames(rec)]
+    t = rec.frames_t
+    R_bc = np.asarray(rec.T_cam_imu)[:3, :3].T
+    G = [None if R is None else R_bc.T @ R @ R_bc for R in gyro_rotations(rec.imu, t, 0.1)]
+    fps = 1.0 / float(np.median(np.diff(t)))
+    lenses = [("assumed pinhole, 94 deg (the import without --lens)", rec.camera)]
+    for m in KARMA_LENSES:
+        mode, eis = m.split(" ")[0], m.endswith("--eis")
+        lenses.append((f"HERO5 Black {m}", gopro_lens.find_lens("HERO5 Black", mode, eis, rec.camera.width,
+                                                                 rec.camera.height, fps).camera))
+    out, n = [], 10
+    for name, cam in lenses:
+        vo = make_vo(cam, VoConfig(method="klt"))
+        Rv = [None] + [None] * (len(frames) - 1)
+        for k, img in enumerate(frames):
+            r = vo.track(img)
+            if k and r.has_rotation:
+                Rv[k] = np.asarray(r.R_c1c2)
+        W, Wg, dt = [], [], []
+        for a in range(1, len(frames) - n, n):
+            if any(Rv[k] is None or G[k] is None for k in range(a, a + n)):
+                continue
+            A, B = np.eye(3), np.eye(3)
+            for k in range(a, a + n):
+                A, B = A @ Rv[k], B @ G[k]
+            W.append(so3.log(A))
+            Wg.append(so3.log(B))
+            dt.append(t[a + n - 1] - t[a - 1])
+        W, Wg, dt = np.array(W), np.array(Wg), np.array(dt)
+        M = np.column_stack([Wg[:, 1], -dt])
+        sol, *_ = np.linalg.lstsq(M, W[:, 1], rcond=None)
+        e = W[:, 1] - M @ sol
+        se = float(np.sqrt(e @ e / (len(e) - 2) * np.linalg.inv(M.T @ M)[0, 0]))
+        out.append({"lens": name, "fx": cam.fx, "hfov": cam.hfov_deg, "gain": float(sol[0]), "se": se,
+                    "n": len(W)})
+        print(f"  karma lens {name:48s} yaw gain {sol[0]:.3f} +- {se:.3f} ({len(W)} spans)")
+    return out
+
+
+def karma_md(out) -> list[str]:
+    rows, lens_rows = out
     md = md_head("", "CPU s", "fixes used / rejected", "track vs fixes, RMS (m)", "frames with a horizon",
                  "horizon elevation, median (deg)", "p90 of abs (deg)", "roll across, median (deg)")
     for r in rows:
         md.append(f"| {r['name']} | {r['cpu']:.1f} | {r['used']} / {r['rejected']} | {r['fix_rms']:.2f} | {r['n']} "
                   f"| {r['elev']:+.2f} | {r['elev_p90']:.2f} | {r['roll']:+.2f} |")
+    md += ["", "Which lens: the image's yaw over 1/3 s spans against the gyro's (gain 1 = the lens's scale is right;",
+           "`karma_lens_check`).", "",
+           *md_head("lens", "fx at 854x480 (px)", "horizontal field of view (deg)", "yaw gain, image / gyro",
+                    "spans")]
+    for r in lens_rows:
+        md.append(f"| {r['lens']} | {r['fx']:.1f} | {r['hfov']:.1f} | {r['gain']:.3f} +- {r['se']:.3f} | {r['n']} |")
     return md
 
 

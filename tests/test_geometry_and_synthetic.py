@@ -54,6 +54,37 @@ def test_scaled_camera_keeps_rays():
     np.testing.assert_allclose((uv_full + 0.5) / 2 - 0.5, uv_half, atol=1e-9)
 
 
+@pytest.mark.parametrize("cam", [Camera(640, 480, 500, 510, 320.5, 239.5, [-0.2, 0.05, 0.001, -0.0005, 0.0]),
+                                 Camera(854, 480, 463, 462, 427.1, 239.7, [0.335, 0.128, 0.078, 0.022], "equidistant"),
+                                 Camera(854, 480, 390, 390, 428.0, 242.6, [0.043, 0.036, -0.034, 0.012],
+                                        "equidistant")], ids=["radtan", "fisheye linear", "fisheye wide"])
+def test_lens_projection_and_normalized_are_inverse(cam, tmp_path):
+    """Camera.normalized undoes Camera.project to 1e-6 over the whole frame (a 120 deg fisheye
+    too), keeps its model when scaled, and the calib.yaml round trip keeps the lens."""
+    from blendgen.recording import folder
+
+    us, vs = np.meshgrid(np.linspace(0, cam.width - 1, 23), np.linspace(0, cam.height - 1, 13))
+    px = np.column_stack([us.ravel(), vs.ravel()])
+    n = cam.normalized(px, iterations=40)
+    uv, front = cam.project(np.column_stack([n, np.ones(len(n))]))
+    assert front.all() and np.abs(uv - px).max() < 1e-6
+    np.testing.assert_allclose(cam.normalized(px, iterations=40, P=cam.K), n * [cam.fx, cam.fy] + [cam.cx, cam.cy],
+                               atol=1e-6)
+    half = cam.scaled(cam.width // 2, cam.height // 2)
+    assert half.distortion_model == cam.distortion_model and half.distorted
+    folder.write_calib(tmp_path, cam, np.eye(4))
+    assert folder._read_calib(tmp_path).camera == cam
+
+
+def test_fisheye_is_not_a_pinhole_without_coefficients():
+    cam = Camera(640, 480, 300, 300, 319.5, 239.5, [0.0] * 4, "equidistant")
+    assert cam.distorted  # r = f theta
+    uv, _ = cam.project([[1.0, 0.0, 1.0]])  # 45 deg right
+    assert uv[0, 0] == pytest.approx(319.5 + 300 * np.pi / 4)
+    assert cam.hfov_deg == pytest.approx(np.degrees(640 / 300))
+    assert Camera.from_hfov(640, 480, 70.0).hfov_deg == pytest.approx(70.0)
+
+
 def test_atomic_write_leaves_no_partial_file(tmp_path):
     target = tmp_path / "a" / "out.json"
     with pytest.raises(RuntimeError):

@@ -156,3 +156,70 @@ def test_real_gopro_truncated(tmp_path):
         g.truncate(KARMA.stat().st_size // 2)
     with pytest.raises(UserError, match="karma_cut.mp4"):
         import_recording("gopro", cut, tmp_path / "rec", show_progress=False)
+
+
+def test_gopro_lens_profiles():
+    """The bundled lens database: a HERO5 Black's Linear and Wide lenses at GoPro's published
+    16:9 fields of view, scaled to any size of that aspect, with the readout of the frame rate;
+    clear errors for a mode, aspect or camera it does not have."""
+    from blendgen.recording.importers import gopro_lens
+
+    assert gopro_lens.model_from_firmware("HD5.02.02.00.00") == "HERO5 Black"
+    assert gopro_lens.model_from_firmware("XX9.99") is None
+    lin = gopro_lens.find_lens("HERO5 Black", "linear", False, 854, 480, 29.97)
+    assert lin.camera.fisheye and (lin.camera.width, lin.camera.height) == (854, 480)
+    # 33.37 ms = 1 / 29.97 s is all the database lists there: a placeholder, not written
+    assert lin.readout_s is None and "placeholder" in lin.notes[0]
+    assert 83.0 < lin.camera.hfov_deg < 89.0  # GoPro's Linear
+    wide = gopro_lens.find_lens("HERO5 Black", "Wide", False, 2704, 1520, 29.97)
+    assert abs(wide.camera.hfov_deg - 118.2) < 3.0  # GoPro: HERO5 Black 16:9 Wide, 118.2 deg
+    assert wide.readout_s == pytest.approx(0.02669, abs=1e-5) and "2704x1520 at 29.97 fps" in wide.notes[0]
+    assert "Wide NO-EIS" in wide.description and "CC0" in wide.description
+    # a copy's recorded size is unknown, and the readout depends on it
+    copy = gopro_lens.find_lens("HERO5 Black", "wide", False, 1366, 768, 29.97)
+    assert copy.readout_s is None and "is a copy" in copy.notes[0] and "26.7 ms at 2704x1520" in copy.notes[0]
+    with pytest.raises(UserError, match="it has: linear; linear --eis; wide; wide --eis"):
+        gopro_lens.find_lens("HERO5 Black", "superview", False, 1920, 1080, 29.97)
+    with pytest.raises(UserError, match="none with this video's aspect"):
+        gopro_lens.find_lens("HERO5 Black", "linear", False, 1000, 1000, 29.97)
+    with pytest.raises(UserError, match="no lens profile for a GoPro MAX"):
+        gopro_lens.find_lens("MAX", "wide", False, 1920, 1080, 29.97)
+
+
+@pytest.mark.data
+def test_real_gopro_karma_with_its_lens(tmp_path):
+    if not KARMA.exists():
+        pytest.skip("needs ../shared/data/real/gopro_karma.mp4")
+    rec = read_recording(import_recording("gopro", KARMA, tmp_path / "rec", lens="linear", show_progress=False))
+    assert rec.lens_source == "profile" and rec.camera.fisheye and rec.camera.fx == pytest.approx(462.9, abs=0.1)
+    assert rec.rolling_shutter_s == 0.0  # the database's 29.97 fps readout is a placeholder
+    assert "camera: HERO5 Black (firmware HD5.02.02.00.00)" in rec.extra["import"]["notes"]
+    assert not any("not calibrated" in f.message and "intrinsics" in f.message for f in check_recording(rec.root))
+    with pytest.raises(UserError, match="either --lens"):
+        import_recording("gopro", KARMA, tmp_path / "rec2", lens="linear", hfov_deg=90, show_progress=False)
+    assert not (tmp_path / "rec2").exists()
+
+
+def test_every_bundled_lens_inverts_or_is_refused():
+    """Each profile in the database, at its calibrated size: every pixel's ray projects back to
+    it (1e-6 px), or the lens sees past what a pinhole canvas holds and find_lens says so. The
+    Max modes are refused; OpenCV's own fisheye inverse lands on the polynomial's far branch for
+    some of them and for the HERO11 Linear 4:3 corners, which blendgen's inverse does not."""
+    from blendgen.geometry import MAX_VIEW_ANGLE_DEG, Camera
+    from blendgen.recording.importers import gopro_lens
+
+    refused = set()
+    for p in gopro_lens.profiles():
+        W, H = p["size"]
+        cam = Camera(W, H, *p["intrinsics"], list(p["distortion"]), "equidistant")
+        us, vs = np.meshgrid(np.linspace(-0.5, W - 0.5, 21), np.linspace(-0.5, H - 0.5, 15))
+        px = np.column_stack([us.ravel(), vs.ravel()])
+        if cam.max_view_angle_deg() > MAX_VIEW_ANGLE_DEG:
+            refused.add(f"{p['camera']} {p['lens']}")
+            with pytest.raises(UserError, match="blendgen handles up to 85 deg"):
+                gopro_lens.find_lens(p["camera"], p["lens"], p["stabilisation"] not in ("", "NO-EIS"), W, H, 30.0)
+            continue
+        n = cam.normalized(px)
+        uv, front = cam.project(np.column_stack([n, np.ones(len(n))]))
+        assert front.all() and np.abs(uv - px).max() < 1e-6, p["source"]
+    assert {"HERO10 Black Max", "HERO9 Black Max"} <= refused and "HERO5 Black Linear" not in refused

@@ -47,9 +47,13 @@ def centroids(passes, ids):
     return out
 
 
-@pytest.mark.parametrize("dist", [None, [-0.18, 0.05, 0.0008, -0.0006, 0.0]], ids=["pinhole", "radtan"])
+FISHEYE = Camera(320, 180, 150.0, 150.0, 160.3, 90.8, [0.043, 0.036, -0.034, 0.012], "equidistant")  # GoPro Wide
+
+
+@pytest.mark.parametrize("dist", [None, [-0.18, 0.05, 0.0008, -0.0006, 0.0], "fisheye"],
+                         ids=["pinhole", "radtan", "fisheye"])
 def test_camera_round_trip(tmp_path, dist):
-    cam = Camera(320, 180, 230.0, 240.0, 150.3, 95.7, dist or [0.0] * 5)
+    cam = FISHEYE if dist == "fisheye" else Camera(320, 180, 230.0, 240.0, 150.3, 95.7, dist or [0.0] * 5)
     s = session(cam, samples=16)
     try:
         # Cards whose near faces are centred at x = 10 m, spread over the frame (corners too).

@@ -136,8 +136,10 @@ def test_blender_intrinsics_match_the_viewplane_formula():
     assert np.allclose(M[:3, 2], -T[:3, 2])  # Blender looks down its -z
 
 
-def test_distortion_canvas_maps_agree_with_projection():
-    cam = Camera(320, 180, 200.0, 200.0, 161.0, 88.0, [-0.25, 0.08, 0.001, -0.0005, 0.0])
+@pytest.mark.parametrize("cam", [Camera(320, 180, 200.0, 200.0, 161.0, 88.0, [-0.25, 0.08, 0.001, -0.0005, 0.0]),
+                                 Camera(320, 180, 150.0, 150.0, 160.3, 90.8, [0.043, 0.036, -0.034, 0.012],
+                                        "equidistant")], ids=["radtan", "fisheye"])
+def test_distortion_canvas_maps_agree_with_projection(cam):
     cv = make_canvas(cam)
     assert cv.remapped and cv.pinhole.width > cam.width and not cv.pinhole.distorted
     rng = np.random.default_rng(1)

@@ -72,8 +72,11 @@ def test_vo_noise_has_floors_and_no_constant():
     rot0, dir0 = vo_noise(r)
     assert np.all(np.linalg.eigvalsh(rot0) > 0) and np.linalg.matrix_rank(dir0) == 2
     # a lens the importer only assumed: rotation no better than 0.5 deg, no direction of travel
-    rot_a, dir_a = vo_noise(r, lens_assumed=True)
+    rot_a, dir_a = vo_noise(r, "assumed")
     assert np.degrees(np.sqrt(np.linalg.eigvalsh(rot_a).min())) == pytest.approx(0.5) and dir_a is None
+    # a lens database's profile of the camera model: the rotation as measured, no direction
+    rot_p, dir_p = vo_noise(r, "profile")
+    assert np.allclose(rot_p, rot0) and dir_p is None
 
 
 def test_a_vo_measurement_the_gate_keeps_rejecting_stays_rejected():

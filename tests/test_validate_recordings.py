@@ -116,6 +116,8 @@ CASES = [
      "imu.gyroscope_noise_density: expected a positive number"),
     ("unknown distortion", calib(lambda d: set_(d, ["camera", "distortion_model"], "fisheye9")), "calib.yaml",
      "camera.distortion_model: 'fisheye9' is not supported"),
+    ("fisheye with 5 coefficients", calib(lambda d: set_(d, ["camera", "distortion_model"], "equidistant")),
+     "calib.yaml", "the equidistant model expects 4 numbers"),
     ("no camera section", calib(lambda d: d.pop("camera")), "calib.yaml", "has no `camera:` section"),
     ("frames header", edit("frames.csv", lambda t: t.replace("t,file", "time,path", 1)), "frames.csv",
      "expected 't,file' (images) or 't,index'"),

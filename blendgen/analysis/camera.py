@@ -138,8 +138,7 @@ def detect_segments(bgr: np.ndarray, camera: Camera, cfg: CameraConfig) -> np.nd
     seg = seg[keep][length[keep] >= min_len]
     seg = (seg + 0.5) / s - 0.5
     if camera.distorted and len(seg):
-        pts = cv2.undistortPoints(seg.reshape(-1, 1, 2), camera.K, camera.D, P=camera.K)
-        seg = pts.reshape(-1, 4)
+        seg = camera.normalized(seg.reshape(-1, 2), P=camera.K).reshape(-1, 4)
     return seg
 
 

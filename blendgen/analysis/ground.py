@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 
 from blendgen.analysis.model import CameraEstimate
@@ -26,10 +25,7 @@ def camera_pose(est: CameraEstimate, road_direction_deg: float | None = None) ->
 def rays_world(camera: Camera, T_world_cam: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """World-frame directions (N, 3) of the pixels `uv` (N, 2), lens distortion removed."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    if camera.distorted:
-        xy = cv2.undistortPoints(uv.reshape(-1, 1, 2), camera.K, camera.D).reshape(-1, 2)
-    else:
-        xy = np.column_stack([(uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy])
+    xy = camera.normalized(uv)
     rays = np.column_stack([xy, np.ones(len(xy))])
     return rays @ np.asarray(T_world_cam)[:3, :3].T
 

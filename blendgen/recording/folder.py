@@ -179,19 +179,28 @@ def _parse_camera(cam: dict, path: Path) -> Camera:
     except (TypeError, ValueError):
         raise UserError("camera: intrinsics must be 4 numbers and resolution 2 integers", where=str(path)) from None
     model = cam.get("distortion_model", "radtan")
-    if model not in ("radtan", "none"):
-        raise UserError(f"camera.distortion_model: {model!r} is not supported; expected radtan or none",
-                        where=str(path))
-    dist = [float(v) for v in cam.get("distortion_coeffs", [])] if model == "radtan" else []
-    if len(dist) not in (0, 4, 5):
+    if model not in ("radtan", "equidistant", "none"):
+        raise UserError(f"camera.distortion_model: {model!r} is not supported; expected radtan, equidistant "
+                        "(fisheye, Kannala-Brandt k1..k4) or none", where=str(path))
+    dist = [float(v) for v in cam.get("distortion_coeffs", [])] if model != "none" else []
+    if model == "equidistant":
+        if len(dist) != 4:
+            raise UserError("camera.distortion_coeffs: the equidistant model expects 4 numbers (k1 k2 k3 k4)",
+                            where=str(path))
+    elif len(dist) not in (0, 4, 5):
         raise UserError("camera.distortion_coeffs: expected 4 or 5 numbers (k1 k2 p1 p2 [k3])", where=str(path))
-    dist = (dist + [0.0] * 5)[:5]
+    else:
+        dist = (dist + [0.0] * 5)[:5]
     if not all(math.isfinite(v) for v in (fx, fy, cx, cy, *dist)):
         raise UserError(f"camera: intrinsics and distortion must be finite numbers, got intrinsics "
                         f"{[fx, fy, cx, cy]}", where=str(path))
     if min(fx, fy) <= 0 or min(w, h) <= 0:
         raise UserError("camera: focal lengths and resolution must be positive", where=str(path))
-    return Camera(w, h, fx, fy, cx, cy, dist)
+    camera = Camera(w, h, fx, fy, cx, cy, dist, "equidistant" if model == "equidistant" else "radtan")
+    why = camera.too_wide() if camera.fisheye else None
+    if why:
+        raise UserError(f"camera: this equidistant lens {why}", where=str(path))
+    return camera
 
 
 def _read_frames(rec: Recording) -> None:
@@ -397,7 +406,7 @@ def write_calib(root: Path, camera: Camera | None, T_cam_imu=None, imu_noise: Im
         data["camera"] = {
             "model": "pinhole",
             "intrinsics": [float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)],
-            "distortion_model": "radtan",
+            "distortion_model": camera.distortion_model,
             "distortion_coeffs": [float(v) for v in camera.dist],
             "resolution": [int(camera.width), int(camera.height)],
         }

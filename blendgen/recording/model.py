@@ -82,10 +82,17 @@ class Recording:
         return None
 
     @property
+    def lens_source(self) -> str:
+        """Where the intrinsics come from: "assumed" (the importer guessed a field of view),
+        "profile" (a lens database's calibration of the camera model, not of this unit: e.g.
+        `import gopro --lens`) or "calibrated" (anything else: this camera's calibration)."""
+        cal = str((self.extra.get("import") or {}).get("camera_calibration", ""))
+        return "assumed" if cal.startswith("assumed") else "profile" if "lens profile" in cal else "calibrated"
+
+    @property
     def intrinsics_assumed(self) -> bool:
         """The importer guessed the lens (a field of view, a pinhole): not a calibration."""
-        meta = self.extra.get("import") or {}
-        return str(meta.get("camera_calibration", "")).startswith("assumed")
+        return self.lens_source == "assumed"
 
     def gnss_col(self, name: str) -> np.ndarray | None:
         return self.gnss[:, self.gnss_columns.index(name)] if name in self.gnss_columns else None

@@ -146,14 +146,10 @@ def make_canvas(cam: Camera, *, pad_px: int = 2, max_growth: float = 1.6) -> Can
     square = abs(cam.fx - cam.fy) <= 1e-9 * max(cam.fx, cam.fy)
     if not cam.distorted and square:
         return Canvas(cam, Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy))
-    import cv2
-
     W, H = int(cam.width), int(cam.height)
     us, vs = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     if cam.distorted:
-        pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
-        xn = cv2.undistortPointsIter(pts, cam.K, cam.D, None, None, crit).reshape(H, W, 2)
+        xn = cam.normalized(np.stack([us.ravel(), vs.ravel()], axis=1), iterations=40).reshape(H, W, 2)
     else:
         xn = np.stack([(us - cam.cx) / cam.fx, (vs - cam.cy) / cam.fy], axis=2)
     # Extent of the view from the image border (the interior lies inside for sane lenses).

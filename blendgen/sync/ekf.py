@@ -457,6 +457,11 @@ class ErrorStateEkf:
         H[0, IM] = -(self.R @ self.R_bv @ so3.hat(np.array([0.0, 1.0, 0.0])))[2]
         return self._update("level", np.array([-y_w[2]]), H, np.array([[std**2]]))
 
+    def predicted_travel(self, R_bc, p_bc) -> np.ndarray:
+        """The camera's travel from the clone to now (m), in the clone's camera axes."""
+        w = self.p - self.p_c + self.R @ p_bc
+        return R_bc.T @ (self.R_c.T @ w - p_bc)
+
     def update_relative(self, R_c1c2, u_dir, R_bc, p_bc, rot_std, dir_std) -> bool:
         """VO between the clone (frame 1) and now (frame 2), in camera coordinates.
 
@@ -478,7 +483,7 @@ class ErrorStateEkf:
         rows_r, rows_H, blocks = [r_rot], [H_rot], [rot_cov]
         if u_dir is not None and dir_std is not None:
             w = self.p - self.p_c + self.R @ p_bc
-            d = R_bc.T @ (self.R_c.T @ w - p_bc)
+            d = self.predicted_travel(R_bc, p_bc)
             nd = float(np.linalg.norm(d))
             if nd > 1e-3:
                 u = d / nd

@@ -200,14 +200,14 @@ def horizon_errors(lines: dict, poses: dict, camera: Camera, half_span_px: float
     index -> T_world_cam, z up): the elevation (deg) above the pose's horizontal plane of two
     points on the detected line `half_span_px` either side of its centre. Rows (left, right);
     a perfect attitude gives -dip for both, their difference is the roll error across them."""
-    Ki = np.linalg.inv(camera.K)
     out = []
     for k, (p, u) in sorted(lines.items()):
         if k not in poses:
             continue
         up_c = poses[k][:3, :3].T @ np.array([0.0, 0.0, 1.0])
         u = u if u[0] >= 0 else -u  # left point first
-        rays = Ki @ np.column_stack([np.vstack([p - half_span_px * u, p + half_span_px * u]), np.ones(2)]).T
+        ends = camera.normalized(np.vstack([p - half_span_px * u, p + half_span_px * u]))
+        rays = np.column_stack([ends, np.ones(2)]).T
         out.append(np.degrees(np.arcsin(up_c @ (rays / np.linalg.norm(rays, axis=0)))))
     return np.array(out).reshape(-1, 2)
 

@@ -29,7 +29,7 @@ from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.readout import Readout, estimate_readout
 from blendgen.sync.threads import single_thread_blas
-from blendgen.sync.vo import VoConfig, VoResult, make_vo
+from blendgen.sync.vo import VoConfig, VoResult, make_vo, refit_along
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
 from blendgen.sync.vo_trust import VO_ROT_FLOOR_ASSUMED_LENS, GyroIntegrator, TrustReport, assess, vo_noise
 
@@ -317,10 +317,14 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
                 trust.reason += (f"; rows turned back to the frame's top row with the gyro (rolling shutter, "
                                  f"{rec.rolling_shutter_s * 1e3:.1f} ms readout"
                                  f"{', estimated' if readout is not None else ''})")
-            if rec.intrinsics_assumed:
+            if rec.lens_source == "assumed":
                 trust.reason += (f"; the lens is the importer's assumption, so VO gives rotation only, no better "
                                  f"than {np.degrees(VO_ROT_FLOOR_ASSUMED_LENS):.1f} deg per pair, and no direction "
                                  f"of travel (calibrate the camera for more)")
+            elif rec.lens_source == "profile":
+                trust.reason += ("; the lens is the camera model's profile, not this camera's calibration, so VO "
+                                 "gives rotation only, no direction of travel (its principal point is not known "
+                                 "to the pixel; calibrate the camera for more)")
     if toff is None and rec.n_frames and rec.time_offset_estimate:
         toff = not_estimated(rec.time_offset_cam_imu, "it needs frames, VO and an IMU")
     starts = [a[0] for a in (imu[:, 0], gt_t if use_gnss else np.zeros(0), out_t) if len(a)]
@@ -520,7 +524,8 @@ def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg)
     shift0 = float(rec.time_offset_cam_imu)
 
     def check(t):
-        return assess(results, gyro.pair_rotations(t), R_bc, t, cfg.gyro_noise, direction=not rec.intrinsics_assumed)
+        return assess(results, gyro.pair_rotations(t), R_bc, t, cfg.gyro_noise,
+                      direction=rec.lens_source == "calibrated")
 
     trust = check(out_t)
     toff = TimeOffset(shift_s=shift0, calib_s=shift0, method="calib.yaml")
@@ -636,6 +641,9 @@ def _height_error_correlation_s(gt_t, g_xyz, window_s: float = 20.0, max_s: floa
     return float(np.clip(lag * dt, dt, max_s))
 
 
+# a "rotation" VO pair is refitted along the filter's direction of travel (vo.refit_along) once
+# the camera moved this far between the frames (any direction fits a camera that stood still)
+ALONG_MIN_M = 1e-3
 GNSS_REOPEN_S = 10.0   # fixes rejected this long, agreeing with each other: the filter drifted
 # in a GNSS outage (no fix for GNSS_GAP_S, or 3 fix intervals if longer) the IMU's white noise counts GAP_IMU_NOISE times
 # its stated density: the drift that dead reckoning builds up must fit the fixes after the gap,
@@ -668,7 +676,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
     """One filter pass (+ RTS smoother when `smooth`). h_scale multiplies the fixes'
     horizontal noise (calib.yaml gnss.h_std_scale); odometer: (odometer.means rows, std m/s)."""
     p0, v0, R0, bg0, ba0 = x0
-    lens_assumed = rec.intrinsics_assumed
+    lens = rec.lens_source
     ekf = ErrorStateEkf(cfg, t_start, p0, v0, R0, P0, use_imu=use_imu)
     if calib is not None:
         ekf.enable_calibration(*calib)
@@ -806,7 +814,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                     # correction out (image camera -> body camera) and use what is left
                     if ekf.has_clone and clone_i >= 0:
                         C0, C1 = trust.correction[clone_i], trust.correction[i]
-                        rot_cov, dir_cov = vo_noise(res, lens_assumed)
+                        rot_cov, dir_cov = vo_noise(res, lens)
                         u = C0 @ res.u_dir if dir_cov is not None else None
                         if u is not None:
                             dir_cov = C0 @ dir_cov @ C0.T + trust.correction_std**2 * (np.eye(3) - np.outer(u, u))
@@ -818,7 +826,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                 else:
                     if res.has_rotation and ekf.has_clone:
                         # noise from this pair's own fit (inliers, residuals, parallax), not a constant
-                        rot_std, dir_std = vo_noise(res, lens_assumed)
+                        rot_std, dir_std = vo_noise(res, lens)
                         # features that do not move mean "standing" only if the IMU agrees and
                         # the filter is slow: a far scene (highway, drone) barely moves either
                         imu_quiet = (not use_imu) or bool(
@@ -826,7 +834,12 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
                         if res.stationary and imu_quiet and np.linalg.norm(ekf.v) < 1.0:
                             ekf.update_zero_velocity(0.05)
                             flags.append("zupt")
-                        ok = ekf.update_relative(res.R_c1c2, res.u_dir if res.has_direction else None,
+                        R_vo = res.R_c1c2
+                        if res.status == "rotation" and res.matches is not None:
+                            d = ekf.predicted_travel(R_bc, p_bc)
+                            if np.linalg.norm(d) > ALONG_MIN_M:
+                                R_vo = refit_along(res, d)
+                        ok = ekf.update_relative(R_vo, res.u_dir if res.has_direction else None,
                                                  R_bc, p_bc, rot_std, dir_std)
                         flags.append("vo" if ok else "vo_rejected")
                     elif res.status not in ("first",):

@@ -37,19 +37,22 @@ VO_DIR_FLOOR = np.radians(0.5)
 # camera against its sea horizon (docs/sync.md; automotive IMU bias priors): VO at the floors
 # above 1.90 deg off, without VO 1.20, rotation only at this floor 1.15
 VO_ROT_FLOOR_ASSUMED_LENS = np.radians(0.5)
+# A lens database's profile of the camera model (`import gopro --lens`) gets the rotation as
+# measured but no direction either: the Karma clip with its HERO5 Linear profile (the yaw gain
+# 0.995 +- 0.024 confirms it) is 0.55 deg off the horizon with VO rotation, 2.57 with direction
 VO_ROT_NO_COV = 0.003             # rad: a pair without a fit covariance (should not happen)
 
 
-def vo_noise(res: VoResult, lens_assumed: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+def vo_noise(res: VoResult, lens: str = "calibrated") -> tuple[np.ndarray, np.ndarray | None]:
     """(3x3 rotation covariance, 3x3 direction covariance or None) for a VO pair.
-    lens_assumed: the intrinsics are a guess (Recording.intrinsics_assumed): a larger rotation
-    floor and no direction."""
-    rot_floor = VO_ROT_FLOOR_ASSUMED_LENS if lens_assumed else VO_ROT_FLOOR
+    lens: `Recording.lens_source`. "assumed" (the intrinsics are a guess): a larger rotation
+    floor and no direction; "profile" (the camera model's, not this unit's): no direction."""
+    rot_floor = VO_ROT_FLOOR_ASSUMED_LENS if lens == "assumed" else VO_ROT_FLOOR
     if res.rot_cov is not None:
         rot = VO_ROT_INFLATE**2 * res.rot_cov + rot_floor**2 * np.eye(3)
     else:
         rot = VO_ROT_NO_COV**2 * np.eye(3)
-    if lens_assumed or not res.has_direction or res.u_dir is None:
+    if lens != "calibrated" or not res.has_direction or res.u_dir is None:
         return rot, None
     u = np.asarray(res.u_dir, dtype=float)
     tangent = np.eye(3) - np.outer(u, u)

@@ -14,7 +14,7 @@ _OPTIONS = {
     "euroc": ["cam"],
     "kitti": ["kitti_cam"],
     "comma2k19": ["gnss_source"],
-    "gopro": ["hfov_deg"],
+    "gopro": ["hfov_deg", "lens", "eis"],
     "rosbag": ["image_topic", "imu_topic", "gnss_topic", "speed_topic", "hfov_deg"],
 }
 
@@ -53,6 +53,11 @@ def register(subparsers) -> None:
     g.add_argument("--time-unit", default="s", choices=["s", "ms", "us", "ns"], help="unit of the CSVs' t")
     g.add_argument("--hfov", dest="hfov_deg", type=float,
                    help="horizontal field of view (deg) when no calibration is known (video, gopro, rosbag)")
+    g = p.add_argument_group("gopro")
+    g.add_argument("--lens", help="the GoPro's lens mode (wide, linear, narrow, ...; the file does not say "
+                                  "it): its calibrated fisheye from Gyroflow's lens database")
+    g.add_argument("--eis", action="store_true", default=None,
+                   help="with --lens: the video was electronically stabilised (EIS / HyperSmooth)")
     g = p.add_argument_group("euroc / kitti / comma2k19 / rosbag")
     g.add_argument("--cam", default="cam0", help="EuRoC camera folder")
     g.add_argument("--kitti-cam", type=int, default=2, help="KITTI camera number (image_0X)")

@@ -50,9 +50,12 @@ def _camera(data: dict, path: Path) -> Camera:
         raise UserError("cam sensor.yaml: expected intrinsics [fu, fv, cu, cv] and resolution [w, h]",
                         where=str(path)) from None
     model = data.get("distortion_model", "radial-tangential")
-    if model not in ("radial-tangential", "radtan", "plumb_bob"):
-        raise UserError(f"distortion_model {model!r} is not supported (radial-tangential only)", where=str(path))
     dist = [float(v) for v in data.get("distortion_coefficients", [])]
+    if model == "equidistant" and len(dist) == 4:  # Kalibr's fisheye (TUM VI and other EuRoC-format sets)
+        return Camera(w, h, fu, fv, cu, cv, dist, "equidistant")
+    if model not in ("radial-tangential", "radtan", "plumb_bob"):
+        raise UserError(f"distortion_model {model!r} is not supported (radial-tangential, or equidistant with "
+                        "4 coefficients)", where=str(path))
     return Camera(w, h, fu, fv, cu, cv, (dist + [0.0] * 5)[:5])
 
 

@@ -16,8 +16,12 @@ Timing: every stream's samples are placed on the video clock by a linear fit of 
 times against the running sample count (the last payload is usually partial). Karma messages
 carry the drone's clock: its offset to the video clock is the median lag between message time
 and the payload window that carried it.
-Intrinsics are unknown: a pinhole with a 94 deg horizontal field of view (GoPro "Wide" near
-the image centre) is written and flagged by the check.
+Lens: the file names the camera (udta FIRM) but not its lens mode. With `--lens MODE` (and
+`--eis` for electronically stabilised footage) the camera model's fisheye profile from Gyroflow's
+lens database is written, scaled to the video, with its rolling-shutter readout where the
+database lists a real one for the video's own size and frame rate (gopro_lens.py). Without it a pinhole with a 94 deg
+horizontal field of view is assumed and flagged by the check; sync then takes VO's rotation at
+a loose floor and no direction of travel.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import numpy as np
 from blendgen.errors import UserError
 from blendgen.geometry import make_pose
 from blendgen.recording import folder
-from blendgen.recording.importers import common, gpmf, mp4
+from blendgen.recording.importers import common, gopro_lens, gpmf, mp4
 from blendgen.recording.model import ImuNoise
 
 DEFAULT_HFOV_DEG = 94.0
@@ -94,18 +98,29 @@ def _axes(entries, key) -> np.ndarray:
     return M
 
 
-def import_gopro(src, dst, *, hfov_deg: float | None = None, force: bool = False,
-                 show_progress: bool = True) -> Path:
+def import_gopro(src, dst, *, hfov_deg: float | None = None, lens: str | None = None, eis: bool = False,
+                 force: bool = False, show_progress: bool = True) -> Path:
     from blendgen.recording.importers.video import video_frame_times
 
     src = Path(src)
     if not src.is_file():
         raise UserError("GoPro MP4 not found", where=str(src))
+    if lens and hfov_deg:
+        raise UserError("give either --lens (a GoPro lens mode) or --hfov, not both")
+    firmware = mp4.read_user_data(src).get("FIRM", b"").split(b"\0")[0].decode("ascii", "replace")
+    model = gopro_lens.model_from_firmware(firmware)
     tel = read_telemetry(src, show_progress=show_progress)
     pk, starts, durs = tel["per_key"], tel["starts"], tel["durs"]
     t_frames = video_frame_times(src, show_progress=show_progress)
     w, h = common.first_frame_size(src)
-    notes: list[str] = []
+    found = None
+    if lens:
+        if model is None:
+            raise UserError(f"--lens: the camera model is unknown (firmware {firmware or 'not in the file'!r}); "
+                            "give its field of view with --hfov", where=str(src))
+        fps = 1.0 / float(np.median(np.diff(t_frames))) if len(t_frames) > 1 else 30.0
+        found = gopro_lens.find_lens(model, lens, eis, w, h, fps)  # before anything is written
+    notes: list[str] = [f"camera: {model or 'unknown model'} (firmware {firmware or 'not in the file'})"]
     dst = common.prepare_output(dst, force)
 
     # IMU
@@ -159,8 +174,16 @@ def import_gopro(src, dst, *, hfov_deg: float | None = None, force: bool = False
     video_name = "video.mp4"
     common.place_file(src, dst / video_name)
     folder.write_frames_index_csv(dst, t_frames, np.arange(len(t_frames)))
-    hf = float(hfov_deg) if hfov_deg else DEFAULT_HFOV_DEG
-    camera = common.default_camera(w, h, hf)
+    if found is not None:
+        camera, cam_desc = found.camera, found.description
+        notes.extend(found.notes)
+    else:
+        hf = float(hfov_deg) if hfov_deg else DEFAULT_HFOV_DEG
+        camera = common.default_camera(w, h, hf)
+        cam_desc = f"assumed pinhole with {hf:g} deg horizontal field of view (GoPro intrinsics are not in the file)"
+        if model and not hfov_deg and gopro_lens.modes(model):
+            notes.append(f"the lens mode is not in the file: --lens {' | '.join(gopro_lens.modes(model))} writes "
+                         f"the {model}'s calibrated lens instead of this assumption")
     extra = {"video": video_name}
     if "GPRI" in pk:  # only a Karma drone writes GPRI: sync must not hold it to a road vehicle's motion
         extra["vehicle"] = {"road_vehicle": False}
@@ -170,14 +193,15 @@ def import_gopro(src, dst, *, hfov_deg: float | None = None, force: bool = False
         extra["time_origin_utc"] = datetime.fromtimestamp(utc_origin, tz=timezone.utc).isoformat()
     extra["import"] = common.import_meta(
         "gopro", src,
-        camera=f"assumed pinhole with {hf:g} deg horizontal field of view (GoPro intrinsics are not in the file)",
+        camera=cam_desc,
         T_cam_imu="assumed GoPro IMU axes (X left, Y back, Z up) rotated to camera axes, lever arm 0",
         notes=notes)
     # an uncalibrated consumer IMU: turn-on biases as its class's datasheets allow (+-40 mg, a few
     # deg/s); held to the automotive 0.1 m/s^2 the Karma clip's camera tilted 1.2 deg against the
     # sea horizon, taking the accelerometer's bias for tilt (0.35 deg with these; docs/sync.md)
     noise = ImuNoise(update_rate=rate, accelerometer_bias_std=0.3, gyroscope_bias_std=0.03)
-    folder.write_calib(dst, camera, make_pose(R_CAM_SENSOR, np.zeros(3)), noise, extra=extra)
+    folder.write_calib(dst, camera, make_pose(R_CAM_SENSOR, np.zeros(3)), noise, extra=extra,
+                       rolling_shutter_s=(found.readout_s or 0.0) if found is not None else 0.0)
     return dst
 
 

@@ -87,6 +87,22 @@ def read_tracks(path: str | Path) -> list[Track]:
         return tracks
 
 
+def read_user_data(path: str | Path) -> dict[str, bytes]:
+    """The boxes inside moov/udta (a camera's own metadata: GoPro writes FIRM, LENS, CAME, SETT)."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        top = {k: (s, e) for k, s, e in _boxes(f, 0, path.stat().st_size, path)}
+        if b"moov" not in top:
+            return {}
+        out = {}
+        for kind, s, e in _boxes(f, *top[b"moov"], path):
+            if kind == b"udta":
+                for k, cs, ce in _boxes(f, s, e, path):
+                    f.seek(cs)
+                    out[k.decode("latin-1")] = f.read(ce - cs)
+        return out
+
+
 def _collect(f, s, e, path, out: dict):
     for kind, cs, ce in _boxes(f, s, e, path):
         if kind in _CONTAINERS:

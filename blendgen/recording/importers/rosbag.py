@@ -229,7 +229,11 @@ def _camera_from_info(info, w: int, h: int) -> Camera | None:
     model = getattr(info, "distortion_model", "plumb_bob")
     if K.size != 9 or K[0] <= 0 or K[4] <= 0:
         return None
-    if model not in ("plumb_bob", "radtan", "") or len(D) not in (0, 4, 5):
-        return None  # e.g. rational_polynomial / equidistant: not representable by blendgen's Camera
-    cam = Camera(int(info.width) or w, int(info.height) or h, K[0], K[4], K[2], K[5], (D + [0.0] * 5)[:5])
+    size = (int(info.width) or w, int(info.height) or h)
+    if model == "equidistant" and len(D) == 4:  # ROS's name for the Kannala-Brandt fisheye
+        cam = Camera(*size, K[0], K[4], K[2], K[5], D, "equidistant")
+    elif model not in ("plumb_bob", "radtan", "") or len(D) not in (0, 4, 5):
+        return None  # e.g. rational_polynomial: not representable by blendgen's Camera
+    else:
+        cam = Camera(*size, K[0], K[4], K[2], K[5], (D + [0.0] * 5)[:5])
     return cam.scaled(w, h) if (cam.width, cam.height) != (w, h) else cam

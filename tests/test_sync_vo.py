@@ -227,3 +227,20 @@ def test_rotation_pair_refitted_along_the_direction_of_travel():
             assert err(res.R_c1c2) > 0.01 and err(fixed) < 0.1 * err(res.R_c1c2)
         else:
             assert err(fixed) < 0.003
+
+
+def test_readout_estimate_leaves_rotation_pairs_their_refit_subset():
+    """After `rolling_shutter_s: auto` the cached pairs drop their inliers, except the subset a
+    "rotation" pair needs for refit_along (the Karma clip's horizon: -1.78 deg without it, -0.54
+    with)."""
+    from blendgen.sync.pipeline import _drop_matches
+    from blendgen.sync.vo import ALONG_POINTS
+
+    q = np.random.default_rng(0).normal(size=(500, 3))
+    full = (q[:, :2], q[:, :2], q, q)
+    cache = {0: None, 1: VoResult("rotation", matches=full), 2: VoResult("ok", matches=full),
+             3: VoResult("rotation")}
+    _drop_matches(cache)
+    p1, p2, q1, q2 = cache[1].matches
+    assert p1 is None and q1.shape == (ALONG_POINTS, 3) and q1.dtype == np.float32
+    assert cache[2].matches is None and cache[3].matches is None

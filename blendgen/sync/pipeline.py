@@ -29,7 +29,7 @@ from blendgen.sync.lut import Lut
 from blendgen.sync.reanchor import reanchor
 from blendgen.sync.readout import Readout, estimate_readout
 from blendgen.sync.threads import single_thread_blas
-from blendgen.sync.vo import VoConfig, VoResult, make_vo, refit_along
+from blendgen.sync.vo import VoConfig, VoResult, along_subset, make_vo, refit_along
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
 from blendgen.sync.vo_trust import VO_ROT_FLOOR_ASSUMED_LENS, GyroIntegrator, TrustReport, assess, vo_noise
 
@@ -507,10 +507,16 @@ def _estimate_readout(rec, settings, imu, out_t, R_bc, cfg, vo_cache: dict, prog
     if ro.readout_s > 0:
         vo_cache.clear()
         _vo_all(rec, settings, len(out_t), vo_cache, progress, _rs_spins(imu, t_spin, ro.readout_s, R_bc))
-    for r in vo_cache.values():  # the uncorrected pairs stand; their inliers are not needed any more
-        if r is not None:
-            r.matches = None
+    _drop_matches(vo_cache)
     return rec, ro
+
+
+def _drop_matches(vo_cache: dict) -> None:
+    """After the readout estimate only refit_along needs inliers: the "rotation" pairs keep its
+    subset (without it the filter took their translation-biased rotations), the rest none."""
+    for r in vo_cache.values():
+        if r is not None and r.matches is not None:
+            r.matches = along_subset(*r.matches[2:]) if r.status == "rotation" else None
 
 
 def _trust_and_time_offset(rec, results: list, imu, out_t_cam, out_t, R_bc, cfg):

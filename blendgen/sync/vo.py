@@ -558,8 +558,7 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
         if cfg.keep_matches:
             res.matches = (p1[inl_r], p2[inl_r], q1[inl_r], q2[inl_r])
         else:  # for refit_along: a moving camera's translation is in this rotation
-            k = np.flatnonzero(inl_r)[np.linspace(0, inl_r.sum() - 1, min(ALONG_POINTS, inl_r.sum())).astype(int)]
-            res.matches = (None, None, q1[k].astype(np.float32), q2[k].astype(np.float32))
+            res.matches = along_subset(q1[inl_r], q2[inl_r])
         return res
     # RANSAC's E comes from one minimal sample: refit R, t on all its inliers (Sampson error).
     # All, not only those recoverPose would keep (in front, nearer than 50 baselines): far
@@ -580,6 +579,13 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
 
 
 ALONG_POINTS = 100  # inliers a "rotation" pair keeps for refit_along (3 parameters; 2.4 kB a frame)
+
+
+def along_subset(q1: np.ndarray, q2: np.ndarray) -> tuple:
+    """What a "rotation" pair keeps for refit_along: (None, None, q1, q2) of up to ALONG_POINTS
+    inlier bearings spread over the list, float32."""
+    k = np.linspace(0, len(q1) - 1, min(ALONG_POINTS, len(q1))).astype(int)
+    return None, None, np.asarray(q1)[k].astype(np.float32), np.asarray(q2)[k].astype(np.float32)
 
 
 def refit_along(res: VoResult, u_dir: np.ndarray, iters: int = 5) -> np.ndarray:

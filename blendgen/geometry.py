@@ -152,29 +152,26 @@ class Camera:
 
     def normalized(self, px, iterations: int = 0, P=None) -> np.ndarray:
         """Pixels (N, 2) -> undistorted normalised image coordinates (N, 2) (x/z, y/z), or
-        undistorted pixels of the pinhole `P` (3x3). `iterations` > 0 iterates the radtan
-        inverse to 1e-10 (OpenCV's default is 5 fixed steps); the fisheye inverse always does."""
+        undistorted pixels of the pinhole `P` (3x3): the inverse of `project`. `iterations` > 0
+        iterates the radtan inverse to 1e-10 (OpenCV's default is 5 fixed steps); the fisheye
+        inverse is exact (NaN for pixels past the lens model's range)."""
         import cv2
 
         px = np.asarray(px, dtype=np.float64).reshape(-1, 1, 2)
         if len(px) == 0:
             return np.zeros((0, 2))
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, max(iterations, 20), 1e-10)
+        if self.distorted and not self.fisheye:
+            if iterations:
+                crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, iterations, 1e-10)
+                return cv2.undistortPointsIter(px, self.K, self.D, None, P, crit).reshape(-1, 2)
+            return cv2.undistortPoints(px, self.K, self.D, P=P).reshape(-1, 2)
         if self.fisheye:
-            out = self._fisheye_normalized(px.reshape(-1, 2))[:, None, :]
-            if P is not None:
-                out = cv2.perspectiveTransform(out, np.asarray(P, float))
-        elif not self.distorted:
-            out = px.copy()
-            out[..., 0] = (px[..., 0] - self.cx) / self.fx
-            out[..., 1] = (px[..., 1] - self.cy) / self.fy
-            if P is not None:
-                out = cv2.perspectiveTransform(out, np.asarray(P, float))
-        elif iterations:
-            out = cv2.undistortPointsIter(px, self.K, self.D, None, P, crit)
+            out = self._fisheye_normalized(px.reshape(-1, 2))
         else:
-            out = cv2.undistortPoints(px, self.K, self.D, P=P)
-        return out.reshape(-1, 2)
+            out = (px.reshape(-1, 2) - [self.cx, self.cy]) / [self.fx, self.fy]
+        if P is not None:
+            out = cv2.perspectiveTransform(out[:, None, :], np.asarray(P, float)).reshape(-1, 2)
+        return out
 
     def _fisheye_normalized(self, px: np.ndarray) -> np.ndarray:
         """The equidistant model's inverse: theta from theta_d = theta (1 + k1 theta^2 + ... +

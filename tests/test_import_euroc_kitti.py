@@ -73,6 +73,20 @@ def test_euroc(tmp_path):
     assert not [f for f in check_recording(rec.root) if f.level == "error"]
 
 
+def test_euroc_equidistant_fisheye(tmp_path):
+    """TUM VI and other EuRoC-format sets with Kalibr's fisheye: read as blendgen's equidistant
+    lens (round trip through calib.yaml); other models stay a clear error."""
+    src = make_euroc(tmp_path / "a")
+    yml = src / "mav0" / "cam0" / "sensor.yaml"
+    yml.write_text(yml.read_text().replace("distortion_model: radial-tangential", "distortion_model: equidistant")
+                   .replace("[-0.28, 0.07, 0.0002, 0.00002]", "[0.0034, 0.0007, -0.0021, 0.0002]"))
+    rec = read_recording(import_recording("euroc", src, tmp_path / "rec", show_progress=False))
+    assert rec.camera.fisheye and rec.camera.dist == [0.0034, 0.0007, -0.0021, 0.0002]
+    yml.write_text(yml.read_text().replace("distortion_model: equidistant", "distortion_model: fov"))
+    with pytest.raises(UserError, match="'fov' is not supported"):
+        import_recording("euroc", src, tmp_path / "rec2", show_progress=False)
+
+
 def test_euroc_missing_image_and_bad_imu(tmp_path):
     src = make_euroc(tmp_path / "a")
     first = sorted((src / "mav0" / "cam0" / "data").iterdir())[1]

@@ -135,3 +135,19 @@ def test_rosbag_speed_topic_is_not_guessed(tmp_path):
     assert rec.speed.shape == (18, 2)
     with pytest.raises(UserError, match="--speed-topic '/odom' is not in the bag"):
         import_recording("rosbag", bag, tmp_path / "c", speed_topic="/odom", show_progress=False)
+
+
+def test_camera_info_models():
+    """CameraInfo: plumb_bob and equidistant (ROS's name for the Kannala-Brandt fisheye) become
+    blendgen cameras, scaled to the images' size; rational_polynomial is not representable."""
+    from types import SimpleNamespace
+
+    from blendgen.recording.importers.rosbag import _camera_from_info
+
+    K = [400.0, 0, 320, 0, 400, 240, 0, 0, 1]
+    info = lambda model, d: SimpleNamespace(k=K, d=d, distortion_model=model, width=640, height=480)  # noqa: E731
+    fish = _camera_from_info(info("equidistant", [0.01, -0.002, 0.0003, 0.0]), 320, 240)
+    assert fish.fisheye and fish.fx == pytest.approx(200.0) and fish.dist == [0.01, -0.002, 0.0003, 0.0]
+    plain = _camera_from_info(info("plumb_bob", [-0.1, 0.01, 0, 0, 0]), 640, 480)
+    assert not plain.fisheye and plain.dist[0] == -0.1
+    assert _camera_from_info(info("rational_polynomial", [0.0] * 8), 640, 480) is None

@@ -177,7 +177,6 @@ class Planner:
 
     # ------------------------------------------------------------ conflicts
     def conflicts(self, tr: Track, *, ego_margin: str = "headway") -> bool:
-        n = len(tr.xy)
         ks = np.arange(tr.k0, tr.k1)
         # ego vehicle: plain traffic keeps out of the headway box, scenario actors out of the body
         ego = self.ego.safe_box[ks] if ego_margin == "headway" else self.ego.box[ks]

@@ -390,6 +390,8 @@ def height_from_cars(boxes, camera: Camera, R: np.ndarray) -> float | None:
         if w <= 8:
             continue
         px = np.array([[x + w / 2, y + hb], [x, y + hb], [x + w, y + hb]])
+        if camera.distorted:  # the box is in the distorted image; the geometry below is a pinhole's
+            px = camera.normalized(px, P=camera.K)
         fwd, left = _ground_points(px, camera, R)
         if not np.all(np.isfinite(fwd)) or np.any(fwd <= 0):
             continue

@@ -188,8 +188,9 @@ class Camera:
         xd = np.column_stack([(px[:, 0] - self.cx) / self.fx, (px[:, 1] - self.cy) / self.fy])
         rd = np.hypot(xd[:, 0], xd[:, 1])
         theta = np.interp(rd, td[:end], th[:end], right=np.nan)
-        for _ in range(2):
-            theta = theta - (poly(theta) - rd) / dpoly(theta)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for _ in range(2):  # the table is within 1e-6 rad: Newton, kept on the rising part
+                theta = np.clip(theta - (poly(theta) - rd) / dpoly(theta), 0.0, th[end - 1])
         scale = np.where(rd > 1e-12, np.tan(theta) / np.maximum(rd, 1e-12), 1.0)
         return xd * np.where(theta < np.pi / 2, scale, np.nan)[:, None]
 

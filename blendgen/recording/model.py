@@ -89,10 +89,5 @@ class Recording:
         cal = str((self.extra.get("import") or {}).get("camera_calibration", ""))
         return "assumed" if cal.startswith("assumed") else "profile" if "lens profile" in cal else "calibrated"
 
-    @property
-    def intrinsics_assumed(self) -> bool:
-        """The importer guessed the lens (a field of view, a pinhole): not a calibration."""
-        return self.lens_source == "assumed"
-
     def gnss_col(self, name: str) -> np.ndarray | None:
         return self.gnss[:, self.gnss_columns.index(name)] if name in self.gnss_columns else None

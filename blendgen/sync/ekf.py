@@ -482,7 +482,6 @@ class ErrorStateEkf:
         rot_cov = np.eye(3) * rot_cov**2 if rot_cov.ndim == 0 else rot_cov
         rows_r, rows_H, blocks = [r_rot], [H_rot], [rot_cov]
         if u_dir is not None and dir_std is not None:
-            w = self.p - self.p_c + self.R @ p_bc
             d = self.predicted_travel(R_bc, p_bc)
             nd = float(np.linalg.norm(d))
             if nd > 1e-3:
@@ -497,7 +496,7 @@ class ErrorStateEkf:
                 Jd[:, IP] = A
                 Jd[:, ICP] = -A
                 Jd[:, ITH] = A @ (-self.R @ so3.hat(p_bc))
-                Jd[:, ICT] = R_bc.T @ so3.hat(self.R_c.T @ w)
+                Jd[:, ICT] = R_bc.T @ so3.hat(R_bc @ d + p_bc)  # R_c^T (p - p_c + R p_bc)
                 rows_r.append(B @ np.asarray(u_dir, dtype=float))
                 rows_H.append(B @ Jd / nd)
                 dc = np.asarray(dir_std, dtype=float)

@@ -42,7 +42,7 @@ def check_recording(root: str | Path) -> list[Finding]:
     cam_src = str(meta.get("camera_calibration", "calib.yaml"))
     if rec.camera is None:
         out.append(Finding("warn", "no camera calibration (calib.yaml has no camera: section)"))
-    elif rec.intrinsics_assumed:
+    elif rec.lens_source == "assumed":
         out.append(Finding("warn", f"camera intrinsics are not calibrated: {cam_src}; calibrate the camera "
                                    "(e.g. Kalibr/OpenCV) and edit calib.yaml for metric accuracy"))
     else:

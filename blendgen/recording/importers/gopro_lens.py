@@ -51,10 +51,14 @@ def _stabilised(p: dict) -> bool:
     return "EIS" in p["stabilisation"].upper() and "NO-EIS" not in p["stabilisation"].upper()
 
 
+def _of(model: str) -> list[dict]:
+    """`model`'s profiles (HyperSmooth Boost's extra crop is not offered)."""
+    return [p for p in profiles() if p["camera"] == model and "BOOST" not in p["stabilisation"].upper()]
+
+
 def modes(model: str) -> list[str]:
     """The lens modes the database has for `model` ("linear", "wide", "wide --eis", ...)."""
-    return sorted({p["lens"].lower() + (" --eis" if _stabilised(p) else "") for p in profiles()
-                   if p["camera"] == model and "BOOST" not in p["stabilisation"].upper()})
+    return sorted({p["lens"].lower() + (" --eis" if _stabilised(p) else "") for p in _of(model)})
 
 
 def find_lens(model: str, mode: str, eis: bool, width: int, height: int, fps: float) -> GoProLens:
@@ -64,8 +68,7 @@ def find_lens(model: str, mode: str, eis: bool, width: int, height: int, fps: fl
     if model not in known:
         raise UserError(f"no lens profile for a GoPro {model}; the database has {', '.join(known)} "
                         "(or give the lens with --hfov)")
-    cands = [p for p in profiles() if p["camera"] == model and p["lens"].lower() == mode.lower()
-             and _stabilised(p) == eis and "BOOST" not in p["stabilisation"].upper()]
+    cands = [p for p in _of(model) if p["lens"].lower() == mode.lower() and _stabilised(p) == eis]
     if not cands:
         raise UserError(f"--lens {mode}{' --eis' if eis else ''}: no {model} profile; it has: "
                         f"{'; '.join(modes(model))}")

@@ -364,10 +364,17 @@ def karma(quick: bool):
 KARMA_LENSES = ("linear", "wide", "wide --eis")  # the 16:9 HERO5 Black profiles
 
 
+KARMA_LENS_VO = (("KLT 1500 (default)", {"method": "klt"}), ("KLT 1000", {"method": "klt", "n_features": 1000}),
+                 ("KLT 2500", {"method": "klt", "n_features": 2500}), ("ORB 1500", {"method": "orb"}))
+
+
 def karma_lens_check(rec, src) -> list[dict]:
     """Which lens shot the Karma clip: VO's rotation chained over 10 frames (1/3 s) against the
-    gyro's, per camera axis, with a constant gyro bias fitted. Only the yaw (camera y) turns
-    enough to measure (9 deg over the clip): its gain is the lens's scale error."""
+    gyro's about the camera's y axis (only the yaw turns enough to measure: 9 deg over the
+    clip), with a constant gyro bias fitted; the gain is the lens's scale error. Per VO front
+    end: a near-pinhole lens leaves most pairs rotation-only, whose fit takes the drone's
+    translation for rotation, and the gain then moves with the feature set more than its
+    standard error says."""
     from blendgen.recording.folder import iter_frames
     from blendgen.recording.importers import gopro_lens
     from blendgen.sync import so3
@@ -386,30 +393,34 @@ def karma_lens_check(rec, src) -> list[dict]:
                                                                  rec.camera.height, fps).camera))
     out, n = [], 10
     for name, cam in lenses:
-        vo = make_vo(cam, VoConfig(method="klt"))
-        Rv = [None] + [None] * (len(frames) - 1)
-        for k, img in enumerate(frames):
-            r = vo.track(img)
-            if k and r.has_rotation:
-                Rv[k] = np.asarray(r.R_c1c2)
-        W, Wg, dt = [], [], []
-        for a in range(1, len(frames) - n, n):
-            if any(Rv[k] is None or G[k] is None for k in range(a, a + n)):
-                continue
-            A, B = np.eye(3), np.eye(3)
-            for k in range(a, a + n):
-                A, B = A @ Rv[k], B @ G[k]
-            W.append(so3.log(A))
-            Wg.append(so3.log(B))
-            dt.append(t[a + n - 1] - t[a - 1])
-        W, Wg, dt = np.array(W), np.array(Wg), np.array(dt)
-        M = np.column_stack([Wg[:, 1], -dt])
-        sol, *_ = np.linalg.lstsq(M, W[:, 1], rcond=None)
-        e = W[:, 1] - M @ sol
-        se = float(np.sqrt(e @ e / (len(e) - 2) * np.linalg.inv(M.T @ M)[0, 0]))
-        out.append({"lens": name, "fx": cam.fx, "hfov": cam.hfov_deg, "gain": float(sol[0]), "se": se,
-                    "n": len(W)})
-        print(f"  karma lens {name:48s} yaw gain {sol[0]:.3f} +- {se:.3f} ({len(W)} spans)")
+        row = {"lens": name, "fx": cam.fx, "hfov": cam.hfov_deg, "gains": []}
+        for vo_name, kw in KARMA_LENS_VO:
+            vo = make_vo(cam, VoConfig(**kw))
+            Rv, rot_only = [None] * len(frames), 0
+            for k, img in enumerate(frames):
+                r = vo.track(img)
+                if k and r.has_rotation:
+                    Rv[k] = np.asarray(r.R_c1c2)
+                    rot_only += r.status == "rotation"
+            W, Wg, dt = [], [], []
+            for a in range(1, len(frames) - n, n):
+                if any(Rv[k] is None or G[k] is None for k in range(a, a + n)):
+                    continue
+                A, B = np.eye(3), np.eye(3)
+                for k in range(a, a + n):
+                    A, B = A @ Rv[k], B @ G[k]
+                W.append(so3.log(A))
+                Wg.append(so3.log(B))
+                dt.append(t[a + n - 1] - t[a - 1])
+            W, Wg, dt = np.array(W), np.array(Wg), np.array(dt)
+            M = np.column_stack([Wg[:, 1], -dt])
+            sol, *_ = np.linalg.lstsq(M, W[:, 1], rcond=None)
+            e = W[:, 1] - M @ sol
+            se = float(np.sqrt(e @ e / (len(e) - 2) * np.linalg.inv(M.T @ M)[0, 0]))
+            row["gains"].append({"vo": vo_name, "gain": float(sol[0]), "se": se, "n": len(W), "rot_only": rot_only})
+            print(f"  karma lens {name:48s} {vo_name:18s} yaw gain {sol[0]:.3f} +- {se:.3f} ({len(W)} spans, "
+                  f"{rot_only} rotation-only pairs)")
+        out.append(row)
     return out
 
 
@@ -421,11 +432,12 @@ def karma_md(out) -> list[str]:
         md.append(f"| {r['name']} | {r['cpu']:.1f} | {r['used']} / {r['rejected']} | {r['fix_rms']:.2f} | {r['n']} "
                   f"| {r['elev']:+.2f} | {r['elev_p90']:.2f} | {r['roll']:+.2f} |")
     md += ["", "Which lens: the image's yaw over 1/3 s spans against the gyro's (gain 1 = the lens's scale is right;",
-           "`karma_lens_check`).", "",
-           *md_head("lens", "fx at 854x480 (px)", "horizontal field of view (deg)", "yaw gain, image / gyro",
-                    "spans")]
+           "`karma_lens_check`), per VO front end; in brackets the pairs (of 361) VO fitted as rotation-only.", "",
+           *md_head("lens", "fx at 854x480 (px)", "horizontal field of view (deg)",
+                    *(g["vo"] for g in lens_rows[0]["gains"]))]
     for r in lens_rows:
-        md.append(f"| {r['lens']} | {r['fx']:.1f} | {r['hfov']:.1f} | {r['gain']:.3f} +- {r['se']:.3f} | {r['n']} |")
+        md.append(f"| {r['lens']} | {r['fx']:.1f} | {r['hfov']:.1f} | "
+                  + " | ".join(f"{g['gain']:.3f} +- {g['se']:.3f} ({g['rot_only']})" for g in r["gains"]) + " |")
     return md
 
 

@@ -38,8 +38,8 @@ VO_DIR_FLOOR = np.radians(0.5)
 # above 1.90 deg off, without VO 1.20, rotation only at this floor 1.15
 VO_ROT_FLOOR_ASSUMED_LENS = np.radians(0.5)
 # A lens database's profile of the camera model (`import gopro --lens`) gets the rotation as
-# measured but no direction either: the Karma clip with its HERO5 Linear profile (the yaw gain
-# 0.995 +- 0.024 confirms it) is 0.55 deg off the horizon with VO rotation, 2.57 with direction
+# measured but no direction either: the Karma clip with its HERO5 Linear profile (ORB's yaw gain
+# against the gyro, 1.000 +- 0.008, confirms it) is 0.55 deg off the horizon with VO rotation, 2.57 with direction
 VO_ROT_NO_COV = 0.003             # rad: a pair without a fit covariance (should not happen)
 
 

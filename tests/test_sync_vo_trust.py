@@ -25,7 +25,7 @@ def _pair(n, baseline, noise_px, f=500.0, seed=0):
 def _cov(n, baseline, noise_px, seed=0):
     R21, t, n1, n2 = _pair(n, baseline, noise_px, seed=seed)
     R, tt = _refine_rt(R21, t / np.linalg.norm(t), n1, n2)
-    return _pair_covariance(R, tt, n1, n2)
+    return _pair_covariance(R, tt, n1, n2)[:2]
 
 
 def test_pair_covariance_follows_inliers_noise_and_baseline():

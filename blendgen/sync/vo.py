@@ -412,7 +412,6 @@ class KltVo:
             self.barren[need] = 5
             return kept
         pts = cv2.KeyPoint_convert(kps).astype(np.float32)
-        resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
         border = 4  # LK needs a window around the corner
         cell = cell_of(pts)
         wanted = np.zeros(gx * gy, bool)
@@ -421,7 +420,9 @@ class KltVo:
               & (pts[:, 1] < h - border))
         found = np.bincount(cell[ok], minlength=gx * gy)
         self.barren[need[found[need] < 2]] = 5
-        pts, resp, cell = pts[ok], resp[ok], cell[ok]
+        idx = np.flatnonzero(ok)  # responses only of these: a full-image detection finds ~3x as many
+        pts, cell = pts[idx], cell[idx]
+        resp = np.fromiter((kps[i].response for i in idx), np.float32, len(idx))
         # strongest first within each cell, at most 3x the quota as candidates
         order = np.lexsort((-resp, cell))
         cs = cell[order]
@@ -438,6 +439,8 @@ class KltVo:
                     occ[ky + dy, kx + dx] = True
         oy = (pts[order, 1] / md).astype(int) + 1
         ox = (pts[order, 0] / md).astype(int) + 1
+        free = ~occ[oy, ox]  # most candidates sit by a kept track: out before the greedy loop
+        order, oy, ox = order[free], oy[free], ox[free]
         new = []
         for j, y, x, ci in zip(order, oy, ox, cell[order]):
             if quota[ci] <= 0 or occ[y, x]:
@@ -569,8 +572,8 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
     u = -R21.T @ t.ravel()
     res.u_dir = u / np.linalg.norm(u)
     res.n_inliers = int(ransac.sum())
-    res.residual_px = _sampson_rms_px(R21, t.ravel(), n1[ransac], n2[ransac], f)
-    res.rot_cov, res.dir_cov = _pair_covariance(R21, t.ravel(), n1[ransac], n2[ransac])
+    res.rot_cov, res.dir_cov, rms = _pair_covariance(R21, t.ravel(), n1[ransac], n2[ransac])
+    res.residual_px = rms * f
     # tracks to keep: all that fit the epipolar geometry (far points are fine for tracking)
     res.inliers = ransac
     if cfg.keep_matches:
@@ -667,9 +670,9 @@ def _pair_covariance(R21: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndar
     with respect to a right rotation perturbation of R21 and a tangent perturbation of t, s^2
     the residuals' mean square. It grows with fewer inliers, larger residuals and less
     parallax (a short baseline or far scene makes the direction columns of J small). Returns
-    (cov of the right perturbation of R_c1c2, cov of u_dir (3x3, rank 2))."""
+    (cov of the right perturbation of R_c1c2, cov of u_dir (3x3, rank 2), RMS Sampson distance)."""
     if len(n1) < 8:
-        return np.eye(3) * 1e2, np.eye(3) * 1e2
+        return np.eye(3) * 1e2, np.eye(3) * 1e2, float("nan")
     x1 = np.hstack([n1, np.ones((len(n1), 1))])
     x2 = np.hstack([n2, np.ones((len(n2), 1))])
     t = t / np.linalg.norm(t)
@@ -691,19 +694,7 @@ def _pair_covariance(R21: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndar
     # R_c1c2 = R21^T; R21 exp(d) -> R21^T exp(-R21 d): right perturbation -R21 d
     rot = R21 @ C[:3, :3] @ R21.T
     A = -R21.T @ np.stack([b1, b2], axis=1)  # u = -R21^T t
-    return 0.5 * (rot + rot.T), A @ C[3:, 3:] @ A.T
-
-
-def _sampson_rms_px(R21, t, n1, n2, f) -> float:
-    """RMS Sampson distance of the inliers (pixels): how well the two-view fit explains them."""
-    x1 = np.hstack([n1, np.ones((len(n1), 1))])
-    x2 = np.hstack([n2, np.ones((len(n2), 1))])
-    E = so3.hat(t / np.linalg.norm(t)) @ R21
-    Ex1 = x1 @ E.T
-    Etx2 = x2 @ E
-    num = np.sum(x2 * Ex1, axis=1)
-    den = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
-    return float(np.sqrt(np.mean(num**2 / (den + 1e-15))) * f) if len(n1) else 0.0
+    return 0.5 * (rot + rot.T), A @ C[3:, 3:] @ A.T, float(np.sqrt(s2))
 
 
 def _rotation_residual_px(R21, q1, q2, f) -> float:

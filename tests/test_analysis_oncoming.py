@@ -99,3 +99,27 @@ def test_real_highway_yellow_edge_line_is_not_a_centre_line():
     fa, mask = stage.analyse_frame(img, "f000000", cam, CameraEstimate(height_m=1.4, pitch_deg=-1.0, roll_deg=0.0),
                                    objects.load_detector())
     assert mask is not None and fa.centre_line_m is None, fa.decisions
+
+
+def test_real_highway_white_lines_on_bluish_asphalt_are_not_yellow():
+    """Udacity's solidWhiteRight.mp4 (a one-way freeway, white lines only): on the bluish
+    asphalt of a sunny day its white paint reads b* 4-8 above the road, which read as a yellow
+    centre line in frames 0 and 120 and put oncoming cars in the freeway's left lanes. The
+    yellow test is now taken above the white paint right of the camera."""
+    p = REAL / "udacity_solidWhiteRight.mp4"
+    if not p.is_file():
+        pytest.skip(f"needs {p}")
+    cap = cv2.VideoCapture(str(p))
+    frames = []
+    for k in range(121):
+        ok, img = cap.read()
+        assert ok, k
+        if k in (0, 120):
+            frames.append(img)
+    cam = Camera.from_hfov(960, 540, 55.0)
+    est = CameraEstimate(height_m=1.35, pitch_deg=2.15, roll_deg=0.0)
+    for img in frames:
+        fa, mask = stage.analyse_frame(img, "f000000", cam, est, objects.load_detector())
+        assert mask is not None and fa.centre_line_m is None, fa.decisions
+        reason = next(d["reason"] for d in fa.decisions if d["what"] == "centre_line_m")
+        assert "white paint reads" in reason, reason

@@ -246,7 +246,8 @@ def road_direction(image: np.ndarray, road: np.ndarray | None, camera: Camera, T
 
 CL_WORK_W = 640         # the centre-line search runs at this width (yellow stripes are a few px wide)
 CL_RANGE_M = (4.0, 40.0)
-CL_MIN_B = 4.0          # OpenCV Lab b* above the asphalt's and above the row around it: yellow paint
+CL_MIN_B = 4.0          # OpenCV Lab b* above the asphalt's (and the white paint's) and the row around it: yellow paint
+CL_WHITE_TOPHAT_L = 20.0  # Lab L* above the row around it: a painted stripe
 CL_MIN_PX = 40
 CL_MIN_SPAN_M = 8.0     # along the road: a line, not a yellow car or sign
 CL_MAX_SPREAD_M = 0.35  # robust lateral spread of the stripe's pixels
@@ -273,14 +274,20 @@ def centre_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_wo
     r = cv2.resize(road.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
     b = lab[..., 2]
     b_road = float(np.median(b[r]))
-    # thin yellow stripes: b* above the asphalt and above its own neighbourhood across the row
-    tophat = cv2.morphologyEx(b, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (25, 1)))
-    yellow = r & (b - b_road > CL_MIN_B) & (tophat > CL_MIN_B) & (lab[..., 1] < 128 + 25) & (lab[..., 0] < 245)
+    cam = np.asarray(T_world_cam)[:2, 3]
+    across = cv2.getStructuringElement(cv2.MORPH_RECT, (25, 1))
+    # thin yellow stripes: b* above the asphalt and above its own neighbourhood across the row,
+    # and above the white paint's: bluish asphalt makes white lines read 6-8 above it (real
+    # highway video), where yellow paint reads 17-33 above
+    white = _white_paint_b(lab, r, across, camera, T_world_cam, s, cam) - b_road
+    min_b = CL_MIN_B + max(white, 0.0)
+    tophat = cv2.morphologyEx(b, cv2.MORPH_TOPHAT, across)
+    yellow = r & (b - b_road > min_b) & (tophat > CL_MIN_B) & (lab[..., 1] < 128 + 25) & (lab[..., 0] < 245)
     v, u = np.nonzero(yellow)
     if len(u) < CL_MIN_PX:
-        return None, f"no yellow road line ({len(u)} px)"
+        paint = f"; white paint reads {white:+.0f} b* above the asphalt" if white > 0 else ""
+        return None, f"no yellow road line ({len(u)} px{paint})"
     g = to_ground(camera, T_world_cam, np.column_stack([u, v]) / s)
-    cam = np.asarray(T_world_cam)[:2, 3]
     x, y = g[:, 0] - cam[0], g[:, 1] - cam[1]
     ok = np.isfinite(x) & (x > CL_RANGE_M[0]) & (x < CL_RANGE_M[1])
     if ok.sum() < CL_MIN_PX:
@@ -313,6 +320,22 @@ def centre_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_wo
     return y0, (f"{kind} yellow centre line at {y0:+.1f} m left ({int(on.sum())} px over {span:.0f} m, "
                          f"{double:.0%} of its rows double), {beyond:.1f} m of road beyond it: traffic there "
                          f"comes towards the camera")
+
+
+def _white_paint_b(lab: np.ndarray, road: np.ndarray, across: np.ndarray, camera: Camera, T_world_cam: np.ndarray,
+                   s: float, cam_xy: np.ndarray) -> float:
+    """Median b* of the thin bright stripes right of the camera (North America paints those
+    white: the right edge line, lane lines between same-direction lanes), or -inf when there
+    are too few to tell."""
+    L = lab[..., 0]
+    bright = road & (cv2.morphologyEx(L, cv2.MORPH_TOPHAT, across) > CL_WHITE_TOPHAT_L)
+    v, u = np.nonzero(bright)
+    if len(u) < CL_MIN_PX:
+        return -np.inf
+    g = to_ground(camera, T_world_cam, np.column_stack([u, v]) / s)
+    x, y = g[:, 0] - cam_xy[0], g[:, 1] - cam_xy[1]
+    right = np.isfinite(x) & (x > CL_RANGE_M[0]) & (x < CL_RANGE_M[1]) & (y < -0.5)
+    return float(np.median(lab[..., 2][v[right], u[right]])) if right.sum() >= CL_MIN_PX else -np.inf
 
 
 def _double_rows(yellow: np.ndarray, u: np.ndarray, v: np.ndarray, y: np.ndarray) -> float:

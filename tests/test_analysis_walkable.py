@@ -75,3 +75,30 @@ def test_highway_photo_gets_no_pedestrian():
     plans = plan_sequence(twin, cam, [("f000000", 0.0, np.asarray(fa.T_world_cam))], inject, 0, real=real)
     assert not plans[0].objects
     assert unplaced_warnings(plans, inject)
+
+
+def test_highway_photo_gets_cyclists_only_at_its_kerb_and_no_parked_bicycle():
+    """The same highway (one-way, white lines only): a bicycle is ridden along the right edge,
+    never along the median's (the left edge with all traffic running the ego's way), and none
+    is parked: nobody walks there (the real video had a cyclist at the median's edge and a
+    parked bicycle on the shoulder)."""
+    path = REAL / "udacity_highway_images" / "solidWhiteRight.jpg"
+    if not path.is_file():
+        pytest.skip(f"needs {path}")
+    img = cv2.imread(str(path))
+    cam = Camera.from_hfov(img.shape[1], img.shape[0], 60.0)
+    est = CameraEstimate(height_m=1.4, pitch_deg=-1.0, roll_deg=0.0)
+    fa, mask = stage.analyse_frame(img, "f000000", cam, est, objects.load_detector())
+    assert fa.centre_line_m is None, fa.decisions
+    real = RealScene([RealFrame(fa, mask, None)], cam)
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-1.0, analysis=True))
+    T = np.asarray(fa.T_world_cam)
+    placed = []
+    for seed in range(12):
+        inject = Inject(objects_per_frame=(2, 2), classes={"bicycle": 1}, distance_m=(8, 35), sequences=False)
+        plans = plan_sequence(twin, cam, [("f000000", 0.0, T)], inject, seed, real=real)
+        placed += [o for o in plans[0].objects if o.cls == "bicycle"]
+    assert len(placed) >= 6
+    for o in placed:
+        assert "rider" in o.variant, o.variant
+        assert o.position[1] - T[1, 3] < 0, o.position

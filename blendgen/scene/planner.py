@@ -333,9 +333,17 @@ class Planner:
         p = self._view_point(k)
         if cls in VEHICLES + ("bicycle",) and self.real is not None and self.real.has(k, ROAD):
             edge = cls == "bicycle" or (cls == "motorcycle" and "rider" not in variant)
-            p = self.real.sample_ground(k, ROAD_EDGE if edge else ROAD, self.ego.T[k], self.rng, self.d0, self.d1)
+            if cls == "bicycle" and "rider" not in variant and not self.real.has(k, BAND):
+                # the analysis found no pavement (a highway's verge, a barrier): no one walks
+                # here, so no one parked a bicycle here either
+                self.reason = "no pavement beside the road for a parked bicycle"
+                return None
+            T = self.ego.T[k]
+            p = self.real.sample_ground(k, ROAD_EDGE if edge else ROAD, T, self.rng, self.d0, self.d1,
+                                        keep=(lambda g: self.real.kerb_side(k, T, g)) if edge else None)
             if p is None:
-                self.reason = f"no estimated road between {self.d0:g} and {self.d1:g} m"
+                self.reason = (f"no estimated road {'edge on the kerb side ' if edge else ''}between {self.d0:g} "
+                               f"and {self.d1:g} m")
                 return None
         if cls in VEHICLES or cls == "bicycle":
             return self._spawn_on_road(cls, variant, dims, k, p)

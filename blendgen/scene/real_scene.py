@@ -101,9 +101,20 @@ class RealScene:
         rf = self.frames[k] if k < len(self.frames) else None
         return rf is not None and rf.road is not None and bool((rf.road[::4, ::4] == value).any())
 
-    def sample_ground(self, k: int, value: int, T, rng: np.random.Generator, d0: float, d1: float
-                      ) -> np.ndarray | None:
-        """A ground point (x, y) on frame k's road or band between d0 and d1 metres away."""
+    def kerb_side(self, k: int, T, xy: np.ndarray) -> np.ndarray:
+        """Whether ground points (N, 2) lie on their traffic's kerb side: right of the camera,
+        or beyond frame k's centre line (the oncoming traffic's right). A road's left edge with
+        all traffic running the ego's way is a divided highway's median or a one-way street's
+        far side: no place for a cyclist or a parked motorcycle."""
+        lat = np.asarray(xy, float)[:, 1] - float(np.asarray(T, float)[1, 3])
+        rf = self.frames[k] if k < len(self.frames) else None
+        cl = None if rf is None else rf.fa.centre_line_m
+        return (lat < 0) | (lat > cl) if cl is not None else lat < 0
+
+    def sample_ground(self, k: int, value: int, T, rng: np.random.Generator, d0: float, d1: float,
+                      keep=None) -> np.ndarray | None:
+        """A ground point (x, y) on frame k's road or band between d0 and d1 metres away (and,
+        with `keep`, one of the points (N, 2) for which keep(points) is True)."""
         from blendgen.analysis.ground import to_ground
 
         rf = self.frames[k]
@@ -120,7 +131,10 @@ class RealScene:
         T = np.asarray(T, float)
         g = to_ground(cam, T, np.column_stack([u[pick] * 4 + 2, v[pick] * 4 + 2]))
         d = np.linalg.norm(g - T[:2, 3], axis=1)
-        ok = np.flatnonzero(np.isfinite(d) & (d >= d0) & (d <= d1))
+        good = np.isfinite(d) & (d >= d0) & (d <= d1)
+        if keep is not None:
+            good[good] = keep(g[good])
+        ok = np.flatnonzero(good)
         return None if len(ok) == 0 else g[ok[0]]
 
     @staticmethod

@@ -9,40 +9,14 @@ and the centre line 1.79-1.94 m.)"""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
+from streets import WHITE, YELLOW, street
 
 from blendgen.analysis import objects, road, stage
-from blendgen.analysis.ground import camera_pose
 from blendgen.analysis.model import CameraEstimate
-from blendgen.geometry import Camera
 from blendgen.recording.importers import gopro_lens
 
-YELLOW, WHITE = (40, 190, 220), (225, 228, 230)
-LINES = [(1.75, YELLOW), (2.05, YELLOW), (-1.75, WHITE)]  # lateral offset (m, left > 0), colour BGR
-
-
-def street(cam: Camera, est: CameraEstimate, yaw_deg: float, seed: int = 0):
-    """Ray-cast view of a straight road from 5.5 m right to 6 m left of the camera, turned
-    yaw_deg left of the camera's heading, with a double yellow centre line at +1.9 m; grass
-    beside it, sky above. Returns (BGR image, true road mask)."""
-    T = camera_pose(est)
-    uv = np.stack(np.meshgrid(np.arange(cam.width), np.arange(cam.height)), -1).reshape(-1, 2).astype(float)
-    d = np.column_stack([cam.normalized(uv), np.ones(len(uv))]) @ T[:3, :3].T
-    ground = d[:, 2] < -1e-6
-    s = np.where(ground, -T[2, 3] / np.where(ground, d[:, 2], -1.0), 0.0)
-    x, y = T[0, 3] + s * d[:, 0], T[1, 3] + s * d[:, 1]
-    a = np.radians(yaw_deg)
-    lateral = -np.sin(a) * x + np.cos(a) * y
-    on_road = ground & (lateral >= -5.5) & (lateral <= 6.0)
-    img = np.empty((len(uv), 3), np.float32)
-    img[:] = (200, 170, 150)
-    img[ground] = (60, 110, 70)
-    img[on_road] = (92, 95, 96)
-    for off, col in LINES:
-        img[ground & (np.abs(lateral - off) < 0.06)] = col
-    img = img.reshape(cam.height, cam.width, 3) + np.random.default_rng(seed).normal(0, 2.5, (cam.height, cam.width, 3))
-    return np.clip(img, 0, 255).astype(np.uint8), on_road.reshape(cam.height, cam.width)
+LINES = [(1.75, YELLOW, None), (2.05, YELLOW, None), (-1.75, WHITE, None)]  # a double yellow centre line at +1.9 m
 
 
 @pytest.mark.parametrize("pitch, roll, yaw", [(-6.0, 0.0, 8.0), (-2.0, 3.0, 0.0), (-8.0, 2.0, -10.0)])
@@ -50,7 +24,7 @@ def test_road_through_a_wide_fisheye(pitch, roll, yaw):
     cam = gopro_lens.find_lens("HERO5 Black", "wide", False, 960, 540, 29.97).camera
     assert cam.hfov_deg > 115
     est = CameraEstimate(height_m=1.4, pitch_deg=pitch, roll_deg=roll)
-    img, truth = street(cam, est, yaw)
+    img, truth = street(cam, est, yaw_deg=yaw, lines=LINES)
     fa, mask = stage.analyse_frame(img, "f000000", cam, est, objects.load_detector())
     est_road = mask == road.ROAD
     iou = (est_road & truth).sum() / (est_road | truth).sum()

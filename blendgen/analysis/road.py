@@ -248,6 +248,8 @@ CL_WORK_W = 640         # the centre-line search runs at this width (yellow stri
 CL_RANGE_M = (4.0, 40.0)
 CL_MIN_B = 4.0          # OpenCV Lab b* above the asphalt's (and the white paint's) and the row around it: yellow paint
 CL_WHITE_TOPHAT_L = 20.0  # Lab L* above the row around it: a painted stripe
+EL_RANGE_M = (6.0, 24.0)  # where a right edge line is looked for (resolved, not hidden by the hood)
+EL_MIN_COVER = 0.8      # of its 1 m steps painted: a solid line (a dashed one: ~0.25-0.4)
 CL_MIN_PX = 40
 CL_MIN_SPAN_M = 8.0     # along the road: a line, not a yellow car or sign
 CL_MAX_SPREAD_M = 0.35  # robust lateral spread of the stripe's pixels
@@ -320,6 +322,51 @@ def centre_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_wo
     return y0, (f"{kind} yellow centre line at {y0:+.1f} m left ({int(on.sum())} px over {span:.0f} m, "
                          f"{double:.0%} of its rows double), {beyond:.1f} m of road beyond it: traffic there "
                          f"comes towards the camera")
+
+
+def edge_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_world_cam: np.ndarray
+              ) -> tuple[float | None, str]:
+    """(lateral offset in metres, < 0, of the solid line nearest the camera on its right, or
+    None; how it was decided). A freeway's right edge line: beyond it is the shoulder, where
+    traffic does not drive. Painted stripes (thin, brighter than the row around them) on the
+    road between EL_RANGE_M are put on the ground and grouped by lateral offset; a group is a
+    solid line when it covers EL_MIN_COVER of the range's 1 m steps (a dashed lane line: 3 m of
+    paint in 12 m, a quarter)."""
+    if road is None or not road.any():
+        return None, "no road region"
+    H, W = image.shape[:2]
+    s = CL_WORK_W / W
+    h, w = int(round(H * s)), CL_WORK_W
+    small = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+    L = cv2.cvtColor(small, cv2.COLOR_BGR2LAB)[..., 0].astype(np.float32)
+    r = cv2.resize(road.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    # the road mask's own edge pixels count: an edge line is often the mask's border
+    r = cv2.dilate(r.astype(np.uint8), np.ones((1, 5), np.uint8)) > 0
+    bright = r & (cv2.morphologyEx(L, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (25, 1)))
+                  > CL_WHITE_TOPHAT_L)
+    v, u = np.nonzero(bright)
+    if len(u) < CL_MIN_PX:
+        return None, f"no painted lines ({len(u)} px)"
+    g = to_ground(camera, T_world_cam, np.column_stack([u, v]) / s)
+    cam = np.asarray(T_world_cam)[:2, 3]
+    x, y = g[:, 0] - cam[0], g[:, 1] - cam[1]
+    ok = np.isfinite(x) & (x > EL_RANGE_M[0]) & (x < EL_RANGE_M[1]) & (y < -0.5) & (y > -8.0)
+    x, y = x[ok], y[ok]
+    steps = int(EL_RANGE_M[1] - EL_RANGE_M[0])
+    found = []
+    # lateral bins of 0.25 m, each with its neighbours (a line's pixels spread over ~0.2 m)
+    edges = np.arange(-8.0, -0.5 + 1e-9, 0.25)
+    for y0 in edges[:-1] + 0.125:
+        on = np.abs(y - y0) < 0.25
+        if on.sum() < CL_MIN_PX:
+            continue
+        cover = len(np.unique(np.floor(x[on] - EL_RANGE_M[0]).astype(int))) / steps
+        if cover >= EL_MIN_COVER:
+            found.append((float(np.median(y[on])), cover))
+    if not found:
+        return None, f"no solid line right of the camera between {EL_RANGE_M[0]:g} and {EL_RANGE_M[1]:g} m"
+    y0, cover = max(found)
+    return y0, f"solid line at {y0:+.1f} m ({cover:.0%} of {EL_RANGE_M[0]:g}-{EL_RANGE_M[1]:g} m painted)"
 
 
 def _white_paint_b(lab: np.ndarray, road: np.ndarray, across: np.ndarray, camera: Camera, T_world_cam: np.ndarray,

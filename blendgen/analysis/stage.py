@@ -110,11 +110,14 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
     else:
         how = "ground_plane.oncoming: none"
     decisions.append({"what": "centre_line_m", "value": None if centre is None else round(centre, 2), "reason": how})
+    edge, how = road.edge_line(image, road_px, camera, T) if road_px is not None else (None, "no road region")
+    decisions.append({"what": "edge_line_m", "value": None if edge is None else round(edge, 2), "reason": how})
     fa = FrameAnalysis(frame_id=frame_id, width=W, height=H, camera=est, T_world_cam=T.tolist(),
                        horizon=horizon, hood=[list(map(float, p)) for p in hood] if hood else None,
                        road_mask=f"{frame_id}_road.png" if mask is not None else None,
                        road_direction_deg=None if yaw is None else round(yaw, 2),
-                       centre_line_m=None if centre is None else round(centre, 2), real_objects=kept,
+                       centre_line_m=None if centre is None else round(centre, 2),
+                       edge_line_m=None if edge is None else round(edge, 2), real_objects=kept,
                        decisions=decisions)
     return fa, mask
 

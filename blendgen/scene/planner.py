@@ -208,11 +208,12 @@ class Planner:
                     return True
         if self.real is not None:
             crossing = tr.scenario in ("jaywalker", "occluded_pedestrian")
+            kerb = tr.cls == "bicycle" or (tr.cls == "motorcycle" and "rider" not in tr.variant)
             for i, k in enumerate(range(tr.k0, tr.k1)):
                 z, h = tr.z[i], tr.dims[2]
                 if tr.variant.get("pole"):  # its pole is drawn: checked from the ground up
                     z, h = z - tr.variant["mount_height_m"], h + tr.variant["mount_height_m"]
-                why = self.real.reject(k, self.ego.T[k], tr.cls, tr.corners[i], z, h, crossing=crossing)
+                why = self.real.reject(k, self.ego.T[k], tr.cls, tr.corners[i], z, h, crossing=crossing, kerb=kerb)
                 if why:
                     self.reason = why
                     return True

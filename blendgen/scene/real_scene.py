@@ -4,8 +4,10 @@ bands and hood, read from the analysis stage's files.
 `RealScene.reject(...)` says why a virtual object may not stand somewhere in a frame, or
 None: inside a real road user's footprint; behind a real one in the image (there is no
 pixel-exact mask of the real object to put in front of it); touching the hood; a
-vehicle's wheel off the estimated road; a pedestrian outside the bands beside the road
-(unless crossing); a traffic light's pole on the road. A virtual object in front of a real
+vehicle's wheel off the estimated road, or its footprint across the frame's solid right edge
+line (a freeway's shoulder; not for bicycles and parked motorcycles, which keep to the edge); a
+pedestrian outside the bands beside the road (unless crossing); a traffic light's pole on the
+road. A virtual object in front of a real
 one is allowed: it covers it.
 """
 
@@ -23,6 +25,7 @@ WHEELED = ("car", "bus", "truck", "motorcycle", "bicycle")
 ROAD_EDGE = -1             # sample_ground: road pixels within EDGE_PX of its left or right edge
 EDGE_PX = 24
 FOOTPRINT_MARGIN_M = 0.3
+EDGE_LINE_CLEAR_M = 0.1    # a vehicle's footprint keeps this far left of a solid right edge line
 MIN_IMAGE_OVERLAP = 0.05   # of the virtual object's box: less is a touch, not "behind"
 
 
@@ -50,11 +53,16 @@ class RealScene:
         return uv, inside
 
     def reject(self, k: int, T, cls: str, corners: np.ndarray, z: float, height: float, *,
-               crossing: bool = False) -> str | None:
+               crossing: bool = False, kerb: bool = False) -> str | None:
+        """Why the object may not stand there in frame k, or None. `kerb`: a two-wheeler that
+        keeps to the road's edge (a bicycle, a parked motorcycle) may cross its edge line."""
         rf = self.frames[k] if k < len(self.frames) else None
         if rf is None:
             return None
         T = np.asarray(T, float)
+        if (cls in WHEELED and not kerb and rf.fa.edge_line_m is not None
+                and float(np.min(corners[:, 1])) - float(T[1, 3]) < rf.fa.edge_line_m + EDGE_LINE_CLEAR_M):
+            return "across the road's solid right edge line (the shoulder)"
         for o, fp in self.footprints_near(rf, corners):
             if convex_overlap(corners, fp, FOOTPRINT_MARGIN_M):
                 return f"inside the footprint of a real {o.cls}"

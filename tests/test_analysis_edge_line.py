@@ -1,0 +1,80 @@
+"""A freeway's solid right edge line: traffic does not drive on the shoulder beyond it (the real
+solidWhiteRight video had cars straddling it), while cyclists keep to the road's edge."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from streets import WHITE, street
+
+from blendgen.analysis import objects, road, stage
+from blendgen.analysis.model import CameraEstimate
+from blendgen.geometry import Camera
+from blendgen.job.schema import GroundPlane, Inject
+from blendgen.scene.ground_plane import GroundPlaneTwin
+from blendgen.scene.planner import plan_sequence
+from blendgen.scene.real_scene import EDGE_LINE_CLEAR_M, RealFrame, RealScene
+
+REAL = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "real"
+CAM = Camera.from_hfov(960, 540, 70.0)
+EST = CameraEstimate(height_m=1.4, pitch_deg=-2.0, roll_deg=0.0)
+DASHED = (3.0, 12.0)  # a US freeway's lane line: 10 ft of paint every 40 ft
+
+
+def freeway(right_line_dash=None):
+    """The camera in the right lane of a 2-lane carriageway: lanes from -1.8 to +5.6 m, a
+    dashed line at +1.8 m, the right edge line at -1.8 m (solid, or dashed as given), a 2.7 m
+    asphalt shoulder beyond it."""
+    lines = [(-1.8, WHITE, right_line_dash), (1.8, WHITE, DASHED), (5.5, WHITE, None)]
+    return street(CAM, EST, road=(-1.8, 5.6), shoulder=(-4.5, -1.8), lines=lines)
+
+
+def test_solid_right_edge_line_is_found_and_a_dashed_one_is_not():
+    img, _ = freeway()
+    fa, mask = stage.analyse_frame(img, "f000000", CAM, EST, objects.load_detector())
+    assert fa.edge_line_m is not None and abs(fa.edge_line_m + 1.8) < 0.15, fa.decisions
+    img, _ = freeway(right_line_dash=DASHED)
+    fa, mask = stage.analyse_frame(img, "f000000", CAM, EST, objects.load_detector())
+    assert fa.edge_line_m is None, fa.decisions
+
+
+def test_vehicles_keep_off_the_shoulder_and_cyclists_ride_at_its_edge():
+    img, _ = freeway()
+    fa, mask = stage.analyse_frame(img, "f000000", CAM, EST, objects.load_detector())
+    assert (mask == road.ROAD)[400:, :150].mean() > 0.5  # the shoulder looks like road: only the line tells
+    real = RealScene([RealFrame(fa, mask, None)], CAM)
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-2.0, analysis=True))
+    T = np.asarray(fa.T_world_cam)
+    cars, bikes = [], []
+    for seed in range(10):
+        inject = Inject(objects_per_frame=(4, 4), classes={"car": 3, "truck": 1, "bicycle": 1}, distance_m=(8, 30),
+                        sequences=False)
+        for o in plan_sequence(twin, CAM, [("f000000", 0.0, T)], inject, seed, real=real)[0].objects:
+            (bikes if o.cls == "bicycle" else cars if o.cls in ("car", "truck") else []).append(o)
+    assert len(cars) >= 10 and bikes
+    for o in cars:  # the footprint's right side stays left of the line
+        right = o.position[1] - T[1, 3] - o.dims[1] / 2
+        assert right > fa.edge_line_m + EDGE_LINE_CLEAR_M - 0.05, (o.cls, o.position)
+    assert any(o.position[1] - T[1, 3] < fa.edge_line_m for o in bikes), [o.position for o in bikes]
+
+
+def test_real_freeway_video_has_its_right_edge_line():
+    p = REAL / "udacity_solidWhiteRight.mp4"
+    if not p.is_file():
+        pytest.skip(f"needs {p}")
+    cap = cv2.VideoCapture(str(p))
+    frames = {}
+    for k in range(181):
+        ok, img = cap.read()
+        assert ok, k
+        if k in (0, 180):
+            frames[k] = img
+    cam = Camera.from_hfov(960, 540, 55.0)
+    est = CameraEstimate(height_m=1.35, pitch_deg=2.15, roll_deg=0.0)
+    for k, img in frames.items():
+        fa, _ = stage.analyse_frame(img, f"f{k:06d}", cam, est, objects.load_detector())
+        assert fa.edge_line_m is not None and -2.6 < fa.edge_line_m < -1.7, (k, fa.decisions)

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from blendgen.analysis import objects, road, stage
+from blendgen.analysis import objects, stage
 from blendgen.analysis.ground import camera_pose
 from blendgen.analysis.model import CameraEstimate
 from blendgen.geometry import Camera

@@ -58,15 +58,20 @@ def test_textured_verge_is_not_walkable():
     assert walk.mean() < 0.01, how
 
 
-def test_highway_photo_gets_no_pedestrian():
-    """A real highway: the band beside the road is dry grass and an asphalt shoulder."""
+def highway_photo():
+    """The Udacity highway photo with white lines only, analysed: (camera, analysis, mask)."""
     path = REAL / "udacity_highway_images" / "solidWhiteRight.jpg"
     if not path.is_file():
         pytest.skip(f"needs {path}")
     img = cv2.imread(str(path))
     cam = Camera.from_hfov(img.shape[1], img.shape[0], 60.0)
     est = CameraEstimate(height_m=1.4, pitch_deg=-1.0, roll_deg=0.0)
-    fa, mask = stage.analyse_frame(img, "f000000", cam, est, objects.load_detector())
+    return (cam, *stage.analyse_frame(img, "f000000", cam, est, objects.load_detector()))
+
+
+def test_highway_photo_gets_no_pedestrian():
+    """A real highway: the band beside the road is dry grass and an asphalt shoulder."""
+    cam, fa, mask = highway_photo()
     assert mask is not None and (mask == road.ROAD).mean() > 0.1
     assert not (mask == road.BAND).any(), [d for d in fa.decisions if d["what"] == "walkable"]
     real = RealScene([RealFrame(fa, mask, None)], cam)
@@ -82,13 +87,7 @@ def test_highway_photo_gets_cyclists_only_at_its_kerb_and_no_parked_bicycle():
     never along the median's (the left edge with all traffic running the ego's way), and none
     is parked: nobody walks there (the real video had a cyclist at the median's edge and a
     parked bicycle on the shoulder)."""
-    path = REAL / "udacity_highway_images" / "solidWhiteRight.jpg"
-    if not path.is_file():
-        pytest.skip(f"needs {path}")
-    img = cv2.imread(str(path))
-    cam = Camera.from_hfov(img.shape[1], img.shape[0], 60.0)
-    est = CameraEstimate(height_m=1.4, pitch_deg=-1.0, roll_deg=0.0)
-    fa, mask = stage.analyse_frame(img, "f000000", cam, est, objects.load_detector())
+    cam, fa, mask = highway_photo()
     assert fa.centre_line_m is None, fa.decisions
     real = RealScene([RealFrame(fa, mask, None)], cam)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-1.0, analysis=True))

@@ -248,6 +248,7 @@ CL_WORK_W = 640         # the centre-line search runs at this width (yellow stri
 CL_RANGE_M = (4.0, 40.0)
 CL_MIN_B = 4.0          # OpenCV Lab b* above the asphalt's (and the white paint's) and the row around it: yellow paint
 CL_WHITE_TOPHAT_L = 20.0  # Lab L* above the row around it: a painted stripe
+ACROSS = cv2.getStructuringElement(cv2.MORPH_RECT, (25, 1))  # top-hats across the row: thin stripes
 EL_RANGE_M = (6.0, 24.0)  # where a right edge line is looked for (resolved, not hidden by the hood)
 EL_MIN_COVER = 0.8      # of its 1 m steps painted: a solid line (a dashed one: ~0.25-0.4)
 CL_MIN_PX = 40
@@ -268,22 +269,19 @@ def centre_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_wo
     not told apart from lane lines: the directions are then left to the user."""
     if road is None or not road.any():
         return None, "no road region"
-    H, W = image.shape[:2]
-    s = CL_WORK_W / W
-    h, w = int(round(H * s)), CL_WORK_W
-    small = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
-    lab = cv2.cvtColor(small, cv2.COLOR_BGR2LAB).astype(np.float32)
-    r = cv2.resize(road.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    lab, r, s = _work_lab(image, road)
     b = lab[..., 2]
     b_road = float(np.median(b[r]))
     cam = np.asarray(T_world_cam)[:2, 3]
-    across = cv2.getStructuringElement(cv2.MORPH_RECT, (25, 1))
     # thin yellow stripes: b* above the asphalt and above its own neighbourhood across the row,
-    # and above the white paint's: bluish asphalt makes white lines read 6-8 above it (real
-    # highway video), where yellow paint reads 17-33 above
-    white = _white_paint_b(lab, r, across, camera, T_world_cam, s, cam) - b_road
+    # and above the white paint's (the median b* of the painted stripes right of the camera,
+    # which North America paints white): bluish asphalt makes white lines read 6-8 above it
+    # (real highway video), where yellow paint reads 17-33 above
+    pv, pu, px, py = _painted(lab, r, camera, T_world_cam, s)
+    right = (px > CL_RANGE_M[0]) & (px < CL_RANGE_M[1]) & (py < -0.5)
+    white = float(np.median(b[pv[right], pu[right]])) - b_road if right.sum() >= CL_MIN_PX else -np.inf
     min_b = CL_MIN_B + max(white, 0.0)
-    tophat = cv2.morphologyEx(b, cv2.MORPH_TOPHAT, across)
+    tophat = cv2.morphologyEx(b, cv2.MORPH_TOPHAT, ACROSS)
     yellow = r & (b - b_road > min_b) & (tophat > CL_MIN_B) & (lab[..., 1] < 128 + 25) & (lab[..., 0] < 245)
     v, u = np.nonzero(yellow)
     if len(u) < CL_MIN_PX:
@@ -334,23 +332,9 @@ def edge_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_worl
     paint in 12 m, a quarter)."""
     if road is None or not road.any():
         return None, "no road region"
-    H, W = image.shape[:2]
-    s = CL_WORK_W / W
-    h, w = int(round(H * s)), CL_WORK_W
-    small = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
-    L = cv2.cvtColor(small, cv2.COLOR_BGR2LAB)[..., 0].astype(np.float32)
-    r = cv2.resize(road.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
-    # the road mask's own edge pixels count: an edge line is often the mask's border
-    r = cv2.dilate(r.astype(np.uint8), np.ones((1, 5), np.uint8)) > 0
-    bright = r & (cv2.morphologyEx(L, cv2.MORPH_TOPHAT, cv2.getStructuringElement(cv2.MORPH_RECT, (25, 1)))
-                  > CL_WHITE_TOPHAT_L)
-    v, u = np.nonzero(bright)
-    if len(u) < CL_MIN_PX:
-        return None, f"no painted lines ({len(u)} px)"
-    g = to_ground(camera, T_world_cam, np.column_stack([u, v]) / s)
-    cam = np.asarray(T_world_cam)[:2, 3]
-    x, y = g[:, 0] - cam[0], g[:, 1] - cam[1]
-    ok = np.isfinite(x) & (x > EL_RANGE_M[0]) & (x < EL_RANGE_M[1]) & (y < -0.5) & (y > -8.0)
+    lab, r, s = _work_lab(image, road)
+    _, _, x, y = _painted(lab, r, camera, T_world_cam, s)
+    ok = (x > EL_RANGE_M[0]) & (x < EL_RANGE_M[1]) & (y < -0.5) & (y > -8.0)
     x, y = x[ok], y[ok]
     steps = int(EL_RANGE_M[1] - EL_RANGE_M[0])
     found = []
@@ -369,20 +353,25 @@ def edge_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_worl
     return y0, f"solid line at {y0:+.1f} m ({cover:.0%} of {EL_RANGE_M[0]:g}-{EL_RANGE_M[1]:g} m painted)"
 
 
-def _white_paint_b(lab: np.ndarray, road: np.ndarray, across: np.ndarray, camera: Camera, T_world_cam: np.ndarray,
-                   s: float, cam_xy: np.ndarray) -> float:
-    """Median b* of the thin bright stripes right of the camera (North America paints those
-    white: the right edge line, lane lines between same-direction lanes), or -inf when there
-    are too few to tell."""
-    L = lab[..., 0]
-    bright = road & (cv2.morphologyEx(L, cv2.MORPH_TOPHAT, across) > CL_WHITE_TOPHAT_L)
-    v, u = np.nonzero(bright)
-    if len(u) < CL_MIN_PX:
-        return -np.inf
-    g = to_ground(camera, T_world_cam, np.column_stack([u, v]) / s)
-    x, y = g[:, 0] - cam_xy[0], g[:, 1] - cam_xy[1]
-    right = np.isfinite(x) & (x > CL_RANGE_M[0]) & (x < CL_RANGE_M[1]) & (y < -0.5)
-    return float(np.median(lab[..., 2][v[right], u[right]])) if right.sum() >= CL_MIN_PX else -np.inf
+def _work_lab(image: np.ndarray, road: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The frame at CL_WORK_W wide in Lab (float32), the road mask at that size, the scale."""
+    H, W = image.shape[:2]
+    s = CL_WORK_W / W
+    size = (CL_WORK_W, int(round(H * s)))
+    lab = cv2.cvtColor(cv2.resize(image, size, interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2LAB).astype(np.float32)
+    return lab, cv2.resize(road.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0, s
+
+
+def _painted(lab: np.ndarray, road: np.ndarray, camera: Camera, T_world_cam: np.ndarray, s: float):
+    """Painted stripes on the road (thin, L* CL_WHITE_TOPHAT_L above the row around them; the
+    road mask's border counts, an edge line often is it): their work-image pixels (v, u) and
+    ground offsets from the camera (x ahead, y left), those with a ground point only."""
+    r = cv2.dilate(road.astype(np.uint8), np.ones((1, 5), np.uint8)) > 0
+    v, u = np.nonzero(r & (cv2.morphologyEx(lab[..., 0], cv2.MORPH_TOPHAT, ACROSS) > CL_WHITE_TOPHAT_L))
+    g = to_ground(camera, T_world_cam, np.column_stack([u, v]) / s) if len(u) else np.zeros((0, 2))
+    ok = np.isfinite(g[:, 0])
+    cam = np.asarray(T_world_cam)[:2, 3]
+    return v[ok], u[ok], g[ok, 0] - cam[0], g[ok, 1] - cam[1]
 
 
 def _double_rows(yellow: np.ndarray, u: np.ndarray, v: np.ndarray, y: np.ndarray) -> float:

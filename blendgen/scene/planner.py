@@ -42,6 +42,8 @@ SCENARIO_RETRY_S = 1.0
 SIGNAL_CYCLE = (("green", 12.0), ("amber", 3.0), ("red", 15.0))
 VEHICLES = ("car", "bus", "truck", "motorcycle")
 POLE_OFF_ROAD_M = (0.8, 2.0)  # a ground-plane signal pole stands this far beyond the road edge
+FLOW_SPEED = (0.85, 1.15)  # real video: a vehicle's speed as a share of the ego's (the traffic it drives in)
+FLOW_MIN_EGO_MPS = 3.0     # below this the ego crawls or stands: class speeds
 
 
 @dataclass
@@ -374,7 +376,7 @@ class Planner:
         elif cls == "motorcycle":
             lat = float(self.rng.uniform(-0.6, 0.6))
         moving = rider if cls in ("bicycle", "motorcycle") else self.rng.random() < 0.8
-        speed = float(self.rng.uniform(*SPEED[cls])) if moving else 0.0
+        speed = self._speed(cls, k) if moving else 0.0
         # a real frame's far side of its centre line: the ground-plane twin's lanes all run with
         # the ego, so the vehicle keeps the lane and travels against it (and is parked facing so)
         towards = False
@@ -385,6 +387,16 @@ class Planner:
         # `lat` is relative to the travel direction (left > 0); lane_track wants road-frame d
         return self.lane_track(k, cls, variant, dims, lane.road, lane.index, lane.direction, lane.s,
                                speed, lat=lat * lane.direction, reverse=towards)
+
+    def _speed(self, cls: str, k: int) -> float:
+        """A moving road user's speed: its class's range; on real video with the camera moving,
+        a vehicle's is the real traffic's, the ego's speed x FLOW_SPEED (virtual cars at city
+        speeds on a real freeway were overtaken by the camera and the real traffic as if parked)."""
+        lo, hi = SPEED[cls]
+        v_ego = float(self.ego.speed[k]) if self.inject.sequences else 0.0
+        if self.real is not None and cls in VEHICLES and v_ego > FLOW_MIN_EGO_MPS:
+            lo, hi = v_ego * FLOW_SPEED[0], v_ego * FLOW_SPEED[1]
+        return lo + (hi - lo) * float(self.rng.random())  # one draw, as rng.uniform(lo, hi)
 
     def _spawn_person(self, variant, dims, k, p):
         tw = self.twin

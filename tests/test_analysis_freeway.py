@@ -1,5 +1,6 @@
-"""A freeway's solid right edge line: traffic does not drive on the shoulder beyond it (the real
-solidWhiteRight video had cars straddling it), while cyclists keep to the road's edge."""
+"""Virtual traffic on a real freeway: it does not drive on the shoulder beyond the solid right
+edge line (the real solidWhiteRight video had cars straddling it) while cyclists keep to the
+road's edge, and on video it drives at the real traffic's speed."""
 
 from __future__ import annotations
 
@@ -78,3 +79,28 @@ def test_real_freeway_video_has_its_right_edge_line():
     for k, img in frames.items():
         fa, _ = stage.analyse_frame(img, f"f{k:06d}", cam, est, objects.load_detector())
         assert fa.edge_line_m is not None and -2.6 < fa.edge_line_m < -1.7, (k, fa.decisions)
+
+
+def test_vehicles_on_real_video_drive_with_the_traffic():
+    """On video the camera moves at 20 m/s: virtual vehicles drive at 0.85-1.15 of that (they
+    were drawn at 6-14 m/s and the camera overtook them as if they were parked); on stills
+    (sequences off) the class's range stays."""
+    img, _ = freeway()
+    fa, mask = stage.analyse_frame(img, "f000000", CAM, EST, objects.load_detector())
+    T0 = np.asarray(fa.T_world_cam)
+    n, fps, v_ego = 20, 10.0, 20.0
+    poses = []
+    for k in range(n):
+        T = T0.copy()
+        T[0, 3] += v_ego * k / fps
+        poses.append((f"f{k:06d}", k / fps, T))
+    real = RealScene([RealFrame(fa, mask, None)] * n, CAM)
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-2.0, analysis=True))
+    speeds = []
+    for seed in range(4):
+        inject = Inject(objects_per_frame=(2, 3), classes={"car": 1}, distance_m=(8, 30), sequences=True)
+        for plan in plan_sequence(twin, CAM, poses, inject, seed, real=real):
+            speeds += [float(np.hypot(*o.velocity[:2])) for o in plan.objects]
+    moving = [v for v in speeds if v > 0.5]
+    assert len(moving) >= 20
+    assert 0.85 * v_ego - 0.5 < min(moving) and max(moving) < 1.15 * v_ego + 0.5, (min(moving), max(moving))

@@ -228,6 +228,10 @@ def test_motion_blur_when_an_object_moves_fast(tmp_path):
         r1 = s.render_frame(FramePlan("b", 0, T.tolist(), [fast], SUN), tmp_path / "b.exr", {"rgba"})
         assert r0["decisions"]["motion_blur"]["value"] is False
         assert r1["decisions"]["motion_blur"]["value"] is True
+        # the camera moving with it: no relative motion, no blur
+        r2 = s.render_frame(FramePlan("c", 0, T.tolist(), [fast], SUN, camera_velocity=(0.0, 15.0, 0.0)),
+                            tmp_path / "c.exr", {"rgba"})
+        assert r2["decisions"]["motion_blur"]["value"] is False
         a0, a1 = (read_passes(tmp_path / n)["rgba"][..., 3] for n in ("a.exr", "b.exr"))
         partial = lambda a: np.count_nonzero((a > 0.05) & (a < 0.95))  # noqa: E731
         assert partial(a1) > 2 * partial(a0)                  # smeared edges

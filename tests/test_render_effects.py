@@ -68,6 +68,18 @@ def test_motion_blur_only_above_half_a_pixel():
     assert fx.decide_motion_blur([car(3, 20, 0)], CAM, T, r.shutter_s, "on")[0].value is False
 
 
+def test_motion_blur_is_relative_to_the_camera():
+    """A car driving with the camera stays sharp; a parked one passes a moving camera."""
+    v = (25.0, 0.0, 0.0)  # the camera drives along the road at 25 m/s
+    with_traffic, parked = car(1, 15, 3.5, v=v), car(2, 15, 3.5)
+    r = Render()
+    d, px = fx.decide_motion_blur([with_traffic], CAM, T, r.shutter_s, "auto", cam_velocity=v)
+    assert d.value is False and px[1] == 0.0
+    d, px = fx.decide_motion_blur([parked], CAM, T, r.shutter_s, "auto", cam_velocity=v)
+    assert d.value is True and px[2] > 0.5
+    assert fx.blur_px(with_traffic, CAM, T, r.shutter_s) == fx.blur_px(parked, CAM, T, r.shutter_s, (-25.0, 0, 0))
+
+
 def test_shadow_catcher_sun_shadows_or_soft_contact_shadows():
     out = {"rgba", "shadow_catcher"}
     d = fx.decide_shadow_catcher(SUN, out)

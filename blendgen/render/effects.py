@@ -203,9 +203,10 @@ def cull_objects(plan: FramePlan, cam: Camera, sun_dir: np.ndarray | None) -> tu
 
 
 # ---------------------------------------------------------------- motion blur
-def blur_px(obj: PlacedObject, cam: Camera, T_world_cam, shutter_s: float) -> float:
-    """Largest image displacement (px) of the box corners during the exposure."""
-    v = np.asarray(obj.velocity, dtype=float)
+def blur_px(obj: PlacedObject, cam: Camera, T_world_cam, shutter_s: float, cam_velocity=(0.0, 0.0, 0.0)) -> float:
+    """Largest image displacement (px) of the box corners during the exposure, relative to the
+    camera (moving at `cam_velocity`, world m/s): a car driving with the camera stays sharp."""
+    v = np.asarray(obj.velocity, dtype=float) - np.asarray(cam_velocity, dtype=float)
     if shutter_s <= 0 or not np.any(v):
         return 0.0
     corners = obj.box_corners_world()
@@ -221,8 +222,8 @@ def blur_px(obj: PlacedObject, cam: Camera, T_world_cam, shutter_s: float) -> fl
 
 
 def decide_motion_blur(objects, cam: Camera, T_world_cam, shutter_s: float,
-                       mode: str) -> tuple[Decision, dict[int, float]]:
-    px = {int(o.id): round(blur_px(o, cam, T_world_cam, shutter_s), 3) for o in objects}
+                       mode: str, cam_velocity=(0.0, 0.0, 0.0)) -> tuple[Decision, dict[int, float]]:
+    px = {int(o.id): round(blur_px(o, cam, T_world_cam, shutter_s, cam_velocity), 3) for o in objects}
     worst = max(px.values(), default=0.0)
     if mode == "off":
         return Decision(False, "render.motion_blur is off"), px
@@ -465,7 +466,8 @@ def decide_effects(plan: FramePlan, cam: Camera, render, outputs: set[str], gpu:
     if culled:
         reason += "; culled: " + "; ".join(f"{i}: {w}" for i, w in culled.items())
     objects = Decision([int(o.id) for o in kept], reason)
-    blur, px = decide_motion_blur(kept, cam, plan.T_world_cam, float(render.shutter_s), render.motion_blur)
+    blur, px = decide_motion_blur(kept, cam, plan.T_world_cam, float(render.shutter_s), render.motion_blur,
+                                  plan.camera_velocity)
     margin = max(px.values(), default=0.0) if blur.value else 0.0
     region = decide_region(plan, kept, cam, sun, bool(render.region), extra_margin_px=margin, gpu=gpu)
     sampling = decide_sampling(render, passes.value)

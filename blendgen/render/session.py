@@ -6,6 +6,7 @@ The decisions about what to render are bpy-free (effects.py); this module applie
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -407,12 +408,15 @@ class RenderSession:
     # ------------------------------------------------------------------ motion blur
     def _keyframe_motion(self, plan: FramePlan, ids, shutter_s: float):
         """Linear motion over the shutter: keys at frames 0 and 2, rendered at frame 1 with a
-        one-frame shutter, so the exposure spans position -/+ velocity * shutter / 2."""
+        one-frame shutter, so the exposure spans position -/+ velocity * shutter / 2. The
+        velocity is relative to the camera (which stays put): the same image motion as both
+        moving."""
         sc = self.scene
         by_id = {int(o.id): o for o in plan.objects}
+        v_cam = np.asarray(plan.camera_velocity, dtype=float)
         for oid in ids:
             o, p = by_id[oid], self._placed[oid]
-            v = np.asarray(o.velocity, dtype=float)
+            v = np.asarray(o.velocity, dtype=float) - v_cam
             pos = np.asarray(o.position, dtype=float)
             for frame, sign in ((0, -1.0), (2, 1.0)):
                 p.root.location = tuple(pos + sign * v * shutter_s)
@@ -527,7 +531,7 @@ class RenderSession:
         outputs = set(outputs)
         lighting_src = "plan" if plan.lighting else "default (the plan has no lighting estimate)"
         lighting = plan.lighting or fx.DEFAULT_LIGHTING
-        plan_l = FramePlan(plan.frame_id, plan.t, plan.T_world_cam, plan.objects, lighting)
+        plan_l = dataclasses.replace(plan, lighting=lighting, decisions=[])
         try:
             eff = fx.decide_effects(plan_l, self.canvas.pinhole, self.render, outputs,
                                     gpu=self.device.startswith("GPU"))

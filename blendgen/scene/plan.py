@@ -78,6 +78,7 @@ class FramePlan:
     objects: list[PlacedObject] = field(default_factory=list)
     lighting: dict[str, Any] | None = None  # sun/sky settings from the post stage's estimate
     decisions: list[dict[str, Any]] = field(default_factory=list)  # planner: rejected placements and why, covered real objects
+    camera_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world m/s: motion blur is relative to the camera
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -89,4 +90,5 @@ class FramePlan:
         objs = [PlacedObject(**{**o, "position": tuple(o["position"]), "dims": tuple(o["dims"]),
                                 "velocity": tuple(o.get("velocity", (0, 0, 0)))})
                 for o in d.get("objects", [])]
-        return cls(d["frame_id"], float(d["t"]), d["T_world_cam"], objs, d.get("lighting"), d.get("decisions", []))
+        return cls(d["frame_id"], float(d["t"]), d["T_world_cam"], objs, d.get("lighting"), d.get("decisions", []),
+                   tuple(d.get("camera_velocity", (0.0, 0.0, 0.0))))

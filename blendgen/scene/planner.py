@@ -117,6 +117,16 @@ class _Ego:
                                    EGO_WIDTH + 0.3)
         self.lane = [twin.lane_at(p[0], p[1], heading=y) for p, y in zip(self.cam[:, :2], self.yaw)]
 
+    def velocity(self, k: int, sequences: bool) -> tuple[float, float, float]:
+        """The camera's velocity at frame k (world m/s) when objects move over frames too; zero
+        for unrelated stills, whose objects carry no velocity either."""
+        n = len(self.t)
+        if not sequences or n < 2:
+            return (0.0, 0.0, 0.0)
+        a, b = (k, k + 1) if k + 1 < n else (k - 1, k)
+        v = (self.cam[b] - self.cam[a]) / max(float(self.t[b] - self.t[a]), 1e-6)
+        return (float(v[0]), float(v[1]), float(v[2]))
+
 
 class Planner:
     def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int, *, assets=None, real=None):
@@ -777,7 +787,7 @@ class Planner:
                     if cov:
                         decisions.append({"what": "covers_real", "id": tr.id, "cls": tr.cls, "real": cov})
             plans.append(FramePlan(str(frame_id), float(t), np.asarray(T, float).tolist(), objs,
-                                   decisions=decisions))
+                                   decisions=decisions, camera_velocity=self.ego.velocity(k, self.inject.sequences)))
             self.tracks = [tr for tr in self.tracks if tr.k1 > k + 1]
         return plans
 

@@ -59,25 +59,41 @@ def test_culling_keeps_visible_and_offscreen_shadow_casters():
 
 def test_motion_blur_only_above_half_a_pixel():
     slow, fast = car(1, 20, 0, v=(0, 0.2, 0)), car(2, 20, 3, v=(0, 20.0, 0))
-    r = Render()
-    d, px = fx.decide_motion_blur([slow], CAM, T, r.shutter_s, "auto")
+    s = fx.SHUTTER_LOW_LIGHT_S
+    d, px = fx.decide_motion_blur([slow], CAM, T, s, "auto")
     assert d.value is False and px[1] < 0.5
-    d, px = fx.decide_motion_blur([slow, fast], CAM, T, r.shutter_s, "auto")
+    d, px = fx.decide_motion_blur([slow, fast], CAM, T, s, "auto")
     assert d.value is True and px[2] > 0.5 and "2" in d.reason
-    assert fx.decide_motion_blur([fast], CAM, T, r.shutter_s, "off")[0].value is False
-    assert fx.decide_motion_blur([car(3, 20, 0)], CAM, T, r.shutter_s, "on")[0].value is False
+    assert fx.decide_motion_blur([fast], CAM, T, s, "off")[0].value is False
+    assert fx.decide_motion_blur([car(3, 20, 0)], CAM, T, s, "on")[0].value is False
 
 
 def test_motion_blur_is_relative_to_the_camera():
     """A car driving with the camera stays sharp; a parked one passes a moving camera."""
     v = (25.0, 0.0, 0.0)  # the camera drives along the road at 25 m/s
     with_traffic, parked = car(1, 15, 3.5, v=v), car(2, 15, 3.5)
-    r = Render()
-    d, px = fx.decide_motion_blur([with_traffic], CAM, T, r.shutter_s, "auto", cam_velocity=v)
+    s = fx.SHUTTER_LOW_LIGHT_S
+    d, px = fx.decide_motion_blur([with_traffic], CAM, T, s, "auto", cam_velocity=v)
     assert d.value is False and px[1] == 0.0
-    d, px = fx.decide_motion_blur([parked], CAM, T, r.shutter_s, "auto", cam_velocity=v)
+    d, px = fx.decide_motion_blur([parked], CAM, T, s, "auto", cam_velocity=v)
     assert d.value is True and px[2] > 0.5
-    assert fx.blur_px(with_traffic, CAM, T, r.shutter_s) == fx.blur_px(parked, CAM, T, r.shutter_s, (-25.0, 0, 0))
+    assert fx.blur_px(with_traffic, CAM, T, s) == fx.blur_px(parked, CAM, T, s, (-25.0, 0, 0))
+
+
+def test_shutter_auto_follows_the_light():
+    """A camera exposes short in daylight (the real video's poles are sharp at 32 m/s) and long
+    at dusk and night; a number in the job is taken as it is."""
+    day, night = {**SUN, "condition": "day"}, {**SUN, "condition": "night"}
+    assert fx.shutter_for(Render(), day) == fx.SHUTTER_DAY_S == 0.001
+    assert fx.shutter_for(Render(), night) == fx.shutter_for(Render(), None) == fx.SHUTTER_LOW_LIGHT_S
+    assert fx.shutter_for(Render(shutter_s=0.02), day) == 0.02
+    passing = car(1, 12, 4, v=(0.0, 0.0, 0.0))  # parked, the camera at 30 m/s
+    plan = FramePlan("f000001", 0.0, T.tolist(), [passing], day, camera_velocity=(30.0, 0.0, 0.0))
+    eff = fx.decide_effects(plan, CAM, Render(), {"rgba"})
+    assert eff.shutter_s == 0.001
+    long = fx.decide_effects(FramePlan("f000001", 0.0, T.tolist(), [passing], night, camera_velocity=(30.0, 0.0, 0.0)),
+                             CAM, Render(), {"rgba"})
+    assert long.shutter_s == fx.SHUTTER_LOW_LIGHT_S and long.blur_px[1] > 5 * eff.blur_px[1]
 
 
 def test_shadow_catcher_sun_shadows_or_soft_contact_shadows():

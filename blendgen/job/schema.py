@@ -128,7 +128,8 @@ class Render(Section):
     max_bounces: Annotated[int, Field(ge=0, le=64)] = 4
     region: bool = True  # render only the projected bounds of objects and their shadows
     motion_blur: Annotated[Literal["auto", "on", "off"], OnOff] = "auto"
-    shutter_s: Annotated[float, Field(ge=0, le=1)] = 1.0 / 120
+    # exposure for motion blur; auto: by the frame's light (render.effects.shutter_for)
+    shutter_s: Annotated[float, Field(ge=0, le=1)] | Literal["auto"] = "auto"
     device: Literal["CPU", "GPU"] = "CPU"
     threads: Annotated[int, Field(ge=0)] = 0  # 0: all cores of the worker
 

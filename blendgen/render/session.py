@@ -577,7 +577,7 @@ class RenderSession:
         self._set_sampling(eff.sampling.value)
         movers = [i for i, px in eff.blur_px.items() if px > 0] if eff.motion_blur.value else []
         if movers:
-            self._keyframe_motion(plan, movers, float(self.render.shutter_s))
+            self._keyframe_motion(plan, movers, eff.shutter_s)
         timings["scene"] = time.perf_counter() - t1
 
         # One border render per cluster of objects (effects.cluster_boxes), the scene synced

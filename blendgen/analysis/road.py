@@ -338,9 +338,8 @@ def edge_line(image: np.ndarray, road: np.ndarray | None, camera: Camera, T_worl
     x, y = x[ok], y[ok]
     steps = int(EL_RANGE_M[1] - EL_RANGE_M[0])
     found = []
-    # lateral bins of 0.25 m, each with its neighbours (a line's pixels spread over ~0.2 m)
-    edges = np.arange(-8.0, -0.5 + 1e-9, 0.25)
-    for y0 in edges[:-1] + 0.125:
+    # lateral bins 0.25 m apart, each with its neighbours (a line's pixels spread over ~0.2 m)
+    for y0 in np.arange(-7.875, -0.5, 0.25):
         on = np.abs(y - y0) < 0.25
         if on.sum() < CL_MIN_PX:
             continue

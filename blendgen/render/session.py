@@ -531,7 +531,7 @@ class RenderSession:
         outputs = set(outputs)
         lighting_src = "plan" if plan.lighting else "default (the plan has no lighting estimate)"
         lighting = plan.lighting or fx.DEFAULT_LIGHTING
-        plan_l = dataclasses.replace(plan, lighting=lighting, decisions=[])
+        plan_l = dataclasses.replace(plan, lighting=lighting)
         try:
             eff = fx.decide_effects(plan_l, self.canvas.pinhole, self.render, outputs,
                                     gpu=self.device.startswith("GPU"))

@@ -106,9 +106,9 @@ class _Ego:
         h = np.stack([np.cos(self.yaw), np.sin(self.yaw)], axis=1)
         self.heading = h
         dt = np.diff(self.t)
-        step = np.linalg.norm(np.diff(self.cam[:, :2], axis=0), axis=1)
-        v = step / np.maximum(dt, 1e-6) if len(dt) else np.zeros(0)
-        self.speed = np.concatenate([v, v[-1:]]) if len(v) else np.zeros(1)
+        v = np.diff(self.cam, axis=0) / np.maximum(dt, 1e-6)[:, None] if len(dt) else np.zeros((0, 3))
+        self.vel = np.concatenate([v, v[-1:]]) if len(v) else np.zeros((1, 3))  # forward differences, world m/s
+        self.speed = np.linalg.norm(self.vel[:, :2], axis=1)
         centre = self.cam[:, :2] + h * (EGO_FRONT_OF_CAM - EGO_LENGTH / 2)
         self.box = footprints(centre, self.yaw, EGO_LENGTH, EGO_WIDTH)
         # the box swept forward by the headway: plain traffic keeps out of it
@@ -120,12 +120,7 @@ class _Ego:
     def velocity(self, k: int, sequences: bool) -> tuple[float, float, float]:
         """The camera's velocity at frame k (world m/s) when objects move over frames too; zero
         for unrelated stills, whose objects carry no velocity either."""
-        n = len(self.t)
-        if not sequences or n < 2:
-            return (0.0, 0.0, 0.0)
-        a, b = (k, k + 1) if k + 1 < n else (k - 1, k)
-        v = (self.cam[b] - self.cam[a]) / max(float(self.t[b] - self.t[a]), 1e-6)
-        return (float(v[0]), float(v[1]), float(v[2]))
+        return tuple(float(c) for c in self.vel[k]) if sequences else (0.0, 0.0, 0.0)
 
 
 class Planner:

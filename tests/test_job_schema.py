@@ -220,3 +220,14 @@ def test_gpu_device_without_a_gpu(tmp_path, rec_dir, monkeypatch):
         load_job(write_job(tmp_path, data))
     monkeypatch.setattr(schema, "_has_gpu", lambda: True)
     assert load_job(write_job(tmp_path, data)).render.device == "GPU"
+
+
+def test_example_jobs_match_the_schema():
+    """The jobs/ examples the README points to stay valid as the schema changes (their recordings
+    are made by the commands in their headers, so only the fields are checked here)."""
+    from blendgen.job.schema import Job
+
+    paths = sorted((Path(__file__).resolve().parents[1] / "jobs").glob("*.yaml"))
+    assert len(paths) >= 6
+    for p in paths:
+        Job.model_validate(yaml.safe_load(p.read_text()))

@@ -44,6 +44,9 @@ VEHICLES = ("car", "bus", "truck", "motorcycle")
 POLE_OFF_ROAD_M = (0.8, 2.0)  # a ground-plane signal pole stands this far beyond the road edge
 FLOW_SPEED = (0.85, 1.15)  # real video: a vehicle's speed as a share of the ego's (the traffic it drives in)
 FLOW_MIN_EGO_MPS = 3.0     # below this the ego crawls or stands: class speeds
+MOTORWAY_MIN_MPS = 25.0    # real video: the ego this fast (90 km/h) is on a motorway, closed to bicycles and people
+SAME_CLASS_TRIES = 8       # places tried for a drawn object before it is given up
+PACKING_ORDER = ("bus", "truck", "car", "motorcycle", "bicycle", "person", "traffic light")  # largest first
 
 
 @dataclass
@@ -341,6 +344,9 @@ class Planner:
         p = self._view_point(k)
         if cls in VEHICLES + ("bicycle",) and self.real is not None and self.real.has(k, ROAD):
             edge = cls == "bicycle" or (cls == "motorcycle" and "rider" not in variant)
+            if edge and self._motorway_kmh(k):
+                self.reason = f"the camera moves at {self._motorway_kmh(k):.0f} km/h: a motorway, no parking"
+                return None
             if cls == "bicycle" and "rider" not in variant and not self.real.has(k, BAND):
                 # the analysis found no pavement (a highway's verge, a barrier): no one walks
                 # here, so no one parked a bicycle here either
@@ -360,6 +366,20 @@ class Planner:
                 return self._spawn_on_band(variant, dims, k)
             return self._spawn_person(variant, dims, k, p)
         return self._spawn_signal(variant, dims, k)
+
+    def _motorway_kmh(self, k: int) -> float:
+        """The ego's speed at frame k (km/h) when it says the real road is a motorway, else 0: on
+        real video no map tells it, and cyclists, pedestrians and parked two-wheelers are not
+        allowed there."""
+        if self.real is None or not self.inject.sequences or self.ego.speed[k] <= MOTORWAY_MIN_MPS:
+            return 0.0
+        return float(self.ego.speed[k]) * 3.6
+
+    def _closed(self, cls: str, k: int, rejected: dict) -> bool:
+        kmh = self._motorway_kmh(k) if cls in ("bicycle", "person") else 0.0
+        if kmh:
+            rejected[cls, f"the camera moves at {kmh:.0f} km/h: a motorway, closed to bicycles and people"] = 1
+        return bool(kmh)
 
     def _spawn_on_road(self, cls, variant, dims, k, p):
         lane = self.twin.lane_at(p[0], p[1])
@@ -745,17 +765,25 @@ class Planner:
                     else:  # the geometry does not allow it here; try again a little later
                         retry_at[name] = t + SCENARIO_RETRY_S
             vis = [tr for tr in self.tracks if tr.k0 <= k < tr.k1 and self.visible(tr, k)]
-            failures: dict[str, int] = {}
             rejected: dict[tuple[str, str], int] = {}
-            tries = 0
+            limit = 12 if self.real is None else 36
+            failures = {c: limit for c in self.classes if self._closed(c, k, rejected)}
+            tries, queue, streak = 0, [], 0
             # real frames reject more candidates (road users, road edges): more tries
             while len(vis) < target and tries < SPAWN_TRIES * (1 if self.real is None else 3) and self.classes:
+                if not queue:
+                    usable = [c for c in self.classes if failures.get(c, 0) < limit]
+                    if not usable:
+                        break
+                    # the frame's missing objects are drawn at once and placed largest first, each
+                    # with a few tries: drawn one at a time, cars and motorcycles filled the lanes
+                    # before a bus or truck found room, and the weights meant little
+                    w = np.array([self.weights[self.classes.index(c)] for c in usable])
+                    drawn = self.rng.choice(len(usable), size=target - len(vis), p=w / w.sum())
+                    queue = sorted((usable[i] for i in drawn), key=PACKING_ORDER.index)
+                cls = queue[0]
                 tries += 1
-                usable = [c for c in self.classes if failures.get(c, 0) < (12 if self.real is None else 36)]
-                if not usable:
-                    break
-                w = np.array([self.weights[self.classes.index(c)] for c in usable])
-                cls = usable[int(self.rng.choice(len(usable), p=w / w.sum()))]
+                streak += 1
                 self.reason = ""
                 tr = self.spawn(cls, k)
                 why = (self.reason or NO_PLACE.get(cls, NO_PLACE[None])) if tr is None else \
@@ -764,8 +792,11 @@ class Planner:
                 if why:
                     failures[cls] = failures.get(cls, 0) + 1
                     rejected[cls, why] = rejected.get((cls, why), 0) + 1
+                    if streak >= SAME_CLASS_TRIES or failures[cls] >= limit:
+                        queue, streak = queue[1:], 0
                     continue
                 vis.append(self.accept(tr))
+                queue, streak = queue[1:], 0
             objs = []
             for tr in sorted(vis, key=lambda x: x.id):
                 i = k - tr.k0

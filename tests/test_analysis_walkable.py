@@ -101,3 +101,27 @@ def test_highway_photo_gets_cyclists_only_at_its_kerb_and_no_parked_bicycle():
     for o in placed:
         assert "rider" in o.variant, o.variant
         assert o.position[1] - T[1, 3] < 0, o.position
+
+
+def test_night_street_pedestrians_stay_out_of_the_oncoming_lane():
+    """The BDD night street: its dark far lane, beside the lit road, passed as pavement and a
+    pedestrian stood in it, 1.5 m beyond the double yellow line. Pedestrians (not crossing)
+    now stand at least a lane's width beyond the centre line."""
+    path = REAL / "bdd_street_photos" / "9aa94005-ff1d4c9a.jpg"
+    if not path.is_file():
+        pytest.skip(f"needs {path}")
+    img = cv2.imread(str(path))
+    cam = Camera.from_hfov(img.shape[1], img.shape[0], 60.0)
+    est = CameraEstimate(height_m=1.08, pitch_deg=-1.4, roll_deg=-0.4)  # the dashcam job's estimate
+    fa, mask = stage.analyse_frame(img, "f000002", cam, est, objects.load_detector())
+    assert fa.centre_line_m is not None and 0.8 < fa.centre_line_m < 2.0, fa.decisions
+    real = RealScene([RealFrame(fa, mask, stage.hood_mask(fa.hood, img.shape[1], img.shape[0]))], cam)
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.08, pitch_deg=-1.4, analysis=True))
+    T = np.asarray(fa.T_world_cam)
+    lats = []
+    for seed in range(12):
+        inject = Inject(objects_per_frame=(2, 2), classes={"person": 1}, distance_m=(6, 35), sequences=False)
+        plans = plan_sequence(twin, cam, [("f000002", 0.0, T)], inject, seed, real=real)
+        lats += [o.position[1] - T[1, 3] for o in plans[0].objects]
+    assert len(lats) >= 6
+    assert not [y for y in lats if fa.centre_line_m < y < fa.centre_line_m + 2.7], (fa.centre_line_m, lats)

@@ -6,8 +6,8 @@ None: inside a real road user's footprint; behind a real one in the image (there
 pixel-exact mask of the real object to put in front of it); touching the hood; a
 vehicle's wheel off the estimated road, or its footprint across the frame's solid right edge
 line (a freeway's shoulder; not for bicycles and parked motorcycles, which keep to the edge); a
-pedestrian outside the bands beside the road (unless crossing); a traffic light's pole on the
-road. A virtual object in front of a real one is allowed: it covers it.
+pedestrian outside the bands beside the road or in the oncoming lane beyond a centre line
+(unless crossing); a traffic light's pole on the road. A virtual object in front of a real one is allowed: it covers it.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ EDGE_PX = 24
 FOOTPRINT_MARGIN_M = 0.3
 EDGE_LINE_CLEAR_M = 0.1    # a vehicle's footprint keeps this far left of a solid right edge line
 MIN_IMAGE_OVERLAP = 0.05   # of the virtual object's box: less is a touch, not "behind"
+ONCOMING_LANE_M = 2.7      # beyond a centre line the oncoming lane is at least this wide (9 ft)
 
 
 class RealFrame:
@@ -59,9 +60,15 @@ class RealScene:
         if rf is None:
             return None
         T = np.asarray(T, float)
+        lat = corners[:, 1] - float(T[1, 3])  # the ground-plane twin's road runs along +x
         if (cls in WHEELED and not kerb and rf.fa.edge_line_m is not None
-                and float(np.min(corners[:, 1])) - float(T[1, 3]) < rf.fa.edge_line_m + EDGE_LINE_CLEAR_M):
+                and float(np.min(lat)) < rf.fa.edge_line_m + EDGE_LINE_CLEAR_M):
             return "across the road's solid right edge line (the shoulder)"
+        cl = rf.fa.centre_line_m
+        if cls == "person" and not crossing and cl is not None and float(np.min(lat)) < cl + ONCOMING_LANE_M \
+                and float(np.max(lat)) > cl:
+            # the BDD night street's dark far lane passed as pavement beside the lit road
+            return "in the oncoming lane (within 2.7 m beyond the centre line)"
         for o, fp in self.footprints_near(rf, corners):
             if convex_overlap(corners, fp, FOOTPRINT_MARGIN_M):
                 return f"inside the footprint of a real {o.cls}"

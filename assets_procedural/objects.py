@@ -51,6 +51,8 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.alloy()
         elif s in ("plastic", "saddle"):
             out[s] = M.plastic((0.025, 0.025, 0.025))
+        elif s in ("tape_red", "tape_white"):  # retroreflective sheeting: saturated, a little glossy
+            out[s] = M.principled(s, (0.55, 0.01, 0.01) if s == "tape_red" else (0.85, 0.85, 0.85), roughness=0.25)
         elif s == "plate":
             out[s] = M.principled("plate", (0.85, 0.85, 0.8), roughness=0.4)
         elif s in ("lamp_head", "lamp_tail", "lamp_sign"):  # switched per frame by the render driver

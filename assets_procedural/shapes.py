@@ -5,7 +5,8 @@ y left, z up, origin at the centre of the bottom face), shaped from the catalog 
 the target dims. `fit_to_dims` then maps the tight box exactly onto `dims`; builders are
 proportioned so that this correction stays within a few per cent.
 Material slot names: paint, glass, rubber, chrome, alloy, plastic, lamp_head, lamp_tail,
-lamp_red/amber/green (+ _off), skin, hair, shirt, pants, shoes, bag, cargo, saddle, housing.
+lamp_red/amber/green (+ _off), skin, hair, shirt, pants, shoes, bag, cargo, saddle, housing,
+tape_red, tape_white (retroreflective truck tape).
 """
 
 from __future__ import annotations
@@ -121,9 +122,9 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for s in (1, -1):
         vv, f = box((0.03, 0.30, 0.11), (L / 2 + 0.005, s * y_lamp, zl))
         mb.add(vv, f, "lamp_head")
-        vv, f = box((0.06, 0.34, 0.10), (-L / 2 + 0.025, s * (hw - 0.23), deck - 0.15))
+        vv, f = box((0.06, 0.38, 0.15), (-L / 2 + 0.025, s * (hw - 0.25), deck - 0.15))
         mb.add(vv, f, "lamp_tail")
-        vv, f = box((0.16, 0.02, 0.09), (-L / 2 + 0.1, s * (hw * 0.985), deck - 0.15))
+        vv, f = box((0.16, 0.02, 0.13), (-L / 2 + 0.1, s * (hw * 0.985), deck - 0.15))
         mb.add(vv, f, "lamp_tail")
         # mirror on a short arm at the front of the side glass
         vv, f = box((0.10, 0.17, 0.11), (x_ws - 0.14, s * (hw + 0.1), belt + 0.07))
@@ -132,16 +133,25 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "plastic")
     vv, f = box((0.03, 2 * (y_lamp - 0.17), 0.10), (L / 2 + 0.004, 0, zl))  # grille between the lamps
     mb.add(vv, f, "plastic")
+    # behind: a garnish strip between the tail lamps and a high-mounted stop lamp under the roof
+    # (a smooth blank tail between two small lamps read as a toy on real photos)
+    vv, f = box((0.03, 2 * (hw - 0.45), 0.06), (-L / 2 + 0.01, 0, deck - 0.12))
+    mb.add(vv, f, "chrome" if v.get("chrome_trim") else "plastic")
+    vv, f = box((0.05, 0.3, 0.04), (p["roof_r"] * L - 0.02, 0, H - 0.07))
+    mb.add(vv, f, "lamp_tail")
 
 
 def _cab(mb, x_front, length, hw, z0, z1, glass_from):
-    """A truck/pickup cab: painted body with windscreen and side windows."""
+    """A truck/pickup cab: painted body with windscreen, side windows and a rear window."""
     vv, f = loft([(x_front - length, rounded_section(hw, z0, z1, 0.12)),
                   (x_front - 0.1, rounded_section(hw, z0, z1, 0.12)),
                   (x_front, rounded_section(hw * 0.97, z0 + 0.05, z1 - 0.08, 0.1))])
     mb.add(vv, f, "paint", smooth=True)
     zg = z0 + glass_from * (z1 - z0)
     vv, f = box((0.04, hw * 1.8, (z1 - 0.12) - zg), (x_front + 0.005, 0, (z1 - 0.12 + zg) / 2))
+    mb.add(vv, f, "glass")
+    # a pickup seen from behind showed a blank painted back above its tailgate
+    vv, f = box((0.02, hw * 1.4, (z1 - 0.16) - (zg + 0.08)), (x_front - length - 0.005, 0, (z1 - 0.16 + zg + 0.08) / 2))
     mb.add(vv, f, "glass")
     for s in (1, -1):
         vv, f = box((length * 0.55, 0.03, (z1 - 0.15) - zg), (x_front - length * 0.4, s * (hw + 0.005),
@@ -163,23 +173,38 @@ def truck(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
                 (L / 2, rounded_section(hw * 0.94, zb + 0.05, 0.55 * H, 0.1))]
         vv, f = loft(hood)
         mb.add(vv, f, "paint", smooth=True)
-        xb0, xb1 = -L / 2, L / 2 - 2.85
+        xb0, xb1 = -L / 2 + 0.12, L / 2 - 2.85
         vv, f = box((xb1 - xb0, 2 * hw * 0.98, 0.08), ((xb0 + xb1) / 2, 0, zb + 0.05))
         mb.add(vv, f, "plastic")
         for s in (1, -1):
             vv, f = box((xb1 - xb0, 0.06, 0.5), ((xb0 + xb1) / 2, s * (hw * 0.98 - 0.03), zb + 0.3))
             mb.add(vv, f, "paint")
-        vv, f = box((0.06, 2 * hw * 0.98, 0.5), (xb0 + 0.03, 0, zb + 0.3))
+        vv, f = box((0.06, 2 * hw * 0.98, 0.5), (xb0 + 0.03, 0, zb + 0.3))  # the tailgate
         mb.add(vv, f, "paint")
+        vv, f = box((0.02, 0.25, 0.06), (xb0 - 0.005, 0, zb + 0.46))  # its handle
+        mb.add(vv, f, "plastic")
+        vv, f = box((0.14, 2 * hw * 0.96, 0.16), (-L / 2 + 0.07, 0, zb - 0.02))  # step bumper
+        mb.add(vv, f, "chrome")
+        vv, f = box((0.02, 0.52, 0.12), (xb0 - 0.005, 0, zb + 0.16))  # number plate on the tailgate
+        mb.add(vv, f, "plate")
         axles = [L / 2 - 1.0, -L / 2 + 1.35]
-        for s in (1, -1):
-            vv, f = box((0.05, 0.25, 0.12), (-L / 2 + 0.01, s * (hw - 0.2), zb + 0.45))
+        for s in (1, -1):  # tall lamps in the bed's rear corners
+            vv, f = box((0.05, 0.12, 0.34), (xb0 + 0.01, s * (hw * 0.98 - 0.06), zb + 0.36))
             mb.add(vv, f, "lamp_tail")
     else:
         cab_len = 2.2 if kind == "box_truck" else 2.5
         cab_h = (0.78 if kind == "box_truck" else 0.82) * H
         z_ch = r + 0.15
         _cab(mb, L / 2, cab_len, hw * 0.98, z_ch - 0.2, cab_h, 0.5)
+        # the cab's face: a grille between the lamps and a bumper (an oncoming truck was a box)
+        z_g0, z_g1 = z_ch + 0.2, (z_ch - 0.2 + cab_h) / 2 - 0.12  # up to the windscreen
+        vv, f = box((0.02, 2 * hw * 0.98 - 1.0, z_g1 - z_g0), (L / 2 + 0.012, 0, (z_g0 + z_g1) / 2))
+        mb.add(vv, f, "well")
+        for z in np.linspace(z_g0 + 0.04, z_g1 - 0.04, 6):
+            vv, f = box((0.03, 2 * hw * 0.98 - 1.0, 0.03), (L / 2 + 0.02, 0, z))
+            mb.add(vv, f, "chrome")
+        vv, f = box((0.16, 2 * hw * 0.98, 0.25), (L / 2 - 0.05, 0, z_ch - 0.2))
+        mb.add(vv, f, "plastic")
         if kind == "semi":  # roof fairing up to the trailer
             vv, f = loft([(L / 2 - cab_len, rounded_section(hw * 0.95, cab_h - 0.05, H - 0.05, 0.2)),
                           (L / 2 - cab_len * 0.35, rounded_section(hw * 0.85, cab_h - 0.05, cab_h + 0.05, 0.05))])
@@ -195,12 +220,50 @@ def truck(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
             axles = [L / 2 - 1.3, -L / 2 + 1.7]
         else:
             axles = [L / 2 - 1.3, L / 2 - 4.2, L / 2 - 5.5, -L / 2 + 1.2, -L / 2 + 2.5, -L / 2 + 3.8]
-        for s in (1, -1):
-            vv, f = box((0.05, 0.25, 0.15), (-L / 2 - 0.0, s * (hw - 0.2), z_box + 0.1))
-            mb.add(vv, f, "lamp_tail")
+        _box_rear(mb, -L / 2, hw, z_box, H)
     for x in axles:
         for s in (1, -1):
             _wheel(mb, x, s * (hw - 0.17), r, 0.32, "alloy")
+
+
+def _box_rear(mb, x, hw, z0, z1):
+    """The rear of a cargo box, the view a dashcam has of most trucks (a plain coloured box read
+    as a toy on real photos): two doors with hinges and locking bars in a frame, red and white
+    reflective tape along the sill, lamps, a plate and an underride guard below."""
+    xo = x - 0.012
+    mid, h = (z0 + z1) / 2, z1 - z0
+    for y in (hw - 0.05, -(hw - 0.05)):  # the frame: corner posts, header and sill
+        vv, f = box((0.03, 0.1, h), (xo, y, mid))
+        mb.add(vv, f, "alloy")
+    for z in (z1 - 0.06, z0 + 0.08):  # proud of the posts: coplanar faces rendered black in Cycles
+        vv, f = box((0.03, 2 * hw, 0.12 if z < mid else 0.1), (xo - 0.008, 0, z))
+        mb.add(vv, f, "alloy")
+    vv, f = box((0.02, 0.025, h - 0.24), (xo - 0.012, 0, mid))  # the seam between the doors
+    mb.add(vv, f, "plastic")
+    for y in np.array([-0.72, -0.28, 0.28, 0.72]) * hw:  # locking bars with their handles
+        mb.add(*cylinder(0.018, h - 0.3, 8, "z", (xo - 0.03, y, mid)), "chrome", smooth=True)
+        vv, f = box((0.03, 0.05, 0.22), (xo - 0.04, y + 0.05, z0 + 0.55))
+        mb.add(vv, f, "chrome")
+    for y in (hw - 0.13, -(hw - 0.13)):  # hinges on the outer edges
+        for z in np.linspace(z0 + 0.35, z1 - 0.35, 4):
+            vv, f = box((0.03, 0.14, 0.06), (xo - 0.01, y, z))
+            mb.add(vv, f, "alloy")
+    n, w = 12, (2 * hw - 0.2) / 12  # conspicuity tape: alternating red and white
+    for i in range(n):
+        vv, f = box((0.01, w - 0.01, 0.05), (xo - 0.03, -hw + 0.1 + (i + 0.5) * w, z0 + 0.08))
+        mb.add(vv, f, "tape_red" if i % 2 == 0 else "tape_white")
+    for s in (1, -1):  # round tail lamps low on the box corners, and the guard's struts
+        mb.add(*cylinder(0.09, 0.04, 16, "x", (xo - 0.01, s * (hw - 0.3), z0 + 0.28)), "lamp_tail")
+        vv, f = box((0.08, 0.08, z0 - 0.45), (x + 0.25, s * (hw - 0.45), (z0 + 0.45) / 2 + 0.05))
+        mb.add(vv, f, "plastic")
+    vv, f = box((0.02, 0.52, 0.12), (xo - 0.02, 0, z0 + 0.28))
+    mb.add(vv, f, "plate")
+    vv, f = box((0.12, 2 * hw * 0.92, 0.12), (x + 0.2, 0, 0.5))  # underride guard
+    mb.add(vv, f, "plastic")
+    flap = max(z0 - 0.25, 0.3)
+    for s in (1, -1):  # mud flaps behind the rear wheels
+        vv, f = box((0.01, 0.5, flap), (x + 0.6, s * (hw - 0.3), 0.25 + flap / 2))
+        mb.add(vv, f, "rubber")
 
 
 def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):

@@ -31,6 +31,8 @@ BUS_BODIES = {
     "city": ((11.5, 12.2), (2.50, 2.55), (3.00, 3.20)),
     "midi": ((8.5, 9.5), (2.35, 2.45), (2.90, 3.05)),
 }
+# most box bodies and trailers are plain white or aluminium; liveries are a minority
+CARGO_WEIGHTS = {"white": 0.55, "silver": 0.2, "red": 0.08, "blue": 0.08, "yellow": 0.09}
 CAR_PAINTS = {  # linear RGB, roughly the world's car-colour mix
     "white": (0.80, 0.80, 0.78), "black": (0.012, 0.012, 0.014), "silver": (0.50, 0.51, 0.53),
     "grey": (0.16, 0.17, 0.18), "blue": (0.02, 0.06, 0.25), "red": (0.45, 0.02, 0.02),
@@ -109,8 +111,7 @@ def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[floa
         kind = _pick(rng, list(TRUCK_BODIES))
         L, W, H = (_u(rng, r) for r in TRUCK_BODIES[kind])
         v = {"kind": kind, "paint": _jitter(rng, _pick(rng, list(CAR_PAINTS.values()))),
-             "cargo": _jitter(rng, _pick(rng, [(0.8, 0.8, 0.78), (0.5, 0.51, 0.53), (0.45, 0.02, 0.02),
-                                                (0.03, 0.1, 0.3), (0.7, 0.45, 0.02)])),
+             "cargo": _jitter(rng, CAR_PAINTS[_weighted(rng, CARGO_WEIGHTS)]),
              "wheel_radius": 0.33 if kind == "pickup" else 0.5}
     elif cls == "bus":
         kind = _pick(rng, list(BUS_BODIES))

@@ -44,7 +44,8 @@ VEHICLES = ("car", "bus", "truck", "motorcycle")
 POLE_OFF_ROAD_M = (0.8, 2.0)  # a ground-plane signal pole stands this far beyond the road edge
 FLOW_SPEED = (0.85, 1.15)  # real video: a vehicle's speed as a share of the ego's (the traffic it drives in)
 FLOW_MIN_EGO_MPS = 3.0     # below this the ego crawls or stands: class speeds
-MOTORWAY_MIN_MPS = 25.0    # real video: the ego this fast (90 km/h) is on a motorway, closed to bicycles and people
+MOTORWAY_MIN_MPS = 25.0    # real video: the ego this fast (90 km/h) is on a motorway
+MOTORWAY_CLOSED = ("bicycle", "person", "traffic light")  # none of them on a motorway
 SAME_CLASS_TRIES = 8       # places tried for a drawn object before it is given up
 PACKING_ORDER = ("bus", "truck", "car", "motorcycle", "bicycle", "person", "traffic light")  # largest first
 
@@ -369,16 +370,17 @@ class Planner:
 
     def _motorway_kmh(self, k: int) -> float:
         """The ego's speed at frame k (km/h) when it says the real road is a motorway, else 0: on
-        real video no map tells it, and cyclists, pedestrians and parked two-wheelers are not
-        allowed there."""
+        real video no map tells it, and cyclists, pedestrians, parked two-wheelers and traffic
+        lights have no place there."""
         if self.real is None or not self.inject.sequences or self.ego.speed[k] <= MOTORWAY_MIN_MPS:
             return 0.0
         return float(self.ego.speed[k]) * 3.6
 
     def _closed(self, cls: str, k: int, rejected: dict) -> bool:
-        kmh = self._motorway_kmh(k) if cls in ("bicycle", "person") else 0.0
+        kmh = self._motorway_kmh(k) if cls in MOTORWAY_CLOSED else 0.0
         if kmh:
-            rejected[cls, f"the camera moves at {kmh:.0f} km/h: a motorway, closed to bicycles and people"] = 1
+            rejected[cls, f"the camera moves at {kmh:.0f} km/h: a motorway, without cyclists, pedestrians "
+                          "or traffic lights"] = 1
         return bool(kmh)
 
     def _spawn_on_road(self, cls, variant, dims, k, p):

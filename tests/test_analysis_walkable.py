@@ -69,6 +69,17 @@ def highway_photo():
     return (cam, *stage.analyse_frame(img, "f000000", cam, est, objects.load_detector()))
 
 
+def placed_over_seeds(cam, fa, real, ground_plane, cls, distance_m, seeds=12):
+    """The objects of `cls` the planner places in this one analysed frame over `seeds` seeds."""
+    twin = GroundPlaneTwin.from_job(ground_plane)
+    inject = Inject(objects_per_frame=(2, 2), classes={cls: 1}, distance_m=distance_m, sequences=False)
+    out = []
+    for seed in range(seeds):
+        plan = plan_sequence(twin, cam, [(fa.frame_id, 0.0, np.asarray(fa.T_world_cam))], inject, seed, real=real)[0]
+        out += [o for o in plan.objects if o.cls == cls]
+    return out
+
+
 def test_highway_photo_gets_no_pedestrian():
     """A real highway: the band beside the road is dry grass and an asphalt shoulder."""
     cam, fa, mask = highway_photo()
@@ -90,13 +101,9 @@ def test_highway_photo_gets_cyclists_only_at_its_kerb_and_no_parked_bicycle():
     cam, fa, mask = highway_photo()
     assert fa.centre_line_m is None, fa.decisions
     real = RealScene([RealFrame(fa, mask, None)], cam)
-    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-1.0, analysis=True))
+    placed = placed_over_seeds(cam, fa, real, GroundPlane(camera_height_m=1.4, pitch_deg=-1.0, analysis=True),
+                               "bicycle", (8, 35))
     T = np.asarray(fa.T_world_cam)
-    placed = []
-    for seed in range(12):
-        inject = Inject(objects_per_frame=(2, 2), classes={"bicycle": 1}, distance_m=(8, 35), sequences=False)
-        plans = plan_sequence(twin, cam, [("f000000", 0.0, T)], inject, seed, real=real)
-        placed += [o for o in plans[0].objects if o.cls == "bicycle"]
     assert len(placed) >= 6
     for o in placed:
         assert "rider" in o.variant, o.variant
@@ -116,12 +123,8 @@ def test_night_street_pedestrians_stay_out_of_the_oncoming_lane():
     fa, mask = stage.analyse_frame(img, "f000002", cam, est, objects.load_detector())
     assert fa.centre_line_m is not None and 0.8 < fa.centre_line_m < 2.0, fa.decisions
     real = RealScene([RealFrame(fa, mask, stage.hood_mask(fa.hood, img.shape[1], img.shape[0]))], cam)
-    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.08, pitch_deg=-1.4, analysis=True))
-    T = np.asarray(fa.T_world_cam)
-    lats = []
-    for seed in range(12):
-        inject = Inject(objects_per_frame=(2, 2), classes={"person": 1}, distance_m=(6, 35), sequences=False)
-        plans = plan_sequence(twin, cam, [("f000002", 0.0, T)], inject, seed, real=real)
-        lats += [o.position[1] - T[1, 3] for o in plans[0].objects]
+    placed = placed_over_seeds(cam, fa, real, GroundPlane(camera_height_m=1.08, pitch_deg=-1.4, analysis=True),
+                               "person", (6, 35))
+    lats = [o.position[1] - fa.T_world_cam[1][3] for o in placed]
     assert len(lats) >= 6
     assert not [y for y in lats if fa.centre_line_m < y < fa.centre_line_m + 2.7], (fa.centre_line_m, lats)

@@ -149,9 +149,12 @@ def test_illumination_estimates_colour_cast_and_overcast():
     assert not ov.sun_visible and ov.to_lighting()["sun_strength"] == 0.0
     light = ov.to_lighting()
     assert set(light) == {"sun_direction", "sun_strength", "sun_color", "sun_angle_deg", "sky_color",
-                          "sky_strength", "sun_visible", "condition", "lights_on", "street_light"}
+                          "sky_strength", "sun_visible", "condition", "lights_on", "street_light",
+                          "reflected_strength"}
     assert light["condition"] == "day" and not light["lights_on"] and light["street_light"] is None
-    assert all(np.isfinite(np.asarray(v, float)).all() for k, v in light.items() if k not in ("condition", "street_light"))
+    assert light["reflected_strength"] is None  # by day glossy rays see the sky that lights the objects
+    assert all(np.isfinite(np.asarray(v, float)).all() for k, v in light.items()
+               if k not in ("condition", "street_light", "reflected_strength"))
 
 
 def test_illumination_detects_sun_from_road_shadows():
@@ -212,6 +215,8 @@ def test_dark_frame_is_night_without_sun_shadow():
     # Exposure follows the frame: the night key + ambient are far below a daylight frame's.
     day = estimate_illumination(_scene(240, 320)).to_lighting()
     assert street["strength"] + light["sky_strength"] < 0.2 * (day["sun_strength"] + day["sky_strength"])
+    # mirrors show the dark scene, not the ambient that lights the objects
+    assert light["reflected_strength"] == est.log_average_luminance < 0.5 * light["sky_strength"]
 
 
 def test_dusk_from_sun_elevation():

@@ -449,3 +449,36 @@ def test_catcher_patches_catch_the_shadow_the_ground_catches(tmp_path):
     assert shadow.sum() > 100
     # Unmerged patches: rms 0.033, a band up to 0.89 darker; merged: 0.006, 0.085 (64 spp noise).
     assert abs(diff.mean()) < 0.003 and np.sqrt((diff ** 2).mean()) < 0.015 and np.abs(diff).max() < 0.3
+
+
+def test_night_mirrors_show_the_scene_not_the_ambient(tmp_path):
+    """At night glossy rays see the world at `reflected_strength` (the frame's mean radiance),
+    not the ambient that lights the objects, and the soft street-light key is not mirrored as a
+    broad patch (a car's rear window on the BDD night street read lighter than its body)."""
+    from blendgen.render.primitives import add_object, box_mesh, material
+    from blendgen.render.session import RenderSession
+
+    def mirror(obj):
+        ob = add_object(f"obj{obj.id}", box_mesh(f"obj{obj.id}", obj.dims))
+        ob.data.materials.append(material(f"mirror{obj.id}", (0.9, 0.9, 0.9), roughness=0.05, metallic=1.0))
+        ob.pass_index = int(obj.id)
+        ob.location = tuple(float(c) for c in obj.position)
+        return ob
+
+    night = {"sun_direction": [0.0, 0.0, 1.0], "sun_strength": 0.0, "sun_color": [1, 1, 1], "sun_angle_deg": 2.0,
+             "sky_color": [0.9, 0.95, 1.0], "sky_strength": 0.3, "sun_visible": False, "condition": "night",
+             "lights_on": True, "street_light": {"direction": [0.2, 0.2, 0.95], "strength": 0.8,
+                                                 "color": [1.0, 0.9, 0.7], "angle_deg": 30.0, "share": 0.7}}
+    cam = Camera.from_hfov(160, 90, 50)
+    s = RenderSession(None, None, Render(samples=16, denoise=False), cam, object_builder=mirror)
+    try:
+        assert not s.street.visible_glossy and not s.glint.visible_diffuse and not s.glint.data.use_shadow
+        mean = {}
+        for reflected in (None, 0.03):
+            plan = FramePlan("f1", 0.0, T.tolist(), [card(1, 6.0, 0.0, 1.5, 1.5)], {**night, "reflected_strength": reflected})
+            s.render_frame(plan, tmp_path / "r.exr", {"rgba", "index"})
+            p = read_passes(tmp_path / "r.exr")
+            mean[reflected] = float(p["rgba"][..., :3][p["index"] == 1].mean())
+        assert mean[0.03] < 0.25 * mean[None], mean  # the mirror facing the camera shows the world behind it
+    finally:
+        s.close()

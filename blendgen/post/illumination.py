@@ -115,6 +115,10 @@ class Illumination:
             "condition": self.condition,
             "lights_on": self.condition != "day",
             "street_light": self._street_light(total),
+            # what glass and clear coats mirror at dusk and night: the scene's mean radiance, not
+            # the ambient that lights the objects (7x brighter on the BDD night street, where car
+            # windows then read lighter than their bodies); by day the sky is that bright
+            "reflected_strength": None if self.condition == "day" else float(self.log_average_luminance),
         }
 
     def _street_light(self, total: float) -> dict | None:

@@ -33,6 +33,7 @@ from blendgen.scene.plan import SCENERY_ID, FramePlan, PlacedObject
 
 GROUND_ROLES = {"road", "sidewalk", "marking"}
 HOLDOUT_ROLES = {"structure", "vegetation"}
+STREET_GLINT_DEG = 3.0  # the street light as glass and clear coat mirror it: a lamp, not a 30 deg glow
 # Data-block collections an object builder may fill; what it adds is removed with the object.
 DATA_KINDS = ("objects", "meshes", "materials", "images", "textures", "node_groups", "curves",
               "lights", "actions")
@@ -192,8 +193,17 @@ class RenderSession:
         sc.collection.objects.link(self.sun)
         # Night/dusk key (lighting["street_light"]): a soft overhead lamp instead of the sun.
         self.street = bpy.data.objects.new("blendgen_street_light", bpy.data.lights.new("blendgen_street_light", "SUN"))
-        sc.collection.objects.link(self.street)
-        self.street.hide_render = True
+        # Its 30 deg source gives soft shading and contact shadows, but mirrored in glass and
+        # clear coat it was a broad bright patch (night car windows lighter than their bodies):
+        # glossy rays see a small lamp instead, the same light from a 3 deg source, no shadow.
+        self.street.visible_glossy = False
+        self.glint = bpy.data.objects.new("blendgen_street_glint", bpy.data.lights.new("blendgen_street_glint", "SUN"))
+        self.glint.visible_diffuse = self.glint.visible_transmission = self.glint.visible_volume_scatter = False
+        self.glint.data.use_shadow = False
+        self.glint.data.angle = math.radians(STREET_GLINT_DEG)
+        for ob in (self.street, self.glint):
+            sc.collection.objects.link(ob)
+            ob.hide_render = True
         world = bpy.data.worlds.new("blendgen_world")
         sc.world = world
         with warnings.catch_warnings():  # deprecated in 5.0 but still needed for a new world
@@ -204,7 +214,9 @@ class RenderSession:
         out = nt.nodes.new("ShaderNodeOutputWorld")
         bg = nt.nodes.new("ShaderNodeBackground")         # uniform sky: lights the objects
         sky = nt.nodes.new("ShaderNodeBackground")        # gradient: what a camera sees
+        mirrored = nt.nodes.new("ShaderNodeBackground")   # what glossy rays see (lighting["reflected_strength"])
         mix = nt.nodes.new("ShaderNodeMixShader")
+        gmix = nt.nodes.new("ShaderNodeMixShader")
         lp = nt.nodes.new("ShaderNodeLightPath")
         tc = nt.nodes.new("ShaderNodeTexCoord")
         sep = nt.nodes.new("ShaderNodeSeparateXYZ")
@@ -212,11 +224,14 @@ class RenderSession:
         nt.links.new(tc.outputs["Generated"], sep.inputs[0])
         nt.links.new(sep.outputs["Z"], ramp.inputs["Fac"])
         nt.links.new(ramp.outputs["Color"], sky.inputs["Color"])
+        nt.links.new(lp.outputs["Is Glossy Ray"], gmix.inputs["Fac"])
+        nt.links.new(bg.outputs[0], gmix.inputs[1])
+        nt.links.new(mirrored.outputs[0], gmix.inputs[2])
         nt.links.new(lp.outputs["Is Camera Ray"], mix.inputs["Fac"])
-        nt.links.new(bg.outputs[0], mix.inputs[1])
+        nt.links.new(gmix.outputs[0], mix.inputs[1])
         nt.links.new(sky.outputs[0], mix.inputs[2])
         nt.links.new(mix.outputs[0], out.inputs["Surface"])
-        self._world_nodes = {"bg": bg, "sky": sky, "ramp": ramp}
+        self._world_nodes = {"bg": bg, "sky": sky, "mirrored": mirrored, "ramp": ramp}
 
     def _build_twin(self, twin_path: Path):
         try:
@@ -242,17 +257,21 @@ class RenderSession:
             sun.data.color = tuple(float(c) for c in lighting.get("sun_color", (1, 1, 1)))[:3]
             sun.data.angle = math.radians(float(lighting.get("sun_angle_deg", 0.53)))
         street = lighting.get("street_light")
-        self.street.hide_render = not street
+        self.street.hide_render = self.glint.hide_render = not street
         if street:
-            self.street.rotation_euler = Vector(street["direction"]).to_track_quat("Z", "Y").to_euler()
-            self.street.data.energy = float(street["strength"])
-            self.street.data.color = tuple(float(c) for c in street["color"])[:3]
+            for ob in (self.street, self.glint):
+                ob.rotation_euler = Vector(street["direction"]).to_track_quat("Z", "Y").to_euler()
+                ob.data.energy = float(street["strength"])
+                ob.data.color = tuple(float(c) for c in street["color"])[:3]
             self.street.data.angle = math.radians(float(street.get("angle_deg", 30.0)))
         sky = np.asarray(lighting.get("sky_color", (0.6, 0.7, 0.9)), dtype=float)[:3]
         strength = float(lighting.get("sky_strength", 1.0))
         n = self._world_nodes
         n["bg"].inputs["Color"].default_value = (*sky, 1.0)
         n["bg"].inputs["Strength"].default_value = strength
+        reflected = lighting.get("reflected_strength")
+        n["mirrored"].inputs["Color"].default_value = (*sky, 1.0)
+        n["mirrored"].inputs["Strength"].default_value = strength if reflected is None else float(reflected)
         # Camera-ray sky for opaque backgrounds: paler at the horizon, the sky colour above.
         horizon = 0.5 * sky + 0.5 * float(sky.mean()) + 0.1
         ramp = n["ramp"].color_ramp

@@ -225,3 +225,29 @@ def test_height_from_real_cars_boxes(cam):
         boxes.append([u0, v0, u1 - u0, v1 - v0])
         assert height_from_cars(boxes[-1:], cam, R) == pytest.approx(1.5, rel=0.02), (x, y)
     assert height_from_cars(boxes, cam, R) == pytest.approx(1.5, rel=0.02)
+
+
+def test_video_camera_height_does_not_depend_on_the_jobs_frames(tmp_path):
+    """The freeway video's camera height came out 1.56 m (the real cars' boxes) for frames 0-56
+    and 1.28 m (one frame's lanes) for every 30th frame; lanes from frames spread over the
+    whole recording now set it for both (the lane dashes' 14.6 m period says about 1.22 m)."""
+    p = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) \
+        / "real" / "udacity_solidWhiteRight.mp4"
+    if not p.is_file():
+        pytest.skip(f"needs {p}")
+    from blendgen.analysis.camera import read_frames
+    from blendgen.analysis.objects import load_detector, road_users
+    from blendgen.recording.folder import read_recording
+    from blendgen.recording.importers.video import import_video
+
+    rec = read_recording(import_video(p, tmp_path / "rec", show_progress=False, hfov_deg=55.0))
+    det = load_detector()
+    heights = {}
+    for name, idx in (("0-56", range(0, 57, 4)), ("every 30th", range(0, 221, 30))):
+        ids = [rec.frame_id(i) for i in idx]
+        cars = {f: [o.box for o in road_users(im, det) if o.cls == "car"] for f, im in read_frames(rec, ids)}
+        est = estimate_cameras(rec, ids, car_boxes=cars)
+        heights[name] = est[ids[0]][0].height_m
+        assert est[ids[0]][0].source["height"] == "lane_width", est[ids[0]][0].reasons
+    assert abs(heights["0-56"] / heights["every 30th"] - 1) < 0.08 and 1.05 < heights["0-56"] < 1.4, heights
+

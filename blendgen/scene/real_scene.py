@@ -103,11 +103,11 @@ class RealScene:
     def oncoming(self, k: int, T, xy) -> bool:
         """Whether traffic at ground point `xy` comes towards the camera in frame k: beyond the
         frame's centre line (the analysis' `centre_line_m`, left of the camera at pose T)."""
-        cl = self._centre_line(k)
+        cl = self.centre_line(k)
         # the ground-plane twin's road runs along +x: lateral offset = world y from the camera
         return cl is not None and float(xy[1]) - float(np.asarray(T, float)[1, 3]) > cl
 
-    def _centre_line(self, k: int) -> float | None:
+    def centre_line(self, k: int) -> float | None:
         rf = self.frames[k] if k < len(self.frames) else None
         return None if rf is None else rf.fa.centre_line_m
 
@@ -122,7 +122,7 @@ class RealScene:
         all traffic running the ego's way is a divided highway's median or a one-way street's
         far side: no place for a cyclist or a parked motorcycle."""
         lat = np.asarray(xy, float)[:, 1] - float(np.asarray(T, float)[1, 3])
-        cl = self._centre_line(k)
+        cl = self.centre_line(k)
         return (lat < 0) | (lat > cl) if cl is not None else lat < 0
 
     def sample_ground(self, k: int, value: int, T, rng: np.random.Generator, d0: float, d1: float,

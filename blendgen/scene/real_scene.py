@@ -7,7 +7,8 @@ pixel-exact mask of the real object to put in front of it); touching the hood; a
 vehicle's wheel off the estimated road, or its footprint across the frame's solid right edge
 line (a freeway's shoulder; not for bicycles and parked motorcycles, which keep to the edge); a
 pedestrian outside the bands beside the road or in the oncoming lane beyond a centre line
-(unless crossing); a traffic light's pole on the road. A virtual object in front of a real one is allowed: it covers it.
+(unless crossing); a traffic light's pole on the road. A virtual object in front of a real one
+is allowed: it covers it.
 """
 
 from __future__ import annotations

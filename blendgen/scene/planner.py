@@ -346,8 +346,9 @@ class Planner:
         p = self._view_point(k)
         if cls in VEHICLES + ("bicycle",) and self.real is not None and self.real.has(k, ROAD):
             edge = cls == "bicycle" or (cls == "motorcycle" and "rider" not in variant)
-            if edge and self._motorway_kmh(k):
-                self.reason = f"the camera moves at {self._motorway_kmh(k):.0f} km/h: a motorway, no parking"
+            kmh = self._motorway_kmh(k) if edge else 0.0
+            if kmh:
+                self.reason = f"the camera moves at {kmh:.0f} km/h: a motorway, no parking"
                 return None
             if cls == "bicycle" and "rider" not in variant and not self.real.has(k, BAND):
                 # the analysis found no pavement (a highway's verge, a barrier): no one walks

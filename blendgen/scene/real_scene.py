@@ -69,7 +69,7 @@ class RealScene:
         if cls == "person" and not crossing and cl is not None and float(np.min(lat)) < cl + ONCOMING_LANE_M \
                 and float(np.max(lat)) > cl:
             # the BDD night street's dark far lane passed as pavement beside the lit road
-            return "in the oncoming lane (within 2.7 m beyond the centre line)"
+            return f"in the oncoming lane (within {ONCOMING_LANE_M:g} m beyond the centre line)"
         for o, fp in self.footprints_near(rf, corners):
             if convex_overlap(corners, fp, FOOTPRINT_MARGIN_M):
                 return f"inside the footprint of a real {o.cls}"

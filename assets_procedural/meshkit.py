@@ -12,7 +12,11 @@ import numpy as np
 
 
 class MeshBuilder:
-    def __init__(self):
+    """`bounds_only`: the caller needs only the tight box (the planner sizing an object), so
+    costly builders may add just the vertices that can bound it, without faces."""
+
+    def __init__(self, bounds_only: bool = False):
+        self.bounds_only = bounds_only
         self.verts: list[np.ndarray] = []
         self.faces: list[list[int]] = []
         self.mat: list[int] = []
@@ -29,10 +33,14 @@ class MeshBuilder:
         verts = np.asarray(verts, dtype=float)
         m = self.slot(material)
         self.verts.append(verts)
-        for f in faces:
-            self.faces.append([int(i) + self._n for i in f])
-            self.mat.append(m)
-            self.smooth.append(smooth)
+        if isinstance(faces, np.ndarray):  # (n, k) indices, -1 padding rows of fewer corners
+            rows = np.where(faces >= 0, faces + self._n, -1).tolist()
+            new = [r if r[-1] >= 0 else [i for i in r if i >= 0] for r in rows]
+        else:
+            new = [[int(i) + self._n for i in f] for f in faces]
+        self.faces.extend(new)
+        self.mat.extend([m] * len(new))
+        self.smooth.extend([smooth] * len(new))
         self._n += len(verts)
         return self
 

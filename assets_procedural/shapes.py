@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from assets_procedural import body
 from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, loft, rot_x, rot_y, rounded_section,
                                        torus, tube, xf)
 
@@ -328,106 +329,72 @@ def _ik(hip, foot, l1, l2, forward):
 
 
 def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
-    """A person from limb tubes and ellipsoids. Without `joints`: standing or walking on the
-    ground (origin between the feet). With `joints` (riders): pelvis, lean, hands, feet given."""
+    """A person: MakeHuman's body in one of a few outfits (`assets_procedural.body`). Without
+    `joints`: standing or walking on the ground (origin between the feet). With `joints`
+    (riders): pelvis, lean, hands and feet given."""
     h = float(v.get("height_m", 1.72))
-    build = {"slim": 0.9, "medium": 1.0, "broad": 1.12}.get(v.get("build", "medium"), 1.0)
-    hip_w, sh_w = 0.085 * h * build, 0.125 * h * build
-    thigh, shin = 0.245 * h, 0.235 * h
-    upper, fore = 0.175 * h, 0.16 * h
+    J = body.rest_joints(v, h)
+    seg = {j: float(np.linalg.norm(J[b + ".L"] - J[a + ".L"]))
+           for j, a, b in (("thigh", "hip", "knee"), ("shin", "knee", "ankle"),
+                           ("upper", "shoulder", "elbow"), ("fore", "elbow", "wrist"))}
     stride = float(v.get("stride_rad", 0.0))
+    target = {}
     if joints is None:
-        pelvis = np.array([0.0, 0.0, 0.52 * h - (1 - math.cos(stride)) * 0.47 * h])
-        lean = 0.05 if stride else 0.0
-        legs = []
-        for s, ang in ((1, stride), (-1, -stride)):
-            hip = pelvis + [0, s * hip_w, 0]
-            ankle = hip + (thigh + shin) * np.array([math.sin(ang), 0, -math.cos(ang)])
-            ankle[2] = max(ankle[2], 0.05 * h)
-            knee, ankle = _ik(hip, ankle, thigh, shin, [1, 0, 0])
-            legs.append((hip, knee, ankle))
-        arms_target = None
+        leg = seg["thigh"] + seg["shin"]
+        pelvis = J["pelvis"] - [0, 0, (1 - math.cos(stride)) * leg]
+        lean, head_lift = (0.05 if stride else 0.0), 0.0
+        for s, ang in (("L", stride), ("R", -stride)):
+            hip = pelvis + (J["hip." + s] - J["pelvis"])
+            # the rest pose stands with the feet 0.4 m apart: bring them under the hips
+            ankle = hip + rot_y(-ang) @ [0, -0.2 * (hip[1] - pelvis[1]), -leg]
+            target["knee." + s], target["ankle." + s] = _ik(hip, ankle, seg["thigh"], seg["shin"], [1, 0, 0])
+        hands = None
     else:
         pelvis, lean = np.asarray(joints["pelvis"], float), joints["lean"]
-        legs = []
-        for s in (1, -1):
-            hip = pelvis + [0, s * hip_w, 0]
-            foot = np.asarray(joints["feet"][0 if s > 0 else 1], float)
-            knee, ankle = _ik(hip, foot, thigh, shin, [1, 0, 0.6])
-            legs.append((hip, knee, ankle))
-        arms_target = joints["hands"]
-    # torso: elliptic rings along the spine, leaning forward by `lean`
-    spine = np.array([math.sin(lean), 0, math.cos(lean)])
-    rings = [(0.0, 0.075, hip_w * 1.25), (0.09, 0.07, hip_w * 1.1), (0.2, 0.08, sh_w * 0.9),
-             (0.29, 0.075, sh_w * 1.0), (0.33, 0.05, sh_w * 0.6)]
-    st = []
-    n = 12
-    for t, rx, ry in rings:
-        c = pelvis + spine * t * h
-        a = np.linspace(0, 2 * math.pi, n, endpoint=False)
-        ring = np.stack([rx * h * np.cos(a), ry * np.sin(a)], 1)
-        st.append((c, ring))
+        for s, foot in zip("LR", joints["feet"]):
+            hip = pelvis + (J["hip." + s] - J["pelvis"])
+            # the ball of the foot on the peg or pedal: the ankle sits behind and above it
+            ankle = np.asarray(foot, float) + [-0.06 * h, 0, 0.04 * h]
+            target["knee." + s], target["ankle." + s] = _ik(hip, ankle, seg["thigh"], seg["shin"], [1, 0, 0.6])
+        hands = [np.asarray(p, float) for p in joints["hands"]]
+        # lean further when the grips are out of reach (the seats and bars were laid out
+        # for longer arms than the body's)
+        reach = 0.97 * (seg["upper"] + seg["fore"]) + 0.045 * h
+        while lean < 1.2 and max(np.linalg.norm(g - pelvis - rot_y(lean) @ (J["shoulder." + s] - J["pelvis"]))
+                                 for g, s in zip(hands, "LR")) > reach:
+            lean += 0.05
+        head_lift = 0.6 * lean  # riders look ahead, not at the road under them
+    target["pelvis"] = pelvis
     R = rot_y(lean)
-    verts = []
-    for c, ring in st:
-        for (x, y) in ring:
-            verts.append(c + R @ np.array([x, y, 0.0]))
-    faces = [[k * n + i, k * n + (i + 1) % n, (k + 1) * n + (i + 1) % n, (k + 1) * n + i]
-             for k in range(len(st) - 1) for i in range(n)]
-    faces += [list(range(n))[::-1], list(range((len(st) - 1) * n, len(st) * n))]
-    mb.add(np.asarray(verts), faces, "shirt", smooth=True)
-    neck_base = pelvis + spine * 0.33 * h
-    head_c = neck_base + spine * 0.085 * h + np.array([0.01 * h, 0, 0])
-    vv, f = tube(neck_base, neck_base + spine * 0.05 * h, 0.028 * h, 8)
-    mb.add(vv, f, "skin", smooth=True)
-    vv, f = ellipsoid((0.058 * h, 0.05 * h, 0.068 * h), head_c, 12, 8)
-    mb.add(vv, f, "skin", smooth=True)
-    hair_c = head_c + np.array([-0.01 * h, 0, 0.012 * h])
-    if v.get("helmet"):
-        vv, f = ellipsoid((0.066 * h, 0.058 * h, 0.06 * h), hair_c + [0, 0, 0.006 * h], 12, 6)
-        mb.add(vv, f, "paint", smooth=True)
+    for k, (s, sign) in enumerate((("L", 1), ("R", -1))):
+        sh = pelvis + R @ (J["shoulder." + s] - J["pelvis"])
+        reach = seg["upper"] + seg["fore"]
+        if hands is None:  # arms swing opposite to the legs
+            swing = -stride * 0.8 * sign
+            wrist = sh + reach * 0.95 * np.array([math.sin(swing), sign * 0.15, -math.cos(swing)])
+            bend = [-1, 0, 0]
+        else:  # the palm on the grip: the wrist a hand's breadth short of it
+            grip = hands[k]
+            wrist = grip - 0.045 * h * (grip - sh) / np.linalg.norm(grip - sh)
+            bend = [0, sign * 0.5, -1]
+        target["elbow." + s], target["wrist." + s] = _ik(sh, wrist, seg["upper"], seg["fore"], bend)
+    T = body.pose_transforms(J, target, lean, head_lift)
+    slots = body.human()["regions"]  # skin, shirt, pants (a skirt too), shoes, hair
+    if mb.bounds_only:
+        mb.add(body.posed_bounds(v, h, T), [], "skin")
     else:
-        vv, f = ellipsoid((0.058 * h, 0.052 * h, 0.06 * h), hair_c, 12, 6)
-        mb.add(vv, f, "hair", smooth=True)
-    # legs, shoes; a skirt covers the thighs
-    for hip, knee, ankle in legs:
-        vv, f = tube(hip, knee, 0.062 * h * build ** 0.5, 8, radius2=0.045 * h)
-        mb.add(vv, f, "skin" if v.get("skirt") else "pants", smooth=True)
-        vv, f = tube(knee, ankle, 0.044 * h, 8, radius2=0.032 * h)
-        mb.add(vv, f, "skin" if v.get("skirt") else "pants", smooth=True)
-        foot_dir = np.array([1.0, 0, 0])
-        toe = ankle + foot_dir * 0.1 * h
-        c = (ankle + toe) / 2 - [0.015 * h, 0, 0.0]
-        c[2] = max(ankle[2] - 0.02 * h, 0.025 * h) if joints is None else ankle[2] - 0.01 * h
-        vv, f = box((0.15 * h, 0.055 * h, 0.05 * h), c)
-        mb.add(vv, f, "shoes")
-    if v.get("skirt"):
-        vv, f = cylinder(hip_w * 1.25, 0.2 * h, 12, "z", pelvis + [0, 0, -0.06 * h], radius2=hip_w * 1.3)
-        vv = xf(vv - pelvis, rot_y(lean), pelvis)
-        mb.add(vv, f, "pants", smooth=True)
-        # skirt flares to the knees
-        vv, f = cylinder(hip_w * 2.0, 0.03, 12, "z", pelvis + [0, 0, -0.17 * h], radius2=hip_w * 1.3)
-        mb.add(vv, f, "pants", smooth=True)
-    # arms: swing opposite to the legs, or reach for the handlebar
-    shoulder_c = pelvis + spine * 0.29 * h
-    for k, s in enumerate((1, -1)):
-        sh = shoulder_c + R @ np.array([0, s * sh_w * 0.98, 0])
-        if arms_target is None:
-            swing = -stride * 0.8 * s
-            hand = sh + (upper + fore * 0.97) * np.array([math.sin(swing), s * 0.06, -math.cos(swing)])
-            elbow, hand = _ik(sh, hand, upper, fore, [-1, 0, 0])
-        else:
-            elbow, hand = _ik(sh, arms_target[k], upper, fore, [0, s * 0.5, -1])
-        sleeve = "shirt" if v.get("long_sleeves") else "skin"
-        vv, f = tube(sh, elbow, 0.038 * h * build ** 0.5, 8, radius2=0.03 * h)
-        mb.add(vv, f, "shirt", smooth=True)
-        vv, f = tube(elbow, hand, 0.03 * h, 8, radius2=0.024 * h)
-        mb.add(vv, f, sleeve, smooth=True)
-        vv, f = ellipsoid((0.03 * h, 0.017 * h, 0.045 * h), hand, 8, 6)
-        mb.add(vv, f, "skin", smooth=True)
-    if v.get("bag") and joints is None:
-        vv, f = box((0.1 * h, 0.16 * h, 0.2 * h), pelvis + spine * 0.2 * h + [-0.085 * h, 0, 0])
-        mb.add(vv, f, "bag")
+        for verts, faces, region in body.posed_meshes(v, h, T):
+            mb.add(verts, faces, slots[region], smooth=True)
+    Rh, a, b = T["head"]
+    crown = (J["head"] + [0.01 * h, 0, 0.05 * h] - a) @ Rh.T + b
+    if v.get("helmet"):
+        vv, f = ellipsoid((0.068 * h, 0.056 * h, 0.05 * h), crown, 12, 6)
+        mb.add(vv, f, "paint", smooth=True)
+    if v.get("bag") and joints is None:  # a backpack: rounded, its front inside the back
+        hw, hz, r = 0.08 * h, 0.1 * h, 0.035 * h
+        vv, f = loft([(x * h, rounded_section(hw * k, -hz * k, hz * k, r, n_corner=3))
+                      for x, k in ((-0.05, 0.85), (-0.035, 1.0), (0.05, 1.0))])
+        mb.add(xf(vv, R, pelvis + R @ np.array([-0.085 * h, 0, 0.2 * h])), f, "bag", smooth=True)
 
 
 def person(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
@@ -665,7 +632,7 @@ def on_side_stand(mb: MeshBuilder, r: float) -> None:
 def part_box(cls: str, variant: dict, part: str = "all") -> tuple[np.ndarray, np.ndarray]:
     """(min, max) corners of the unfitted geometry of a two-wheeler's `part` ("all",
     "vehicle", "rider") in the builder's frame."""
-    mb = MeshBuilder()
+    mb = MeshBuilder(bounds_only=True)
     BUILDERS[cls](mb, {**variant, "part": part}, *variant["shape_dims"])
     v = mb.vertices
     return v.min(0), v.max(0)

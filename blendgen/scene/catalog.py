@@ -160,7 +160,7 @@ def shape_extent(cls: str, variant: dict) -> tuple[float, float, float]:
     from assets_procedural.meshkit import MeshBuilder
     from assets_procedural.shapes import BUILDERS, natural_extent
 
-    mb = MeshBuilder()
+    mb = MeshBuilder(bounds_only=True)
     BUILDERS[cls](mb, variant, *variant["shape_dims"])
     return tuple(round(float(x), 4) for x in natural_extent(mb))
 

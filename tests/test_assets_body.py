@@ -1,0 +1,137 @@
+"""People from MakeHuman's body (assets_procedural/body.py; NumPy only, no bpy)."""
+
+import time
+
+import numpy as np
+import pytest
+
+from assets_procedural import body
+from assets_procedural.meshkit import MeshBuilder
+from assets_procedural.shapes import figure
+from blendgen.scene.catalog import sample_variant
+
+
+def _regions(mb: MeshBuilder) -> dict[str, np.ndarray]:
+    """Vertices per material slot."""
+    v, mat = mb.vertices, np.asarray(mb.mat)
+    return {slot: v[np.unique(np.concatenate([mb.faces[i] for i in np.flatnonzero(mat == k)]))]
+            for k, slot in enumerate(mb.slots)}
+
+
+def test_body_data_is_consistent():
+    d = body.human()
+    w = d["body_w"].astype(float)
+    assert w.shape == (len(d["body_v"]), len(d["parts"]))
+    np.testing.assert_allclose(w.sum(1), 1.0, atol=2e-3)
+    assert d["body_v"][:, 2].min() == pytest.approx(0.0, abs=1e-6)
+    assert 1.6 < d["body_v"][:, 2].max() < 1.75
+    for g in d["garments"]:
+        assert d[g + "_f"].max() < len(d[g + "_v"])
+        np.testing.assert_allclose(d[g + "_w"].astype(float).sum(1), 1.0, atol=2e-3)
+    # left is +y, forward is +x: the left hip and the toes
+    J = dict(zip(d["joint_names"], d["joint_pos"]))
+    assert J["hip.L"][1] > 0 > J["hip.R"][1]
+    assert J["toe.L"][0] > J["ankle.L"][0] + 0.08
+
+
+def test_outfit_and_shape_follow_the_variant_and_are_reproducible():
+    v = {"seed": 7, "long_sleeves": True}
+    assert body.outfit(v) == body.outfit(dict(v)) and body.shape(v) == body.shape(dict(v))
+    assert body.outfit(v)[0] in body.TOPS_LONG
+    assert body.outfit({"seed": 7, "long_sleeves": False})[0] in body.TOPS_SHORT
+    assert body.outfit({"seed": 7, "skirt": True})[0] == body.SKIRT
+    assert body.sex({"seed": 1, "skirt": True}) == "female"
+    assert body.outfit({"seed": 7, "helmet": True})[2] is None
+    people = [{"seed": s} for s in range(400)]
+    assert 0.35 < np.mean([body.sex(p) == "female" for p in people]) < 0.55
+    assert {body.outfit(p)[2] for p in people} == {h for hs in body.HAIR.values() for h in hs}
+    assert body.shape({"seed": 19, "build": "broad"}) == {"male": 1.0, "male_maxweight": body.WEIGHT["broad"]}
+    assert body.shape({"seed": 0, "build": "slim"}) == {"female": 1.0, "female_minweight": -body.WEIGHT["slim"]}
+
+
+def test_shapes_change_the_body_where_expected():
+    """A man is broader at the shoulders than a woman, a heavier body deeper at the waist."""
+    d = body.human()
+    J = {g: dict(zip(d["joint_names"], body._shaped("joint_pos", {g: 1.0}))) for g in ("male", "female")}
+    for g in J:  # to one height
+        s = 1.0 / body._shaped("body_v", {g: 1.0})[:, 2].max()
+        J[g] = {k: p * s for k, p in J[g].items()}
+    assert J["male"]["shoulder.L"][1] > J["female"]["shoulder.L"][1] + 0.005
+    belly = (np.abs(d["body_v"][:, 2] - 1.0) < 0.02) & (np.abs(d["body_v"][:, 1]) < 0.12)
+
+    def depth(alpha):  # front to back at the waist
+        return np.ptp(body._shaped("body_v", alpha)[belly, 0])
+    assert depth({"male": 1, "male_maxweight": 1}) > depth({"male": 1}) + 0.02
+    assert depth({"male": 1}) > depth({"male": 1, "male_minweight": 1}) + 0.01
+
+
+def _person(h=1.75, **kw):
+    mb = MeshBuilder()
+    figure(mb, {"seed": 3, "height_m": h, "long_sleeves": True, **kw})
+    return mb
+
+
+def test_standing_person_stands_on_both_feet_at_its_height():
+    mb = _person()
+    v = mb.vertices
+    assert np.isfinite(v).all()
+    shoes = _regions(mb)["shoes"]
+    lo = v[:, 2].min()
+    for side in (shoes[:, 1] > 0, shoes[:, 1] < 0):  # both soles on the ground
+        assert shoes[side, 2].min() - lo < 0.01
+    # feet under the hips (the rest A-pose stands 0.4 m wide), arms down beside the body
+    assert np.ptp(shoes[:, 1]) < 0.42
+    assert np.ptp(v[:, 1]) < 0.62
+    body_h = v[:, 2].max() - lo
+    assert 1.75 < body_h < 1.75 + 0.08  # crown plus hair and shoe soles
+    # the garments hide what they cover: fewer skin faces than the whole body
+    assert len(_regions(mb)["skin"]) < 0.8 * len(body.human()["body_v"])
+
+
+def test_walking_person_swings_opposite_arm_and_leg():
+    mb = _person(stride_rad=0.35)
+    r = _regions(mb)
+    shoes = r["shoes"]
+    left, right = shoes[shoes[:, 1] > 0], shoes[shoes[:, 1] < 0]
+    assert left[:, 0].max() > right[:, 0].max() + 0.3  # the left foot ahead
+    skin = r["skin"]
+    low = skin[skin[:, 2] < 1.0]  # hands
+    assert low[low[:, 1] < 0, 0].max() > low[low[:, 1] > 0, 0].max() + 0.1  # the right hand ahead
+
+
+@pytest.mark.parametrize("cls", ["bicycle", "motorcycle"])
+def test_rider_holds_the_grips_and_sits_on_the_seat(cls):
+    rng = np.random.default_rng(5)
+    v, d = next((v, d) for v, d in iter(lambda: sample_variant(cls, rng), None) if "rider" in v)
+    calls = {}
+
+    def capture(mb, rv, joints=None):  # the joints the vehicle builder asks for
+        calls["joints"] = joints
+        return figure(mb, rv, joints)
+
+    import assets_procedural.shapes as shapes
+    orig = shapes.figure
+    shapes.figure = capture
+    try:
+        mb = MeshBuilder()
+        shapes.BUILDERS[cls](mb, {**v, "part": "rider"}, *v["shape_dims"])
+    finally:
+        shapes.figure = orig
+    j = calls["joints"]
+    skin = _regions(mb)["skin"]
+    for grip in j["hands"]:
+        assert np.linalg.norm(skin - grip, axis=1).min() < 0.06  # the palm on the grip
+    shoes = _regions(mb)["shoes"]
+    for foot in j["feet"]:
+        assert np.linalg.norm(shoes - foot, axis=1).min() < 0.08
+    assert np.isfinite(mb.vertices).all()
+
+
+def test_person_builds_fast_enough_for_planning():
+    """The planner sizes every sampled person from its geometry (`catalog.shape_extent`)."""
+    rng = np.random.default_rng(0)
+    variants = [sample_variant("person", rng)[0] for _ in range(5)]
+    t0 = time.perf_counter()
+    for v in variants:
+        figure(MeshBuilder(), v)
+    assert (time.perf_counter() - t0) / len(variants) < 0.1

@@ -44,9 +44,16 @@ def test_solid_right_edge_line_is_found_and_a_dashed_one_is_not():
     assert fa.edge_line_m is None, fa.decisions
 
 
-def test_vehicles_keep_off_the_shoulder_and_cyclists_ride_at_its_edge():
-    img, _ = freeway()
+def _still(centre_line=False):
+    img, _ = freeway(centre_line=centre_line)
     fa, mask = stage.analyse_frame(img, "f000000", CAM, EST, objects.load_detector())
+    assert (fa.centre_line_m is not None) == centre_line, fa.decisions
+    return fa, mask
+
+
+def test_vehicles_keep_off_the_shoulder_and_cyclists_ride_at_its_edge():
+    """A two-way road (a still of a divided one gets no cyclists: below)."""
+    fa, mask = _still(centre_line=True)
     assert (mask == road.ROAD)[400:, :150].mean() > 0.5  # the shoulder looks like road: only the line tells
     real = RealScene([RealFrame(fa, mask, None)], CAM)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-2.0, analysis=True))
@@ -127,6 +134,25 @@ def test_a_motorway_on_real_video_has_no_cyclists_pedestrians_parked_two_wheeler
     assert {"bicycle", "traffic light"} <= {o.cls for p in _drive(20.0, inject, 0) for o in p.objects}
     assert not {o.cls for p in _drive(25.0, inject, 0) for o in p.objects} & {"bicycle", "traffic light"}
     assert "bicycle" in {o.cls for p in _drive(25.0, inject, 0, centre_line=True) for o in p.objects}
+
+
+def test_a_still_of_a_divided_highway_has_no_cyclists_or_signals():
+    """A photo has no speed: no centre line and nothing to walk on beside the road (the Udacity
+    freeway photos) make the road a divided highway; with a centre line cyclists ride its edge."""
+    inject = Inject(objects_per_frame=(4, 4), classes={"car": 1, "bicycle": 1, "traffic light": 1},
+                    distance_m=(8, 30), sequences=False)
+    twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-2.0, analysis=True))
+    placed = {}
+    for centre_line in (False, True):
+        fa, mask = _still(centre_line)
+        real = RealScene([RealFrame(fa, mask, None)], CAM)
+        plans = [plan_sequence(twin, CAM, [("f000000", 0.0, np.asarray(fa.T_world_cam))], inject, seed, real=real)
+                 for seed in range(6)]
+        placed[centre_line] = {o.cls for p in plans for o in p[0].objects}
+        if not centre_line:
+            assert any("divided highway" in w for p in plans for w in unplaced_warnings(p, inject))
+    assert placed[False] == {"car"}, placed
+    assert {"bicycle", "traffic light"} <= placed[True], placed
 
 
 def test_class_weights_hold_for_long_vehicles():

@@ -346,9 +346,9 @@ class Planner:
         p = self._view_point(k)
         if cls in VEHICLES + ("bicycle",) and self.real is not None and self.real.has(k, ROAD):
             edge = cls == "bicycle" or (cls == "motorcycle" and "rider" not in variant)
-            kmh = self._motorway_kmh(k) if edge else 0.0
-            if kmh:
-                self.reason = f"the camera moves at {kmh:.0f} km/h: a motorway, no parking"
+            motorway = self._motorway(k) if edge else None
+            if motorway:
+                self.reason = f"{motorway}: no parking or cycling on its edge"
                 return None
             if cls == "bicycle" and "rider" not in variant and not self.real.has(k, BAND):
                 # the analysis found no pavement (a highway's verge, a barrier): no one walks
@@ -370,24 +370,31 @@ class Planner:
             return self._spawn_person(variant, dims, k, p)
         return self._spawn_signal(variant, dims, k)
 
-    def _motorway_kmh(self, k: int) -> float:
-        """The ego's speed at frame k (km/h) when it says the real road is a motorway, else 0: on
-        real video no map tells it, and cyclists, pedestrians, parked two-wheelers and traffic
-        lights have no place there. 80 km/h where the frame shows no centre line (a divided
+    def _motorway(self, k: int) -> str | None:
+        """Why frame k's real road is a motorway, or None: no map tells it on real footage, and
+        cyclists, pedestrians, parked two-wheelers and traffic lights have no place there.
+        On video the ego's speed: 80 km/h where the frame shows no centre line (a divided
         road: the freeway video runs 88-93 km/h), 100 km/h on a two-way road (a rural road at
-        90 km/h may carry cyclists)."""
-        if self.real is None or not self.inject.sequences:
-            return 0.0
-        v = float(self.ego.speed[k])
+        90 km/h may carry cyclists). A still has no speed: no centre line and nothing to walk
+        on beside the road (the Udacity freeway photos) make it a divided highway; a two-way
+        road without a centre line or pavement then loses its cyclists, the cautious side."""
+        if self.real is None:
+            return None
         divided = self.real.centre_line(k) is None  # all traffic runs the ego's way
-        return v * 3.6 if v > MOTORWAY_MPS or (divided and v > MOTORWAY_DIVIDED_MPS) else 0.0
+        if self.inject.sequences:
+            v = float(self.ego.speed[k])
+            if v > MOTORWAY_MPS or (divided and v > MOTORWAY_DIVIDED_MPS):
+                return f"the camera moves at {v * 3.6:.0f} km/h: a motorway"
+            return None
+        if divided and self.real.has(k, ROAD) and not self.real.has(k, BAND):
+            return "no centre line and nothing to walk on beside the road: a divided highway"
+        return None
 
     def _closed(self, cls: str, k: int, rejected: dict) -> bool:
-        kmh = self._motorway_kmh(k) if cls in MOTORWAY_CLOSED else 0.0
-        if kmh:
-            rejected[cls, f"the camera moves at {kmh:.0f} km/h: a motorway, without cyclists, pedestrians "
-                          "or traffic lights"] = 1
-        return bool(kmh)
+        motorway = self._motorway(k) if cls in MOTORWAY_CLOSED else None
+        if motorway:
+            rejected[cls, f"{motorway}, without cyclists, pedestrians or traffic lights"] = 1
+        return bool(motorway)
 
     def _spawn_on_road(self, cls, variant, dims, k, p):
         lane = self.twin.lane_at(p[0], p[1])

@@ -33,8 +33,9 @@ from blendgen.scene.planner import plan_sequence  # noqa: E402
 from blendgen.scene.real_scene import load_real_scene  # noqa: E402
 
 
-def shares(job_path: Path, seeds: int) -> tuple[dict, dict, float]:
-    """(weight share, placed-track share, median plan seconds) per class of one finished job."""
+def shares(job_path: Path, seeds: int) -> tuple[dict, dict, float, float]:
+    """(weight share, placed-track share, median plan seconds, objects per frame) per class of
+    one finished job (objects: riders not counted)."""
     job = load_job(job_path)
     runner = Runner(job, progress=False)
     if not runner.folder.plan.exists():
@@ -44,16 +45,18 @@ def shares(job_path: Path, seeds: int) -> tuple[dict, dict, float]:
     rec = read_recording(job.recording_dir)
     camera = rec.camera.scaled(*(job.render.resolution or (rec.camera.width, rec.camera.height)))
     real = load_real_scene(runner.folder.analysis, [p[0] for p in poses], camera) if job.twin_path is None else None
-    tracks, secs = set(), []
+    tracks, secs, per_frame = set(), [], []
     for seed in range(seeds):
         t0 = time.perf_counter()
         out = plan_sequence(runner.twin, camera, poses, job.inject, seed, real=real)
         secs.append(time.perf_counter() - t0)
         tracks |= {(seed, o.id, o.cls) for p in out for o in p.objects if "rides" not in o.variant}
+        per_frame += [sum("rides" not in o.variant for o in p.objects) for p in out]
     placed = Counter(cls for _, _, cls in tracks)
     w = {c: v for c, v in job.inject.classes.items() if v > 0}
     total_w, total_p = sum(w.values()), max(sum(placed.values()), 1)
-    return ({c: v / total_w for c, v in w.items()}, {c: placed[c] / total_p for c in w}, float(np.median(secs)))
+    return ({c: v / total_w for c, v in w.items()}, {c: placed[c] / total_p for c in w}, float(np.median(secs)),
+            float(np.mean(per_frame)))
 
 
 def main(argv=None):
@@ -62,11 +65,12 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--md", type=Path, default=None)
     a = ap.parse_args(argv)
-    rows, lines = [], ["| job | class | weight share | placed share | plan s (median) |", "|---|---|---:|---:|---:|"]
+    rows, lines = [], ["| job | class | weight share | placed share | plan s (median) | objects per frame |",
+                       "|---|---|---:|---:|---:|---:|"]
     for j in a.jobs:
-        w, p, s = shares(j, a.seeds)
+        w, p, s, n = shares(j, a.seeds)
         for c in w:
-            lines.append(f"| {j.stem} | {c} | {w[c]:.2f} | {p[c]:.2f} | {s:.2f} |")
+            lines.append(f"| {j.stem} | {c} | {w[c]:.2f} | {p[c]:.2f} | {s:.2f} | {n:.2f} |")
         rows.append((j.stem, w, p))
     print("\n".join(lines))
     import matplotlib

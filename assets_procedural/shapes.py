@@ -385,11 +385,11 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
     else:
         for verts, faces, region in body.posed_meshes(v, h, T):
             mb.add(verts, faces, slots[region], smooth=True)
-    Rh, a, b = T["head"]
-    crown = (J["head"] + [0.01 * h, 0, 0.05 * h] - a) @ Rh.T + b
-    if v.get("helmet"):
-        vv, f = ellipsoid((0.068 * h, 0.056 * h, 0.05 * h), crown, 12, 6)
-        mb.add(vv, f, "paint", smooth=True)
+    if v.get("helmet"):  # a shell 2-3 cm round the skull (its centre 0.057 h above the head joint)
+        Rh, a, b = T["head"]
+        skull = (J["head"] + [0.021 * h, 0, 0.057 * h] - a) @ Rh.T + b
+        vv, f = ellipsoid((0.076 * h, 0.066 * h, 0.052 * h), skull, 16, 8)
+        mb.add(xf(vv - skull, Rh, skull), f, "paint", smooth=True)
     if v.get("bag") and joints is None:  # a backpack: rounded, its front inside the back
         hw, hz, r = 0.08 * h, 0.1 * h, 0.035 * h
         vv, f = loft([(x * h, rounded_section(hw * k, -hz * k, hz * k, r, n_corner=3))

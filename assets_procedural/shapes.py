@@ -111,7 +111,11 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         vv, f = box((2 * ax - 2 * r - 0.2, 0.02, 0.09), (0, s * (hw + 0.004), zb + 0.05))
         mb.add(vv, f, "plastic")
     for x, sgn in ((L / 2 - 0.04, 1), (-L / 2 + 0.04, -1)):  # the bumpers stand 2 cm proud of the body
-        vv, f = box((0.12, hw * 1.92, 0.15), (x, 0, zb + 0.07))
+        # body-coloured covers as narrow as the rounded ends, over a black valance (a full-width
+        # black slab read as a toy's bumper on the real photos)
+        vv, f = box((0.12, hw * 1.74, 0.2), (x, 0, zb + 0.1))
+        mb.add(vv, f, "paint")
+        vv, f = box((0.118, hw * 1.6, 0.07), (x + sgn * 0.001, 0, zb + 0.02))
         mb.add(vv, f, "plastic")
         vv, f = box((0.02, 0.52, 0.12), (x + sgn * 0.045, 0, zb + 0.27))  # number plate
         mb.add(vv, f, "plate")

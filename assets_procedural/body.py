@@ -1,8 +1,9 @@
 """People from MakeHuman's CC0 body (NumPy only): posed by linear blend skinning.
 
 `assets_procedural/data/human.npz` (built by `tools/make_human.py`) holds the body in its
-rest A-pose, its skin weights on 15 parts, the joints they turn about and a few fitted
-garments (suits split into top and bottom, shoes, hair). A pose is given as target joint
+rest A-pose, its skin weights on 15 parts, the joints they turn about, a few fitted garments
+(suits split into top and bottom, shoes, hair) and offsets of all of these that shape a man or
+a woman of more or less weight (`shape`). A pose is given as target joint
 positions (hips, knees, ankles, shoulders, elbows, wrists) plus the torso's forward lean;
 each limb part turns by the smallest rotation that carries its rest segment onto the target
 one, and every vertex follows its parts' transforms blended by its weights. The body replaced

@@ -341,6 +341,7 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
     seg = {j: float(np.linalg.norm(J[b + ".L"] - J[a + ".L"]))
            for j, a, b in (("thigh", "hip", "knee"), ("shin", "knee", "ankle"),
                            ("upper", "shoulder", "elbow"), ("fore", "elbow", "wrist"))}
+    arm = seg["upper"] + seg["fore"]
     stride = float(v.get("stride_rad", 0.0))
     target = {}
     if joints is None:
@@ -363,7 +364,7 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
         hands = [np.asarray(p, float) for p in joints["hands"]]
         # lean further when the grips are out of reach (the seats and bars were laid out
         # for longer arms than the body's)
-        reach = 0.97 * (seg["upper"] + seg["fore"]) + 0.045 * h
+        reach = 0.97 * arm + 0.045 * h
         while lean < 1.2 and max(np.linalg.norm(g - pelvis - rot_y(lean) @ (J["shoulder." + s] - J["pelvis"]))
                                  for g, s in zip(hands, "LR")) > reach:
             lean += 0.05
@@ -372,10 +373,9 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
     R = rot_y(lean)
     for k, (s, sign) in enumerate((("L", 1), ("R", -1))):
         sh = pelvis + R @ (J["shoulder." + s] - J["pelvis"])
-        reach = seg["upper"] + seg["fore"]
-        if hands is None:  # arms swing opposite to the legs
+        if hands is None:  # arms swing opposite to the legs, 9 deg off the body
             swing = -stride * 0.8 * sign
-            wrist = sh + reach * 0.95 * np.array([math.sin(swing), sign * 0.15, -math.cos(swing)])
+            wrist = sh + arm * 0.95 * np.array([math.sin(swing), sign * 0.15, -math.cos(swing)])
             bend = [-1, 0, 0]
         else:  # the palm on the grip: the wrist a hand's breadth short of it
             grip = hands[k]

@@ -24,7 +24,7 @@ TOPS_LONG = ("male_casualsuit02", "male_casualsuit03", "male_casualsuit05")  # s
 TOPS_SHORT = ("male_casualsuit04", "male_casualsuit06", "female_casualsuit01")  # t-shirts
 SKIRT = "female_elegantsuit01"
 SHOES = ("shoes01", "shoes05")
-HAIR = {"female": ("bob02", "ponytail01", "short02"), "male": ("short02", "short04")}
+HAIR = {"female": ("bob02", "ponytail01", "long01", "short02"), "male": ("short01", "short02", "short03", "short04")}
 WEIGHT = {"slim": -0.6, "medium": 0.2, "broad": 0.8}  # MakeHuman's min (-1) .. max (+1) weight
 
 

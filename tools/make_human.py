@@ -42,7 +42,8 @@ GARMENTS = {
     "clothes/male_casualsuit06": "suit", "clothes/female_casualsuit01": "suit",
     "clothes/female_elegantsuit01": "suit",
     "clothes/shoes01": "shoes", "clothes/shoes05": "shoes",
-    "hair/short02": "hair", "hair/short04": "hair", "hair/bob02": "hair", "hair/ponytail01": "hair",
+    "hair/short01": "hair", "hair/short02": "hair", "hair/short03": "hair", "hair/short04": "hair",
+    "hair/bob02": "hair", "hair/ponytail01": "hair", "hair/long01": "hair",
 }
 # joints a pose needs: name -> (MakeHuman bone, "head" | "tail")
 JOINTS = {"pelvis": ("root", "tail"), "neck": ("neck01", "head"), "head": ("head", "head"),

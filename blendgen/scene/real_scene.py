@@ -45,6 +45,7 @@ class RealScene:
     def __init__(self, frames: list[RealFrame | None], camera: Camera):
         self.frames = frames
         self.camera = camera
+        self._has: dict[tuple[int, int], bool] = {}  # the planner asks on every spawn
 
     def _pixels(self, rf: RealFrame, T, pts3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Analysis-resolution pixels of world points and whether each lies inside the image."""
@@ -114,8 +115,10 @@ class RealScene:
 
     def has(self, k: int, value: int) -> bool:
         """Whether frame k has road (ROAD) or band (BAND) pixels."""
-        rf = self.frames[k] if k < len(self.frames) else None
-        return rf is not None and rf.road is not None and bool((rf.road[::4, ::4] == value).any())
+        if (k, value) not in self._has:
+            rf = self.frames[k] if k < len(self.frames) else None
+            self._has[k, value] = rf is not None and rf.road is not None and bool((rf.road[::4, ::4] == value).any())
+        return self._has[k, value]
 
     def kerb_side(self, k: int, T, xy: np.ndarray) -> np.ndarray:
         """Whether ground points (N, 2) lie on their traffic's kerb side: right of the camera,

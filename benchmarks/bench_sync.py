@@ -225,7 +225,9 @@ def comma(quick: bool):
             # blendgen's prior for the mount: the camera's axis made level, up from gravity at the start
             from scipy.spatial.transform import Rotation  # as_euler("xyz") = GTSAM's Rot3.rpy()
 
-            from blendgen.sync.calibration import DEFAULT_MOUNT_STD_DEG, nominal_vehicle_frame
+            from blendgen.geometry import make_pose
+            from blendgen.sync.calibration import (DEFAULT_MOUNT_STD_DEG, camera_mount_angles, fuse_camera_yaw,
+                                                   nominal_vehicle_frame)
 
             R_vb0 = nominal_vehicle_frame(rec.T_cam_imu[:3, :3].T @ [0.0, 0.0, 1.0], T0[:3, :3].T @ [0.0, 0.0, 1.0]).T
             mount_info = {}
@@ -248,6 +250,17 @@ def comma(quick: bool):
                 cpu = time.process_time() - c0
                 peer = SyncResult([(f, t_, T) for (f, t_, _), T in zip(res.poses, est)], res.cov, res.quality)
                 out[name] = (cpu, comma_errors(peer, rec, georef))
+            # the camera's yaw in the car measured on the preview frame (calib.yaml vehicle:), fused
+            # with the peer's own mount as blendgen does (the mount's yaw std: blendgen's)
+            R_bc = rec.T_cam_imu[:3, :3].T
+            R_vb = Rotation.from_euler("xyz", mount_info["mount_rpy_deg"], degrees=True).as_matrix()
+            pcal = {"camera_mount_rpy_deg": camera_mount_angles(R_vb.T, R_bc).tolist(),
+                    "mount_std_deg": cal_o["mount_std_deg"], "imu_to_vehicle_R": R_vb.tolist()}
+            C = fuse_camera_yaw(pcal, read_priors(rec), R_bc, with_vo=False)
+            if C is not None:
+                poses = [(f, t_, T @ make_pose(C, np.zeros(3))) for f, t_, T in peer.poses]
+                out[name + " + the preview's camera yaw"] = (cpu, comma_errors(
+                    SyncResult(poses, res.cov, res.quality), rec, georef))
             ours = Rotation.from_matrix(cal["imu_to_vehicle_R"]).as_euler("xyz", degrees=True)
             print(f"  comma2k19 mount (roll, pitch, yaw of R_vehicle_imu, deg): GTSAM's own "
                   f"{np.round(mount_info['mount_rpy_deg'], 2).tolist()}, blendgen's {np.round(ours, 2).tolist()}")

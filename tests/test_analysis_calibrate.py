@@ -9,6 +9,8 @@ from blendgen.errors import UserError
 from blendgen.job.schema import parse_job
 from test_analysis_camera import line_scene, write_images_recording
 from test_analysis_egomotion import drive, write_drive
+from test_analysis_lane_direction import CAM as LANE_CAM
+from test_analysis_lane_direction import road_frame
 
 
 def test_calibrate_stills_writes_the_estimate(tmp_path, capsys):
@@ -34,6 +36,30 @@ def test_calibrate_video_moves_over_the_ground(tmp_path, capsys):
     xs = [f["position_m"][0] for f in doc["frames"]]
     assert np.allclose(np.diff(xs), 1.0, atol=0.05), xs
     assert "travelled" in capsys.readouterr().out
+
+
+def test_calibrate_gives_the_camera_yaw_from_lane_markings(tmp_path, capsys):
+    """Road photos taken with the camera 1.2 deg left of the lane (pitch 2.5 deg): the lane
+    markings' yaw per frame and over the recording, for calib.yaml vehicle.camera_yaw_deg."""
+    import cv2
+
+    from blendgen.recording import folder
+
+    root = tmp_path / "rec"
+    root.mkdir()
+    names = []
+    for i in range(3):
+        names.append(f"{i:03d}.png")
+        cv2.imwrite(str(root / names[-1]), road_frame(1.2, 2.5, seed=i))
+    cv2.imwrite(str(root / "003.png"), np.full((LANE_CAM.height, LANE_CAM.width, 3), 90, np.uint8))
+    folder.write_frames_csv(root, np.arange(4, dtype=float), names + ["003.png"])
+    folder.write_calib(root, LANE_CAM, None, None, extra={"import": {"format": "images"}})
+    assert main(["calibrate", str(root), "--quiet"]) == 0
+    assert "lane markings in 3 frames: camera yaw in the car +1.2" in capsys.readouterr().out
+    doc = yaml.safe_load((root / "ground_plane.yaml").read_text())
+    assert doc["summary"]["lane_yaw_deg"] == pytest.approx(1.2, abs=0.05) and doc["summary"]["lane_yaw_frames"] == 3
+    assert doc["frames"][0]["lane_direction"]["yaw_deg"] == pytest.approx(1.2, abs=0.05)
+    assert "lane marking" in doc["frames"][3]["lane_direction"]["reason"]
 
 
 @pytest.mark.parametrize("args,msg", [(["--step", "0"], "--step"), (["--pitch", "99"], "--pitch"),

@@ -134,6 +134,7 @@ def test_udacity_dashcam_horizon_is_the_lane_vanishing_point():
     """Calibrate the real dashcam from its chessboards, then the horizon estimated on a straight,
     flat highway must pass through the lane lines' vanishing point."""
     from blendgen.analysis.hood import hood_in_still
+    from blendgen.analysis.lane_direction import lane_direction
 
     root = REAL / "udacity_lane_camera"
     if not (root / "camera_cal").is_dir():
@@ -163,6 +164,9 @@ def test_udacity_dashcam_horizon_is_the_lane_vanishing_point():
         lh = np.linalg.inv(cam.K).T @ U
         v = -(lh[0] * vp[0] + lh[2]) / lh[1]
         assert abs(math.degrees(math.atan((v - vp[1]) / cam.fy))) < 0.5, (name, v, vp)
+        # the lane markings' vanishing point found without the corridors (analysis.lane_direction)
+        ld = lane_direction(img, cam, hood=hood_in_still(img)[0])
+        assert ld.vp is not None and np.hypot(*(np.array(ld.vp) - vp)) < 2.0, (name, ld.summary(), vp)
 
 
 def test_imu_gravity_gives_pitch_and_roll_without_lines(tmp_path):

@@ -35,6 +35,25 @@ def test_streams(rec):
     assert len(rec.speed) == 4974 and 7.9 < rec.speed[:, 1].min() and rec.speed[:, 1].max() < 20.0
 
 
+def test_camera_yaw_from_the_preview_frame(rec):
+    """preview.png's lane markings give the camera's yaw in the car (the ground truth's device
+    points 0.72-1.16 deg left of its travel); T_cam_imu is the nominal device frame."""
+    v = rec.extra["vehicle"]
+    assert 0.5 < v["camera_yaw_deg"] < 1.1 and 0.3 <= v["camera_yaw_std_deg"] < 0.45
+    assert v["T_cam_imu_yaw_std_deg"] == 1.0
+    assert any("lane markings in preview.png" in n for n in rec.extra["import"]["notes"])
+
+
+def test_without_preview_the_note_says_why(tmp_path):
+    if not SEG.exists():
+        pytest.skip("needs ../shared/data/real/comma2k19_example1_segment40")
+    seg = tmp_path / "seg"
+    shutil.copytree(SEG, seg, ignore=shutil.ignore_patterns("preview.png", "raw_can", "radar"))
+    r = read_recording(import_recording("comma2k19", seg, tmp_path / "rec", show_progress=False))
+    assert "vehicle" not in r.extra
+    assert any("preview.png is missing" in n for n in r.extra["import"]["notes"])
+
+
 def test_groundtruth_frame(rec):
     from pymap3d import geodetic2enu
 

@@ -4,7 +4,9 @@ Runs the hood search, the camera estimate (pitch, roll, height, focal length per
 blendgen.analysis.camera) and, for a video, the ego motion over the ground plane; prints a
 summary and writes RECORDING/ground_plane.yaml (atomically): a `summary` and one entry per
 frame (t, height_m, pitch_deg, roll_deg, yaw_deg, fx, confidence, source, reasons,
-horizon, hood, and for a video the position over the ground).
+horizon, hood, lane direction, and for a video the position over the ground). The lane
+markings' yaw (analysis.lane_direction) over the frames is the camera's yaw in the car that
+sync takes from calib.yaml `vehicle.camera_yaw_deg` when it has no video to see it.
 """
 
 from __future__ import annotations
@@ -63,14 +65,17 @@ def _car_boxes(rec, frame_ids, model: Path, progress: bool) -> dict[str, list]:
 
 def calibrate(rec, frame_ids, user, *, car_boxes=None, progress: bool = False) -> dict:
     """The document written to ground_plane.yaml."""
-    from blendgen.analysis.camera import estimate_cameras, frame_indices, is_sequence
+    from blendgen.analysis.camera import estimate_cameras, frame_indices, is_sequence, read_frames
     from blendgen.analysis.egomotion import ground_track
     from blendgen.analysis.hood import find_hood
+    from blendgen.analysis.lane_direction import lane_direction
 
     t0 = time.process_time()
     hoods = find_hood(rec, frame_ids, progress=progress)
     cams = estimate_cameras(rec, frame_ids, user=user, car_boxes=car_boxes, hoods=hoods, progress=progress)
     track = ground_track(rec, frame_ids, cams, hoods=hoods, progress=progress) if is_sequence(rec) else None
+    lanes = {fid: lane_direction(im, rec.camera, hood=hoods.get(fid)) for fid, im in
+             read_frames(rec, frame_ids, progress=progress, desc="lane markings") if im is not None}
     cpu = time.process_time() - t0
     frames = []
     times = dict(zip(frame_ids, rec.frames_t[frame_indices(rec, frame_ids)]))
@@ -82,7 +87,8 @@ def calibrate(rec, frame_ids, user, *, car_boxes=None, progress: bool = False) -
                "fx": None if est.fx is None else round(est.fx, 1), "confidence": round(est.confidence, 3),
                "source": dict(est.source), "reasons": list(est.reasons),
                "horizon": None if horizon is None else [[round(a, 1) for a in p] for p in horizon],
-               "hood": None if hoods.get(fid) is None else [[round(a, 1) for a in p] for p in hoods[fid]]}
+               "hood": None if hoods.get(fid) is None else [[round(a, 1) for a in p] for p in hoods[fid]],
+               "lane_direction": lanes[fid].summary() if fid in lanes else {"reason": "unreadable frame"}}
         if track is not None:
             T = track.poses[fid]
             row["position_m"] = [round(float(T[0, 3]), 3), round(float(T[1, 3]), 3)]
@@ -101,6 +107,16 @@ def calibrate(rec, frame_ids, user, *, car_boxes=None, progress: bool = False) -
                "fallback_frames": sum(1 for e in est if e.reasons),
                "hood_frames": sum(1 for f in frame_ids if hoods.get(f) is not None),
                "cpu_s_per_frame": round(cpu / max(len(frame_ids), 1), 4)}
+    yaws = np.array([r.yaw_deg for r in lanes.values() if r.yaw_deg is not None])
+    if len(yaws):
+        # the car's heading in its lane wanders between frames: their spread is the error
+        # (one frame: its fit and 0.3 deg of lane keeping, as the comma2k19 importer states)
+        one = next(r for r in lanes.values() if r.yaw_deg is not None)
+        std = (1.4826 * float(np.median(np.abs(yaws - np.median(yaws)))) / np.sqrt(len(yaws)) if len(yaws) >= 5
+               else float(np.hypot(one.yaw_std_deg, 0.3)) / np.sqrt(len(yaws)))
+        summary["lane_yaw_deg"] = round(float(np.median(yaws)), 3)
+        summary["lane_yaw_std_deg"] = round(float(max(std, 0.1)), 3)
+    summary["lane_yaw_frames"] = int(len(yaws))
     if track is not None:
         last = track.poses[frame_ids[-1]]
         summary["travelled_m"] = round(float(np.hypot(last[0, 3], last[1, 3])), 2)
@@ -131,5 +147,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"  {q:7s} from " + ", ".join(f"{k} x{v}" for k, v in c.items()))
     print(f"  hood in {s['hood_frames']} frames; {s['fallback_frames']} frames fell back (reasons in the file)"
           + (f"; ego car travelled {s['travelled_m']} m" if "travelled_m" in s else ""))
+    if "lane_yaw_deg" in s:
+        print(f"  lane markings in {s['lane_yaw_frames']} frames: camera yaw in the car {s['lane_yaw_deg']:+.2f} "
+              f"+- {s['lane_yaw_std_deg']:.2f} deg (calib.yaml vehicle.camera_yaw_deg for sync without video)")
+    else:
+        print("  no frame with lane markings on both sides: no camera yaw in the car")
     print(f"  {s['cpu_s_per_frame'] * 1000:.0f} ms CPU per frame; wrote {out}")
     return 0

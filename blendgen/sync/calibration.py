@@ -9,6 +9,11 @@ calib.yaml (all optional; the defaults below are the priors when a key is absent
       speed_scale_std: 0.02            # prior std of the odometer's scale (tyre radius), estimated
       speed_latency_s: auto            # a reading stamped t is the speed at t - latency; `auto`:
                                        # estimated (prior 0 +- 0.2 s; blendgen.sync.odometer)
+      camera_yaw_deg: 0.77             # the camera's yaw in the vehicle (> 0 looks left), measured
+                                       # without the IMU: the lane markings' vanishing point in a
+                                       # frame (blendgen.analysis.lane_direction), a calibration target
+      camera_yaw_std_deg: 0.5          # its 1-sigma
+      T_cam_imu_yaw_std_deg: 0.0       # how well T_cam_imu's yaw is known (0: calibrated)
     gnss:
       latency_s: 0.0                   # a fix stamped t is the antenna's position at t - latency;
                                        # `auto`: estimated (profile likelihood over 0..latency_max_s)
@@ -55,6 +60,9 @@ class CalibPriors:
     speed_scale_std: float = 0.02  # prior std of the odometer's scale factor
     speed_latency_s: float = 0.0
     speed_latency_auto: bool = True
+    camera_yaw_deg: float | None = None  # the camera's yaw in the vehicle, measured without the IMU
+    camera_yaw_std_deg: float = 0.5
+    t_cam_imu_yaw_std_deg: float = 0.0
 
 
 def _vec(section: dict, key: str, n: int, default, where: str) -> np.ndarray:
@@ -117,10 +125,21 @@ def read_priors(rec) -> CalibPriors:
     sl = 0.0 if sl_auto else float(_vec(veh, "speed_latency_s", 1, 0.0, where + " vehicle")[0])
     if abs(sl) > 2.0:
         raise UserError(f"speed_latency_s: expected seconds in [-2, 2], got {sl}", where=where + " vehicle")
+    cam_yaw = None
+    if veh.get("camera_yaw_deg") is not None:
+        cam_yaw = float(_vec(veh, "camera_yaw_deg", 1, 0.0, where + " vehicle")[0])
+        if abs(cam_yaw) > 45.0:
+            raise UserError(f"camera_yaw_deg: expected degrees in [-45, 45], got {cam_yaw}", where=where + " vehicle")
+    yaw_std = _vec(veh, "camera_yaw_std_deg", 1, 0.5, where + " vehicle")[0]
+    t_std = _vec(veh, "T_cam_imu_yaw_std_deg", 1, 0.0, where + " vehicle")[0]
+    if not (0.0 < yaw_std <= 45.0 and 0.0 <= t_std <= 45.0):
+        raise UserError(f"camera_yaw_std_deg / T_cam_imu_yaw_std_deg: expected degrees in (0, 45] and [0, 45], "
+                        f"got {yaw_std} / {t_std}", where=where + " vehicle")
     return CalibPriors(mount, float(lat), float(lat_std), lever, float(lever_std), cam_h,
                        latency_auto=auto, latency_max_s=float(lat_max), h_std_scale=h_scale, h_std_auto=h_auto,
                        speed_std_mps=float(sp_std), speed_scale_std=float(sp_scale), speed_latency_s=sl,
-                       speed_latency_auto=sl_auto)
+                       speed_latency_auto=sl_auto, camera_yaw_deg=cam_yaw, camera_yaw_std_deg=float(yaw_std),
+                       t_cam_imu_yaw_std_deg=float(t_std))
 
 
 def road_vehicle(rec) -> bool:
@@ -154,12 +173,44 @@ def camera_mount_angles(R_bv: np.ndarray, R_bc: np.ndarray) -> np.ndarray:
     return np.degrees([roll, pitch, yaw])
 
 
+def fuse_camera_yaw(cal: dict, pri: CalibPriors, R_bc: np.ndarray, with_vo: bool) -> np.ndarray | None:
+    """calib.yaml `vehicle.camera_yaw_deg`: the camera's yaw in the vehicle measured without
+    the IMU, fused with the one the estimated IMU mount and T_cam_imu give. Without video,
+    nothing in sync sees the camera itself, so the latter is uncertain by the mount's yaw and
+    T_cam_imu's (`T_cam_imu_yaw_std_deg`); with VO the camera's direction of travel was seen,
+    and only the mount's counts. The difference turns the camera about the vehicle's up axis
+    (a correction of T_cam_imu's yaw; the IMU's own orientation, used by the filter, stays).
+    Returns C to right-multiply every camera rotation with (None: nothing measured), and
+    records both yaws and the result in `cal`."""
+    if pri.camera_yaw_deg is None:
+        return None
+    y_chain, s_mount = cal["camera_mount_rpy_deg"][2], cal["mount_std_deg"][2]
+    var_chain = s_mount**2 + (0.0 if with_vo else pri.t_cam_imu_yaw_std_deg**2)
+    var_meas = pri.camera_yaw_std_deg**2
+    y = y_chain + var_chain / (var_chain + var_meas) * (pri.camera_yaw_deg - y_chain)
+    R_bv = np.asarray(cal["imu_to_vehicle_R"]).T
+    a = np.radians(y - y_chain)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    C = R_bc.T @ R_bv @ Rz @ R_bv.T @ R_bc
+    cal["camera_yaw"] = {
+        "measured_deg": round(pri.camera_yaw_deg, 3), "measured_std_deg": round(pri.camera_yaw_std_deg, 3),
+        "imu_chain_deg": round(y_chain, 3), "imu_chain_std_deg": round(float(np.sqrt(var_chain)), 3),
+        "yaw_deg": round(float(y), 3),
+        "yaw_std_deg": round(float(np.sqrt(var_chain * var_meas / (var_chain + var_meas))), 3)}
+    cal["camera_mount_rpy_deg"] = np.round(camera_mount_angles(R_bv, R_bc @ C), 3).tolist()
+    return C
+
+
 def describe(cal: dict) -> str:
     """One line for the command: the estimated mount, latency and lever arm with 1-sigma."""
     r, p, y = cal["camera_mount_rpy_deg"]
     sr, sp, sy = cal["mount_std_deg"]
-    out = (f"camera in vehicle: pitch {p:+.2f} +- {sp:.2f} deg (down), yaw {y:+.2f} +- {sy:.2f} deg (left), "
-           f"roll {r:+.2f} +- {sr:.2f} deg")
+    cy = cal.get("camera_yaw")
+    yaw = (f"yaw {y:+.2f} +- {sy:.2f} deg (left)" if cy is None else
+           f"yaw {cy['yaw_deg']:+.2f} +- {cy['yaw_std_deg']:.2f} deg (left; measured {cy['measured_deg']:+.2f} +- "
+           f"{cy['measured_std_deg']:.2f}, IMU mount and T_cam_imu {cy['imu_chain_deg']:+.2f} +- "
+           f"{cy['imu_chain_std_deg']:.2f})")
+    out = f"camera in vehicle: pitch {p:+.2f} +- {sp:.2f} deg (down), {yaw}, roll {r:+.2f} +- {sr:.2f} deg"
     tau, st = cal["gnss_latency_s"], cal["gnss_latency_std_s"]
     how = f" ({cal['gnss_latency_method']})" if cal.get("gnss_latency_method") else ""
     if st is None:  # estimated, but the profile was flat

@@ -4,10 +4,12 @@ Read:  processed_log/IMU/{gyro,accelerometer}/{t,value}  (device frame: x forwar
        processed_log/GNSS/live_gnss_ublox (or _qcom)/{t,value}: lat, lon, alt, unix time [ms], (unused), accuracy [m]
        processed_log/CAN/speed/{t,value}: the car's speed from its CAN bus (m/s), when present
        global_pose/frame_{times,positions,orientations}: ECEF position and R_ecef_device quaternion (w,x,y,z)
+       preview.png: one frame of the road camera, when present
 Written: imu.csv in the device frame, gnss.csv (lat/lon/alt, heading, h_std), speed.csv, groundtruth.csv as
 T_world_cam in a local ENU frame about the first ground-truth position (recorded in calib.yaml as
 import.groundtruth_origin), calib.yaml with the openpilot road camera (EON, 1164x874, f=910) and
-T_cam_imu = device -> OpenCV camera axes. This example segment has no video, so frames.csv is absent.
+T_cam_imu = device -> OpenCV camera axes. This example segment has no video, so frames.csv is absent;
+the camera's yaw in the car comes from the lane markings in preview.png (`vehicle.camera_yaw_deg`).
 """
 
 from __future__ import annotations
@@ -131,6 +133,10 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
         origin = float(np.median(gv[:, 3] / 1000.0 - tn))
         extra["time_origin_utc"] = datetime.fromtimestamp(origin, tz=timezone.utc).isoformat()
     rate = float(1.0 / np.median(np.diff(tg))) if len(tg) > 1 else 100.0
+    vehicle, why = _camera_yaw(seg / "preview.png")
+    if vehicle:
+        extra["vehicle"] = vehicle
+    notes.append(why)
     meta = common.import_meta(
         "comma2k19", seg, camera="openpilot EON road camera defaults (1164x874, f=910 px)",
         T_cam_imu="device frame (x forward, y right, z down) rotated to camera axes; lever arm 0",
@@ -143,6 +149,33 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
     folder.write_calib(dst, EON_CAMERA, make_pose(R_CAM_DEVICE, np.zeros(3)), ImuNoise(update_rate=rate),
                        extra=extra)
     return dst
+
+
+# the car's heading within its lane at the moment of a frame (lane keeping wanders by this much)
+LANE_HEADING_STD_DEG = 0.3
+# T_cam_imu is the nominal device frame: a phone's IMU chip sits within about a degree of it
+T_CAM_IMU_YAW_STD_DEG = 1.0
+
+
+def _camera_yaw(preview: Path) -> tuple[dict, str]:
+    """calib.yaml `vehicle:` keys with the camera's yaw in the car from the lane markings in the
+    segment's preview frame (blendgen.analysis.lane_direction), and a note for the import."""
+    import cv2
+
+    from blendgen.analysis.hood import hood_in_still
+    from blendgen.analysis.lane_direction import lane_direction
+
+    img = cv2.imread(str(preview)) if preview.is_file() else None
+    if img is None:
+        return {}, f"no camera yaw in the car: {preview.name} is missing or unreadable"
+    r = lane_direction(img, EON_CAMERA, hood=hood_in_still(img)[0])
+    if r.yaw_deg is None:
+        return {}, f"no camera yaw in the car from {preview.name}: {r.reason}"
+    std = float(np.hypot(r.yaw_std_deg, LANE_HEADING_STD_DEG))
+    return ({"camera_yaw_deg": round(r.yaw_deg, 3), "camera_yaw_std_deg": round(std, 3),
+             "T_cam_imu_yaw_std_deg": T_CAM_IMU_YAW_STD_DEG},
+            f"camera yaw in the car {r.yaw_deg:+.2f} +- {std:.2f} deg: vanishing point of {r.lines} lane markings "
+            f"in {preview.name}")
 
 
 def groundtruth_georef(rec) -> tuple[float, float, float]:

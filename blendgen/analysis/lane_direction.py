@@ -18,8 +18,11 @@ the RANSAC seed and the working resolution (11 deg at full resolution). Here:
      elongated (4:1) and between 12 and 85 deg from the image rows (lane lines recede);
   3. the vanishing point: every pair's intersection scored by the length of the lines that
      point at it within 1 deg, from both sides of it, beyond each line; then weighted least
-     squares on the inliers, relabelled once; its covariance from the residuals (>= 0.1 deg
-     per line), propagated to yaw and pitch.
+     squares on the inliers, relabelled once; at least 3 lines more than 2 deg apart seen from
+     it (two lines always meet; a double centre line is one); its covariance from the
+     residuals (>= 0.1 deg per line), propagated to yaw and pitch;
+  4. all of it again with only what lies 2 % of the height below that point (a hillside
+     beyond the road was collinear with a lane line).
 Roll is taken as 0: it enters the yaw as roll x pitch (0.05 deg at 1 deg roll, 3 deg pitch).
 """
 
@@ -46,6 +49,7 @@ INLIER_DEG = 1.0
 LINE_FLOOR_DEG = 0.1       # a stripe's direction is not known better than this
 MAX_LINES = 40
 MIN_LINES = 3              # two lines always meet somewhere: a third one checks it
+MIN_RAY_GAP_DEG = 2.0      # markings closer in angle seen from the vanishing point are one line (double lines)
 BELOW_VP_FRAC = 0.02      # second pass: markings start this far (of the height) below the first vanishing point
 MERGE_PX = 1.0            # dashes on one line: their union is at most this much wider
 
@@ -179,8 +183,11 @@ def _vanishing_point(C: np.ndarray, D: np.ndarray, Lw: np.ndarray):
         inl = np.abs(_sin_off(vp, C, D)) < thr
         if not _consistent(vp, C, inl):
             return "the markings' vanishing point does not hold after the fit"
-    if inl.sum() < MIN_LINES:
-        return f"only {int(inl.sum())} markings meet (need {MIN_LINES}: two always do)"
+    rays = np.sort(np.arctan2(C[inl, 1] - vp[1], C[inl, 0] - vp[0]))
+    n_rays = 1 + int(np.sum(np.diff(rays) > np.radians(MIN_RAY_GAP_DEG))) if len(rays) else 0
+    if n_rays < MIN_LINES:
+        return (f"only {n_rays} distinct lines meet (need {MIN_LINES}: two always do; "
+                f"{int(inl.sum())} markings, a double line counts once)")
     return vp, inl, sol
 
 

@@ -509,8 +509,10 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
                  (xf_ - 0.15, rounded_section(0.2, r + 0.1, r + 0.85, 0.1))]
         vv, f = loft(apron)
         veh.add(vv, f, "paint", smooth=True)
-        seat_z, seat_x = r + 0.55, xr + 0.25
-        bar = np.array([xf_ - 0.2, 0, r + 0.95])
+        # a step-through scooter: seat 0.79 m, grips ~1.04 m high and ~0.6 m ahead of the hips
+        # (at 1.19 m and 0.84 m ahead the rider reached up and out, and read as waving)
+        seat_z, seat_x = r + 0.55, xr + 0.4
+        bar = np.array([xf_ - 0.25, 0, r + 0.8])
         peg_x, peg_z = 0.0, r * 0.9 + 0.06
     else:
         low = kind == "cruiser"
@@ -532,14 +534,19 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
             veh.add(vv, f, "paint", smooth=True)
             vv, f = box((0.04, 0.22, 0.16), (xf_ - 0.16, 0, r + 0.72))
             veh.add(xf(vv - [xf_ - 0.16, 0, r + 0.72], rot_y(-0.5), [xf_ - 0.16, 0, r + 0.72]), f, "glass")
-        bar = np.array([xf_ - 0.25, 0, r + (0.72 if low else 0.65)])
+        # a cruiser's bar comes back to the rider (0.84 m ahead of the hips he held it at arm's
+        # length, at shoulder height)
+        bar = np.array([xf_ - (0.42 if low else 0.25), 0, r + (0.66 if low else 0.65)])
         peg_x, peg_z = seat_x + (0.35 if low else 0.05), r * (0.7 if low else 0.95)
         vv, f = tube([xr + 0.2, -0.16, r * 0.7], [xr - 0.2, -0.18, r * 0.9], 0.045, 10)
         veh.add(vv, f, "chrome")
     for s in (1, -1):
         vv, f = tube([xf_, s * 0.09, r], bar + [0.05, s * 0.09, -0.1], 0.025, 8)
         veh.add(vv, f, "chrome")
-    bar_w = W / 2 - 0.02
+    # grips ~0.6 m apart on sport bikes and scooters, ~0.7 m on a cruiser (the box's width
+    # is the mirrors'): at the box's 0.9 m a rider seen from behind-left held one arm out
+    # sideways
+    bar_w = min(W / 2 - 0.02, 0.41 if kind == "cruiser" else 0.36)
     vv, f = tube(bar + [0, -bar_w, 0], bar + [0, bar_w, 0], 0.014, 6)
     veh.add(vv, f, "chrome")
     vv, f = cylinder(0.08, 0.06, 12, "x", bar + [0.17, 0, -0.15])

@@ -127,6 +127,32 @@ def test_rider_holds_the_grips_and_sits_on_the_seat(cls):
     assert np.isfinite(mb.vertices).all()
 
 
+@pytest.mark.parametrize("kind", ["sport", "cruiser", "scooter"])
+def test_motorcycle_grips_are_where_a_rider_holds_them(kind):
+    """Grips within 0.68 m ahead of the hips and at most 0.25 m above them, 0.6 m apart (a
+    cruiser's 0.7 m): a scooter's bar 0.84 m ahead and 0.34 m up, a cruiser's 0.75 m ahead, and
+    bars as wide as the box (0.9 m with the mirrors) had riders hold an arm out sideways."""
+    import assets_procedural.shapes as shapes
+
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        v, d = sample_variant("motorcycle", rng)
+        if v["kind"] == kind and "rider" in v:
+            break
+    calls = {}
+    orig = shapes.figure
+    shapes.figure = lambda mb, rv, joints=None: calls.setdefault("joints", joints)
+    try:
+        shapes.BUILDERS["motorcycle"](MeshBuilder(), {**v, "W": 0.9, "part": "rider"}, d[0], 0.9, d[2])
+    finally:
+        shapes.figure = orig
+    j = calls["joints"]
+    pelvis, (left, right) = np.asarray(j["pelvis"]), np.asarray(j["hands"])
+    for g in (left, right):
+        assert 0.3 < g[0] - pelvis[0] < 0.68 and 0.0 < g[2] - pelvis[2] < 0.25, (g - pelvis)
+    assert abs(left[1] - right[1]) <= (0.71 if kind == "cruiser" else 0.61)
+
+
 def test_person_builds_fast_enough_for_planning():
     """The planner sizes every sampled person from its geometry (`catalog.shape_extent`)."""
     rng = np.random.default_rng(0)

@@ -288,8 +288,15 @@ def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "glass")
     vv, f = box((0.04, W * 0.9, 0.86 * H - 0.3 * H), (L / 2 + 0.004, 0, 0.58 * H))
     mb.add(vv, f, "glass")
-    vv, f = box((0.04, 2 * hw * 0.85, 0.42 * H), (-L / 2 - 0.004, 0, 0.62 * H))  # large rear window
+    # rear: a window in the upper third over a painted panel and the engine hatch's louvres (one
+    # window over the whole back read as a flat toy panel on the real highway photos)
+    vv, f = box((0.04, 2 * hw * 0.8, 0.2 * H), (-L / 2 - 0.004, 0, 0.76 * H))
     mb.add(vv, f, "glass")
+    zl0, zl1 = z0 + 0.42, 0.44 * H
+    for k in range(6):
+        z = zl0 + (k + 0.5) * (zl1 - zl0) / 6
+        vv, f = box((0.03, 2 * hw * 0.62, 0.35 * (zl1 - zl0) / 6), (-L / 2 - 0.006, 0, z))
+        mb.add(vv, f, "plastic")
     vv, f = box((0.04, 2 * hw * 0.5, 0.16), (-L / 2 - 0.008, 0, 0.91 * H))  # rear route display
     mb.add(vv, f, "lamp_sign")
     vv, f = box((0.02, 0.52, 0.12), (-L / 2 - 0.015, 0, z0 + 0.14))  # number plate on the bumper
@@ -308,7 +315,7 @@ def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for s in (1, -1):
         vv, f = box((0.05, 0.3, 0.15), (L / 2 + 0.01, s * (hw - 0.35), z0 + 0.45))
         mb.add(vv, f, "lamp_head")
-        vv, f = box((0.05, 0.2, 0.35), (-L / 2 - 0.01, s * (hw - 0.25), z0 + 0.7))
+        vv, f = box((0.05, 0.22, 0.5), (-L / 2 - 0.01, s * (hw - 0.2), z0 + 0.75))  # tall corner clusters
         mb.add(vv, f, "lamp_tail")
     for x in (L / 2 - 2.6, -L / 2 + 3.0):
         for s in (1, -1):

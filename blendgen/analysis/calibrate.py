@@ -68,7 +68,7 @@ def calibrate(rec, frame_ids, user, *, car_boxes=None, progress: bool = False) -
     from blendgen.analysis.camera import estimate_cameras, frame_indices, is_sequence, read_frames
     from blendgen.analysis.egomotion import ground_track
     from blendgen.analysis.hood import find_hood
-    from blendgen.analysis.lane_direction import lane_direction
+    from blendgen.analysis.lane_direction import LANE_HEADING_STD_DEG, lane_direction
 
     t0 = time.process_time()
     hoods = find_hood(rec, frame_ids, progress=progress)
@@ -110,10 +110,10 @@ def calibrate(rec, frame_ids, user, *, car_boxes=None, progress: bool = False) -
     yaws = np.array([r.yaw_deg for r in lanes.values() if r.yaw_deg is not None])
     if len(yaws):
         # the car's heading in its lane wanders between frames: their spread is the error
-        # (one frame: its fit and 0.3 deg of lane keeping, as the comma2k19 importer states)
+        # (fewer than 5 frames: the first one's fit and the lane keeping)
         one = next(r for r in lanes.values() if r.yaw_deg is not None)
         std = (1.4826 * float(np.median(np.abs(yaws - np.median(yaws)))) / np.sqrt(len(yaws)) if len(yaws) >= 5
-               else float(np.hypot(one.yaw_std_deg, 0.3)) / np.sqrt(len(yaws)))
+               else float(np.hypot(one.yaw_std_deg, LANE_HEADING_STD_DEG)) / np.sqrt(len(yaws)))
         summary["lane_yaw_deg"] = round(float(np.median(yaws)), 3)
         summary["lane_yaw_std_deg"] = round(float(max(std, 0.1)), 3)
     summary["lane_yaw_frames"] = int(len(yaws))

@@ -77,7 +77,6 @@ class FrameCamera:
     fx: float | None = None
     pitch_std: float = float("inf")
     roll_std: float = float("inf")
-    yaw_std: float = float("inf")
     confidence: float = 0.0
     support: dict[str, int] = field(default_factory=dict)   # axis -> inlier segments
     height_lanes: float | None = None     # height from the lane-width prior, m
@@ -305,7 +304,7 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
     out.support = support
     std = np.degrees(sd)
     out.pitch, out.yaw = math.degrees(p), math.degrees(y)
-    out.pitch_std, out.yaw_std = float(std[0]), float(std[1])
+    out.pitch_std = float(std[0])
     out.roll = math.degrees(r)
     out.roll_std = float(std[2]) if roll_free else float("inf")
     if fit_focal:

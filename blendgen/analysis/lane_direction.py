@@ -52,6 +52,9 @@ MIN_LINES = 3              # two lines always meet somewhere: a third one checks
 MIN_RAY_GAP_DEG = 2.0      # markings closer in angle seen from the vanishing point are one line (double lines)
 BELOW_VP_FRAC = 0.02      # second pass: markings start this far (of the height) below the first vanishing point
 MERGE_PX = 1.0            # dashes on one line: their union is at most this much wider
+# the car's heading within its lane at the moment of a frame (lane keeping wanders by this
+# much): what one frame's yaw says about the camera's yaw in the car, beyond its fit
+LANE_HEADING_STD_DEG = 0.3
 
 
 @dataclass

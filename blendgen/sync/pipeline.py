@@ -461,7 +461,6 @@ def _filter(rec, settings, use_imu, use_gnss, use_vo, ids, out_t, out_t_cam, gt_
         res.summary["calibration"]["gnss_h_std_scale"] = round(float(h_scale), 3)
         if noise is not None:
             res.summary["calibration"]["gnss_h_std_scale_measured"] = round(float(noise), 3)
-    if calib is not None:
         C = calibration.fuse_camera_yaw(res.summary["calibration"], pri, R_bc, with_vo=use_vo)
         if C is not None:
             res.poses = [(fid, t, T @ make_pose(C, np.zeros(3))) for fid, t, T in res.poses]

@@ -151,8 +151,6 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
     return dst
 
 
-# the car's heading within its lane at the moment of a frame (lane keeping wanders by this much)
-LANE_HEADING_STD_DEG = 0.3
 # T_cam_imu is the nominal device frame: a phone's IMU chip sits within about a degree of it
 T_CAM_IMU_YAW_STD_DEG = 1.0
 
@@ -163,7 +161,7 @@ def _camera_yaw(preview: Path) -> tuple[dict, str]:
     import cv2
 
     from blendgen.analysis.hood import hood_in_still
-    from blendgen.analysis.lane_direction import lane_direction
+    from blendgen.analysis.lane_direction import LANE_HEADING_STD_DEG, lane_direction
 
     img = cv2.imread(str(preview)) if preview.is_file() else None
     if img is None:

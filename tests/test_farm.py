@@ -322,14 +322,16 @@ def test_recycling_above_rss_limit(tmp_path):
     assert all("RSS" in e and "> 1 MB" in e for e in exits[:2]), exits
 
 
-# 30 items of 0.4 s on 2 workers: 6 s, so that the signal lands mid-job even when the test's
-# polling stalls (at 0.15 s a 2.3 s job once finished first on a loaded CI machine: exit 0)
+# SIGINT raises KeyboardInterrupt in the supervisor even when the test run inherited it ignored
+# (a background job of a non-interactive shell: the ctrl-c test then saw exit 0)
 _SUPERVISOR = """
+import signal
 import sys
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from blendgen.farm import run_tasks
 out = sys.argv[1]
 run_tasks(out, "frames", [f"{i:06d}" for i in range(30)], "test_farm:FileProcessor",
-          {"out": out, "delay": 0.4}, workers=2, chunk=3, progress=False)
+          {"out": out, "delay": 0.15}, workers=2, chunk=3, progress=False)
 """
 
 

@@ -783,7 +783,10 @@ class Planner:
             rejected: dict[tuple[str, str], int] = {}
             limit = 12 if self.real is None else 36
             failures = {c: limit for c in self.classes if self._closed(c, k, rejected)}
+            # each open class's share of the frame's objects: refills stop at it (below)
             open_w = {c: w for c, w in zip(self.classes, self.weights) if c not in failures}
+            total_w = sum(open_w.values())
+            cap = {c: math.ceil(target * w / total_w) for c, w in open_w.items()} if total_w > 0 else {}
             tries, queue, streak, draws = 0, [], 0, 0
             # real frames reject more candidates (road users, road edges): more tries
             while len(vis) < target and tries < SPAWN_TRIES * (1 if self.real is None else 3) and self.classes:
@@ -793,8 +796,7 @@ class Planner:
                         # share of the frame (small two-wheelers filled the room that cars and
                         # buses could not use: motorcycles were 0.48 of the Udacity photos' objects
                         # for a weight of 0.12)
-                        usable = [c for c in usable if sum(tr.cls == c for tr in vis)
-                                  < math.ceil(target * open_w.get(c, 0.0) / max(sum(open_w.values()), 1e-9))]
+                        usable = [c for c in usable if sum(tr.cls == c for tr in vis) < cap.get(c, 0)]
                     if not usable:
                         break
                     draws += 1

@@ -24,7 +24,7 @@ def _pair(n, baseline, noise_px, f=500.0, seed=0):
 
 def _cov(n, baseline, noise_px, seed=0):
     R21, t, n1, n2 = _pair(n, baseline, noise_px, seed=seed)
-    R, tt = _refine_rt(R21, t / np.linalg.norm(t), n1, n2)
+    R, tt = _refine_rt(R21, t / np.linalg.norm(t), n1, n2)[:2]
     return _pair_covariance(R, tt, n1, n2)[:2]
 
 
@@ -51,7 +51,7 @@ def test_pair_covariance_matches_monte_carlo():
     errs, covs = [], []
     for seed in range(40):
         R21, t, n1, n2 = _pair(300, 1.0, 0.7, seed=seed)
-        R, tt = _refine_rt(R21 @ so3.exp(np.full(3, 2e-4)), t / np.linalg.norm(t), n1, n2)
+        R, tt = _refine_rt(R21 @ so3.exp(np.full(3, 2e-4)), t / np.linalg.norm(t), n1, n2)[:2]
         errs.append(so3.log(R21 @ R.T))
         covs.append(_pair_covariance(R, tt, n1, n2)[0])
     actual = np.sqrt(np.mean(np.sum(np.square(errs), axis=1)))

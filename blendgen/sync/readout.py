@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from blendgen.sync import so3
 from blendgen.sync.latency import profile_latency
 from blendgen.sync.time_offset import _huber_nll, _Pairs, _rms_deg, _sigma, profile_jackknife
-from blendgen.sync.vo import _kabsch, _sampson, _sampson_jac, rs_bearings
+from blendgen.sync.vo import _kabsch, _refine_rt, rs_bearings
 
 MAX_S = 0.05          # search [0, MAX_S], and below the frame interval
 STEP_S = 0.005
@@ -85,26 +85,6 @@ def describe(s: dict) -> str:
     return f"rolling shutter: not corrected (readout not estimated: {s['reason']})"
 
 
-def _gauss_newton_rt(R: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray, iters: int = GN_ITERS):
-    """R of the Sampson fit from (R, t), the pair's solution without correction, by a few
-    Gauss-Newton steps (`vo._refine_rt`'s cost and parameters, ~20x cheaper than its LM call for
-    the small change a readout makes)."""
-    x1 = np.hstack([n1, np.ones((len(n1), 1))])
-    x2 = np.hstack([n2, np.ones((len(n2), 1))])
-    t = t / np.linalg.norm(t)
-    p = np.concatenate([so3.log(R), [np.arccos(np.clip(t[2], -1, 1)), np.arctan2(t[1], t[0])]])
-    for _ in range(iters):
-        J, r = _sampson_jac(p, x1, x2), _sampson(p, x1, x2)
-        A = J.T @ J
-        # Marquardt's damping: with little parallax the direction of travel is poorly fixed and
-        # an undamped step there drags the rotation (real drone clip: a ragged profile)
-        dp = np.linalg.solve(A + GN_DAMPING * np.diag(np.diag(A)) + 1e-12 * np.eye(5), -J.T @ r)
-        if not np.all(np.isfinite(dp)):
-            break
-        p = p + dp
-    return so3.exp(p[:3])
-
-
 def refit_rotation(res, spin1, spin2, readout_s: float, height: int) -> np.ndarray:
     """R_c1c2 of a VO pair refitted from its kept inliers (`VoResult.matches`, uncorrected
     bearings) after turning each frame's rows back by its readout turn table (`rs_bearings`)."""
@@ -113,7 +93,9 @@ def refit_rotation(res, spin1, spin2, readout_s: float, height: int) -> np.ndarr
     b2 = rs_bearings(np.asarray(q2, float), p2, spin2, readout_s, height)
     if res.status == "ok":
         R21 = res.R_c1c2.T
-        R21 = _gauss_newton_rt(R21, -R21 @ res.u_dir, b1[:, :2] / b1[:, 2:], b2[:, :2] / b2[:, 2:])
+        # a few damped steps from the uncorrected solution (the small change a readout makes)
+        R21 = _refine_rt(R21, -R21 @ res.u_dir, b1[:, :2] / b1[:, 2:], b2[:, :2] / b2[:, 2:],
+                         max_iter=GN_ITERS, damping=GN_DAMPING)[0]
     else:
         R21 = so3.orthonormalize(_kabsch(b1 / np.linalg.norm(b1, axis=1, keepdims=True),
                                          b2 / np.linalg.norm(b2, axis=1, keepdims=True)))

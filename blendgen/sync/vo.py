@@ -566,13 +566,13 @@ def solve_pair(res: VoResult, p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q2
     # RANSAC's E comes from one minimal sample: refit R, t on all its inliers (Sampson error).
     # All, not only those recoverPose would keep (in front, nearer than 50 baselines): far
     # points pin the rotation; refitting without them doubled the rotation error (bench_vo.py)
-    R21, t = _refine_rt(R21, t.ravel(), n1[ransac], n2[ransac])
+    R21, t, r, J, basis = _refine_rt(R21, t.ravel(), n1[ransac], n2[ransac])
     res.status = "ok"
     res.R_c1c2 = R21.T
     u = -R21.T @ t.ravel()
     res.u_dir = u / np.linalg.norm(u)
     res.n_inliers = int(ransac.sum())
-    res.rot_cov, res.dir_cov, rms = _pair_covariance(R21, t.ravel(), n1[ransac], n2[ransac])
+    res.rot_cov, res.dir_cov, rms = _covariance_from(R21, r, J, basis)
     res.residual_px = rms * f
     # tracks to keep: all that fit the epipolar geometry (far points are fine for tracking)
     res.inliers = ransac
@@ -665,36 +665,57 @@ def _rotation_covariance(q: np.ndarray, sigma: float) -> np.ndarray:
     return sigma**2 * np.linalg.pinv(info)
 
 
-def _pair_covariance(R21: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray):
-    """First-order covariance of the two-view fit: s^2 (J^T J)^-1 of the Sampson residuals
-    with respect to a right rotation perturbation of R21 and a tangent perturbation of t, s^2
-    the residuals' mean square. It grows with fewer inliers, larger residuals and less
-    parallax (a short baseline or far scene makes the direction columns of J small). Returns
-    (cov of the right perturbation of R_c1c2, cov of u_dir (3x3, rank 2), RMS Sampson distance)."""
-    if len(n1) < 8:
-        return np.eye(3) * 1e2, np.eye(3) * 1e2, float("nan")
-    x1 = np.hstack([n1, np.ones((len(n1), 1))])
-    x2 = np.hstack([n2, np.ones((len(n2), 1))])
-    t = t / np.linalg.norm(t)
+def _tangent_basis(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors orthogonal to the unit vector t (the tangent plane of its sphere)."""
     a = np.array([1.0, 0, 0]) if abs(t[0]) < 0.9 else np.array([0, 1.0, 0])
     b1 = np.cross(t, a)
     b1 /= np.linalg.norm(b1)
-    b2 = np.cross(t, b1)
+    return b1, np.cross(t, b1)
 
-    def E_of(d):
-        tt = t + d[3] * b1 + d[4] * b2
-        return so3.hat(tt / np.linalg.norm(tt)) @ (R21 @ so3.exp(d[:3]))
 
-    h = 1e-6
-    Es = np.stack([E_of(np.zeros(5))] + [E_of(h * e) for e in np.eye(5)])
-    r = _sampson_E(Es, x1, x2)
-    J = ((r[1:] - r[0]) / h).T
-    s2 = float(np.mean(r[0] ** 2))
+def _perturb_rt(R21: np.ndarray, t: np.ndarray, d: np.ndarray, basis) -> tuple[np.ndarray, np.ndarray]:
+    """(R21 exp(d[:3]), t moved by d[3:] along its tangent basis, renormalised)."""
+    tt = t + d[3] * basis[0] + d[4] * basis[1]
+    return R21 @ so3.exp(d[:3]), tt / np.linalg.norm(tt)
+
+
+def _sampson_rt(R21: np.ndarray, t: np.ndarray, x1: np.ndarray, x2: np.ndarray, h: float = 1e-7):
+    """Signed Sampson distances of E = [t]x R21 (t unit) over the homogeneous points x1, x2, and
+    their forward-difference Jacobian (n, 5) with respect to a right rotation perturbation of
+    R21 and a tangent perturbation of t (`_tangent_basis`): the six models in one batch.
+    Returns (r, J, basis)."""
+    basis = _tangent_basis(t)
+    E = so3.hat(t) @ R21
+    # to first order (the error is O(h^2)): R exp(h e_i) = R + h R [e_i]x, t + h b_j stays unit
+    dE = [E @ so3.hat(e) for e in np.eye(3)] + [so3.hat(b) @ R21 for b in basis]
+    r = _sampson_E(np.stack([E] + [E + h * d for d in dE]), x1, x2)
+    return r[0], ((r[1:] - r[0]) / h).T, basis
+
+
+def _covariance_from(R21: np.ndarray, r: np.ndarray, J: np.ndarray, basis):
+    """First-order covariance of the two-view fit from its Sampson residuals r and Jacobian J
+    (`_sampson_rt`): s^2 (J^T J)^-1, s^2 the residuals' mean square. It grows with fewer
+    inliers, larger residuals and less parallax (a short baseline or far scene makes the
+    direction columns of J small). Returns (cov of the right perturbation of R_c1c2, cov of
+    u_dir (3x3, rank 2), RMS Sampson distance)."""
+    if len(r) < 8:
+        return np.eye(3) * 1e2, np.eye(3) * 1e2, float("nan")
+    s2 = float(np.mean(r**2))
     C = s2 * np.linalg.pinv(J.T @ J)
     # R_c1c2 = R21^T; R21 exp(d) -> R21^T exp(-R21 d): right perturbation -R21 d
     rot = R21 @ C[:3, :3] @ R21.T
-    A = -R21.T @ np.stack([b1, b2], axis=1)  # u = -R21^T t
+    A = -R21.T @ np.stack(basis, axis=1)  # u = -R21^T t
     return 0.5 * (rot + rot.T), A @ C[3:, 3:] @ A.T, float(np.sqrt(s2))
+
+
+def _homogeneous(n: np.ndarray) -> np.ndarray:
+    return np.hstack([n, np.ones((len(n), 1))])
+
+
+def _pair_covariance(R21: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray):
+    """`_covariance_from` at (R21, t) for the normalised points n1 -> n2."""
+    r, J, basis = _sampson_rt(R21, t / np.linalg.norm(t), _homogeneous(n1), _homogeneous(n2))
+    return _covariance_from(R21, r, J, basis)
 
 
 def _rotation_residual_px(R21, q1, q2, f) -> float:
@@ -705,58 +726,52 @@ def _rotation_residual_px(R21, q1, q2, f) -> float:
     return float(np.sqrt(np.mean(np.sum((b - a @ R21.T) ** 2, axis=1))) * f)
 
 
-def _essential(params: np.ndarray) -> np.ndarray:
-    R = so3.exp(params[:3])
-    th, ph = params[3], params[4]
-    t = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
-    return so3.hat(t) @ R
-
-
 def _sampson_E(E: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     """Signed Sampson distances for one E (3x3) or a stack of them (k, 3, 3) -> (n,) / (k, n)."""
-    Ex1 = x1 @ np.swapaxes(E, -1, -2)
-    Etx2 = x2 @ E
-    num = np.sum(x2 * Ex1, axis=-1)
-    den = Ex1[..., 0] ** 2 + Ex1[..., 1] ** 2 + Etx2[..., 0] ** 2 + Etx2[..., 1] ** 2
-    return num / np.sqrt(den + 1e-15)
+    Es = E.reshape(-1, 3, 3)
+    k = len(Es)
+    # one (n, 3) x (3, 3k) product each: numpy's broadcast matmul over a stack is ~10x slower
+    Ex1 = (x1 @ np.swapaxes(Es, 1, 2).transpose(1, 0, 2).reshape(3, 3 * k)).reshape(-1, k, 3)
+    Etx2 = (x2 @ Es.transpose(1, 0, 2).reshape(3, 3 * k)).reshape(-1, k, 3)
+    num = np.einsum("nj,nkj->kn", x2, Ex1)
+    den = (Ex1[..., 0] ** 2 + Ex1[..., 1] ** 2 + Etx2[..., 0] ** 2 + Etx2[..., 1] ** 2).T
+    r = num / np.sqrt(den + 1e-15)
+    return r if E.ndim == 3 else r[0]
 
 
-def _sampson(params: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-    return _sampson_E(_essential(params), x1, x2)
-
-
-def _sampson_jac(params: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-    """Forward-difference Jacobian with the five perturbed models evaluated in one batch (the
-    solver's own differencing made six separate calls per iteration: 3 ms a frame)."""
-    h = 1e-7
-    Es = np.stack([_essential(params)] + [_essential(params + h * e) for e in np.eye(5)])
-    r = _sampson_E(Es, x1, x2)
-    return ((r[1:] - r[0]) / h).T
-
-
-def _refine_rt(R: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray):
-    """Levenberg-Marquardt on the Sampson distance over the inliers; keeps the RANSAC solution
-    if the refit does not lower the cost."""
-    from scipy.optimize import least_squares
-
-    if len(n1) < 8:
-        return R, t
-    x1 = np.hstack([n1, np.ones((len(n1), 1))])
-    x2 = np.hstack([n2, np.ones((len(n2), 1))])
+def _refine_rt(R: np.ndarray, t: np.ndarray, n1: np.ndarray, n2: np.ndarray, max_iter: int = 20,
+               damping: float = 1e-3):
+    """Levenberg-Marquardt on the Sampson distance over the inliers, on the manifold (right
+    rotation perturbation, t on its sphere), from RANSAC's (R, t); a step is taken only if it
+    lowers the cost. RANSAC already removed the outliers: no robust kernel. Returns (R, t, r, J,
+    basis) at the solution, r and J as `_sampson_rt` gives them (for `_covariance_from`); a
+    hand-written loop because MINPACK's through scipy cost 2 ms a pair in call overhead and
+    needed the Jacobian again for the covariance."""
     t = t / np.linalg.norm(t)
-    p0 = np.concatenate([so3.log(R), [np.arccos(np.clip(t[2], -1, 1)), np.arctan2(t[1], t[0])]])
-    c0 = np.sum(_sampson(p0, x1, x2) ** 2)
-    try:
-        # RANSAC already removed the outliers: plain LM (MINPACK) is several times faster than
-        # a robust trust-region solve and gave the same accuracy here
-        sol = least_squares(_sampson, p0, jac=_sampson_jac, args=(x1, x2), method="lm", max_nfev=40,
-                            ftol=1e-6, xtol=1e-6)  # 1e-8: 30 % more iterations for < 1e-4 deg
-    except (ValueError, np.linalg.LinAlgError):
-        return R, t
-    if not np.all(np.isfinite(sol.x)) or np.sum(_sampson(sol.x, x1, x2) ** 2) > c0:
-        return R, t
-    th, ph = sol.x[3], sol.x[4]
-    return so3.exp(sol.x[:3]), np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+    x1, x2 = _homogeneous(n1), _homogeneous(n2)
+    r, J, basis = _sampson_rt(R, t, x1, x2)
+    if len(n1) < 8:
+        return R, t, r, J, basis
+    cost = float(r @ r)
+    for _ in range(max_iter):
+        A, g = J.T @ J, J.T @ r
+        d = np.linalg.solve(A + damping * np.diag(np.diag(A)) + 1e-12 * np.eye(5), -g)
+        if not np.all(np.isfinite(d)):
+            break
+        R1, t1 = _perturb_rt(R, t, d, basis)
+        r1, J1, basis1 = _sampson_rt(R1, t1, x1, x2)
+        cost1 = float(r1 @ r1)
+        if not cost1 <= cost:
+            damping *= 10.0
+            if damping > 1e6:
+                break
+            continue
+        converged = cost - cost1 <= 1e-6 * cost or np.linalg.norm(d) < 1e-7  # MINPACK's ftol, xtol before
+        R, t, r, J, basis, cost = R1, t1, r1, J1, basis1, cost1
+        damping = max(damping / 10.0, 1e-7)
+        if converged:
+            break
+    return R, t, r, J, basis
 
 
 def _same_image(a: np.ndarray, b: np.ndarray) -> bool:

@@ -49,6 +49,10 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.chrome()
         elif s == "alloy":
             out[s] = M.alloy()
+        elif s == "metal":  # brushed steel (a silencer)
+            out[s] = M.metal((0.42, 0.42, 0.43), 0.35)
+        elif s == "wheel":  # black-painted metal: two-wheelers' wheels, hugger, stalks
+            out[s] = M.metal((0.03, 0.03, 0.032), 0.4)
         elif s in ("plastic", "saddle"):
             out[s] = M.plastic((0.025, 0.025, 0.025))
         elif s in ("tape_red", "tape_white"):  # retroreflective sheeting: saturated, a little glossy

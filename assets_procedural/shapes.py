@@ -499,11 +499,24 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     tr = 0.06 if kind != "scooter" else 0.05
     wb = L - 2 * r - 0.1
     xr, xf_ = -wb / 2 - 0.05, wb / 2 - 0.05
-    for x in (xr, xf_):
-        vv, f = torus(r - tr, tr, (x, 0, r), "y", 24, 8)
+    # the rear tyre is the wide one (a sport bike's 180 mm; the front's 120 mm); the wheels are
+    # a rim on five spokes around the hub and a brake disc, not solid discs (solid light discs
+    # read as a toy on real photos), black but for a cruiser's chrome
+    spokes = "chrome" if kind == "cruiser" else "wheel"
+    for x, t in ((xr, tr * (1.2 if kind == "scooter" else 1.45)), (xf_, tr)):
+        vv, f = torus(r - t, t, (x, 0, r), "y", 24, 8)
         veh.add(vv, f, "rubber", smooth=True)
-        vv, f = cylinder(r - tr, 0.05, 16, "y", (x, 0, r))
+        vv, f = torus(r - 2 * t, 0.018, (x, 0, r), "y", 24, 6)
+        veh.add(vv, f, spokes, smooth=True)
+        vv, f = cylinder(0.06, 2 * t, 12, "y", (x, 0, r))
+        veh.add(vv, f, spokes)
+        vv, f = cylinder(0.4 * r, 0.008, 16, "y", (x, -0.05, r))
         veh.add(vv, f, "alloy")
+        for k in range(5):
+            a = 2 * np.pi * k / 5 + 0.3
+            c = np.array([x, 0, r]) + (r - 2 * t + 0.06) / 2 * np.array([np.cos(a), 0, np.sin(a)])
+            vv, f = box((r - 2 * t - 0.06, 0.03, 0.028), (0, 0, 0))
+            veh.add(xf(vv, rot_y(-a), c), f, spokes)
     if kind == "scooter":
         vv, f = box((wb * 0.5, 0.34, 0.08), (0.0, 0, r * 0.9))
         veh.add(vv, f, "plastic")
@@ -545,11 +558,16 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         # length, at shoulder height)
         bar = np.array([xf_ - (0.42 if low else 0.25), 0, r + (0.66 if low else 0.65)])
         peg_x, peg_z = seat_x + (0.35 if low else 0.05), r * (0.7 if low else 0.95)
-        vv, f = tube([xr + 0.2, -0.16, r * 0.7], [xr - 0.2, -0.18, r * 0.9], 0.045, 10)
-        veh.add(vv, f, "chrome")
+        # the silencer: chrome on a cruiser, brushed steel otherwise, its open end dark (a
+        # rounded chrome end mirrored the sky: a white ball beside the rear wheel)
+        end = np.array([xr - 0.2, -0.18, r * 0.9])
+        vv, f = tube([xr + 0.2, -0.16, r * 0.7], end, 0.045, 10)
+        veh.add(vv, f, "chrome" if low else "metal")
+        vv, f = cylinder(0.035, 0.01, 10, "x", end + [-0.002, 0, 0])
+        veh.add(vv, f, "well")
     for s in (1, -1):
         vv, f = tube([xf_, s * 0.09, r], bar + [0.05, s * 0.09, -0.1], 0.025, 8)
-        veh.add(vv, f, "chrome")
+        veh.add(vv, f, "chrome" if kind == "cruiser" else "alloy")
     # grips ~0.6 m apart on sport bikes and scooters, ~0.7 m on a cruiser (the box's width
     # is the mirrors'): at the box's 0.9 m a rider seen from behind-left held one arm out
     # sideways
@@ -560,6 +578,18 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     veh.add(vv, f, "lamp_head")
     vv, f = box((0.04, 0.14, 0.06), (xr - r + 0.05, 0, r + 0.42))
     veh.add(vv, f, "lamp_tail")
+    # what every road-legal two-wheeler shows from behind: a hugger over the rear tyre, the
+    # number plate on its hanger under the tail lamp, amber indicators on stalks either side
+    tail_x = xr - r + 0.07
+    vv, f = box((0.3, 0.12, 0.012), (0, 0, 0))
+    veh.add(xf(vv, rot_y(0.2), [xr - r + 0.2, 0, r + 0.36]), f, "wheel")
+    vv, f = box((0.012, 0.2, 0.13), (0, 0, 0))
+    veh.add(xf(vv, rot_y(-0.25), [tail_x, 0, r + 0.28]), f, "plate")
+    for s in (1, -1):
+        vv, f = tube([tail_x + 0.06, s * 0.05, r + 0.38], [tail_x + 0.04, s * 0.15, r + 0.38], 0.008, 6)
+        veh.add(vv, f, "wheel")
+        vv, f = box((0.05, 0.035, 0.035), (tail_x + 0.04, s * 0.165, r + 0.38))
+        veh.add(vv, f, "lamp_sign")
     if "rider" in v:
         rv = v["rider"]
         lean = {"sport": 0.75, "cruiser": 0.05, "scooter": 0.1}.get(kind, 0.4)

@@ -49,7 +49,7 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.chrome()
         elif s == "alloy":
             out[s] = M.alloy()
-        elif s == "metal":  # brushed steel (a silencer)
+        elif s in ("metal", "spoke"):  # brushed steel (a silencer, a bicycle's spokes)
             out[s] = M.metal((0.42, 0.42, 0.43), 0.35)
         elif s == "wheel":  # black-painted metal: two-wheelers' wheels, hugger, stalks
             out[s] = M.metal((0.03, 0.03, 0.032), 0.4)

@@ -437,11 +437,13 @@ def bicycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         veh.add(vv, f, "rubber", smooth=True)
         vv, f = torus(r - 2 * tr - 0.012, 0.012, (x, 0, r), "y", 28, 4)
         veh.add(vv, f, "alloy", smooth=True)
-        for k in range(8):
-            a = k * math.pi / 8
+        # 32 steel spokes of 2.4 mm (a real wheel's 32-36 of 2 mm): 16 chrome ones of 8 mm
+        # mirrored the sky into a light-grey disc on the real photos
+        for k in range(16):
+            a = k * math.pi / 16
             d = np.array([math.cos(a), 0, math.sin(a)]) * (r - 2 * tr - 0.015)
-            vv, f = tube(np.array([x, 0, r]) - d, np.array([x, 0, r]) + d, 0.004, 4)
-            veh.add(vv, f, "chrome")
+            vv, f = tube(np.array([x, 0, r]) - d, np.array([x, 0, r]) + d, 0.0012, 4)
+            veh.add(vv, f, "spoke")
     bb = np.array([xr + 0.42 * wb, 0, r * 0.85])
     seat_top = np.array([xr + 0.27 * wb, 0, r + 0.56])
     head_top = np.array([xf_ - 0.16 * wb, 0, r + 0.5])

@@ -66,3 +66,18 @@ def test_motorcycle_shows_a_plate_indicators_and_open_wheels():
             if mb.slots[k] != "rubber" and near and np.ptp(f[:, 1]) < 0.02:
                 assert min(np.ptp(f[:, 0]), np.ptp(f[:, 2])) < r, mb.slots[k]
     assert len(kinds) >= 2
+
+
+def test_bicycle_wheels_have_fine_steel_spokes():
+    """A wheel's 32-36 spokes are 2 mm steel wires: sixteen 8 mm chrome ones mirrored the sky
+    into a light-grey disc on the real photos."""
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        v, (L, W, H) = sample_variant("bicycle", rng)
+        mb = MeshBuilder()
+        BUILDERS["bicycle"](mb, {**v, "part": "vehicle"}, L, W, H)
+        spokes = _regions(mb)["spoke"]
+        # each spoke is a 4-sided tube: its section is the spread across the wheel's plane
+        assert np.ptp(spokes[:, 1]) < 0.004
+        per_wheel = np.sum(np.asarray(mb.mat) == mb.slots.index("spoke")) / 2
+        assert per_wheel >= 16 * 6  # 16 wheel-wide tubes (32 spokes) of 4 sides and 2 caps

@@ -591,7 +591,7 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         vv, f = tube([tail_x + 0.06, s * 0.05, r + 0.38], [tail_x + 0.04, s * 0.15, r + 0.38], 0.008, 6)
         veh.add(vv, f, "wheel")
         vv, f = box((0.05, 0.035, 0.035), (tail_x + 0.04, s * 0.165, r + 0.38))
-        veh.add(vv, f, "lamp_sign")
+        veh.add(vv, f, "indicator")
     if "rider" in v:
         rv = v["rider"]
         lean = {"sport": 0.75, "cruiser": 0.05, "scooter": 0.1}.get(kind, 0.4)

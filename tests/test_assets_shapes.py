@@ -51,7 +51,7 @@ def test_motorcycle_shows_a_plate_indicators_and_open_wheels():
         assert plate[:, 2].min() > tyres[tyres[:, 0] < rear_x + 0.1][:, 2].max() - 0.05
         assert plate[:, 2].max() < parts["lamp_tail"][:, 2].min()
         assert 0.15 < np.ptp(plate[:, 1]) < 0.3
-        signs = parts["lamp_sign"]
+        signs = parts["indicator"]
         assert signs[:, 1].min() < -0.12 and signs[:, 1].max() > 0.12
         mid_x = tyres[:, 0].mean()
         rear, front = tyres[tyres[:, 0] < mid_x], tyres[tyres[:, 0] > mid_x]

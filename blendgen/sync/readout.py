@@ -38,8 +38,9 @@ STEP_S = 0.005
 MAX_STD_S = 0.005     # a 1-sigma above this: undetermined, the readout is not used
 MIN_PAIRS = 20
 MAX_PAIRS = 300       # pairs refitted per candidate (evenly over the recording)
-GN_ITERS = 3
-GN_DAMPING = 1e-2
+GN_ITERS = 3          # refit steps per pair and candidate readout (vo._refine_rt)
+GN_DAMPING = 1e-2     # Marquardt's: with little parallax the direction of travel is poorly fixed
+                      # and an undamped step there drags the rotation (real drone clip: ragged)
 LATTICE_S = STEP_S / 4  # refits on this lattice, linear between (the grids of 5 and 2.5 ms lie on it)
 ZERO_BOUND_S = 0.01   # a minimum at 0 is an estimate when the cost is 2 higher (~95 %) by this readout
 

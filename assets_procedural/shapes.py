@@ -339,6 +339,23 @@ def _ik(hip, foot, l1, l2, forward):
     return hip + u * a + fw * hgt, hip + u * dist
 
 
+def walking_legs(J: dict, seg: dict, stride: float, h: float, target: dict) -> np.ndarray:
+    """Standing (stride 0) or mid-stride: each leg swung by `stride` (rad) about its hip, the
+    pelvis lowered so the leading foot stays on the ground, the trailing leg pushing off with
+    its heel raised and its knee bent (both legs straight read as a pair of compasses on the
+    real photos). Fills `target`'s knees and ankles; returns the pelvis."""
+    leg = seg["thigh"] + seg["shin"]
+    pelvis = J["pelvis"] - [0, 0, (1 - math.cos(stride)) * leg]
+    for s, ang in (("L", stride), ("R", -stride)):
+        hip = pelvis + (J["hip." + s] - J["pelvis"])
+        # the rest pose stands with the feet 0.4 m apart: bring them under the hips
+        ankle = hip + rot_y(-ang) @ [0, -0.2 * (hip[1] - pelvis[1]), -leg]
+        if ankle[0] < hip[0] - 1e-6:
+            ankle = ankle + [0, 0, 0.035 * h]
+        target["knee." + s], target["ankle." + s] = _ik(hip, ankle, seg["thigh"], seg["shin"], [1, 0, 0])
+    return pelvis
+
+
 def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
     """A person: MakeHuman's body in one of a few outfits (`assets_procedural.body`). Without
     `joints`: standing or walking on the ground (origin between the feet). With `joints`
@@ -352,14 +369,8 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
     stride = float(v.get("stride_rad", 0.0))
     target = {}
     if joints is None:
-        leg = seg["thigh"] + seg["shin"]
-        pelvis = J["pelvis"] - [0, 0, (1 - math.cos(stride)) * leg]
+        pelvis = walking_legs(J, seg, stride, h, target)
         lean, head_lift = (0.05 if stride else 0.0), 0.0
-        for s, ang in (("L", stride), ("R", -stride)):
-            hip = pelvis + (J["hip." + s] - J["pelvis"])
-            # the rest pose stands with the feet 0.4 m apart: bring them under the hips
-            ankle = hip + rot_y(-ang) @ [0, -0.2 * (hip[1] - pelvis[1]), -leg]
-            target["knee." + s], target["ankle." + s] = _ik(hip, ankle, seg["thigh"], seg["shin"], [1, 0, 0])
         hands = None
     else:
         pelvis, lean = np.asarray(joints["pelvis"], float), joints["lean"]

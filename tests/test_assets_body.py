@@ -7,7 +7,7 @@ import pytest
 
 from assets_procedural import body
 from assets_procedural.meshkit import MeshBuilder
-from assets_procedural.shapes import figure
+from assets_procedural.shapes import figure, walking_legs
 from blendgen.scene.catalog import sample_variant
 
 
@@ -97,6 +97,21 @@ def test_walking_person_swings_opposite_arm_and_leg():
     skin = r["skin"]
     low = skin[skin[:, 2] < 1.0]  # hands
     assert low[low[:, 1] < 0, 0].max() > low[low[:, 1] > 0, 0].max() + 0.1  # the right hand ahead
+    # the trailing leg pushes off: its heel up, its knee bent; the leading leg straight, its sole
+    # on the ground (both straight read as a pair of compasses on the real photos)
+    assert right[:, 2].max() > left[:, 2].max() + 0.03
+    assert left[:, 2].min() - mb.vertices[:, 2].min() < 0.01
+    J = body.rest_joints({"seed": 3}, 1.75)
+    seg = {j: float(np.linalg.norm(J[b + ".L"] - J[a + ".L"])) for j, a, b in (("thigh", "hip", "knee"),
+                                                                                ("shin", "knee", "ankle"))}
+    target = {}
+    pelvis = walking_legs(J, seg, 0.35, 1.75, target)
+
+    def knee_deg(s):
+        hip = pelvis + J["hip." + s] - J["pelvis"]
+        a, b = target["knee." + s] - hip, target["ankle." + s] - target["knee." + s]
+        return np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)))
+    assert knee_deg("L") < 2 and knee_deg("R") > 15
 
 
 @pytest.mark.parametrize("cls", ["bicycle", "motorcycle"])

@@ -339,13 +339,22 @@ def _ik(hip, foot, l1, l2, forward):
     return hip + u * a + fw * hgt, hip + u * dist
 
 
-def walking_legs(J: dict, seg: dict, stride: float, h: float, target: dict) -> np.ndarray:
+def limb_lengths(J: dict) -> dict[str, float]:
+    """Thigh, shin, upper arm and forearm lengths of the rest joints `J` (m)."""
+    return {j: float(np.linalg.norm(J[b + ".L"] - J[a + ".L"]))
+            for j, a, b in (("thigh", "hip", "knee"), ("shin", "knee", "ankle"),
+                            ("upper", "shoulder", "elbow"), ("fore", "elbow", "wrist"))}
+
+
+def walking_legs(J: dict, stride: float, h: float) -> tuple[np.ndarray, dict]:
     """Standing (stride 0) or mid-stride: each leg swung by `stride` (rad) about its hip, the
     pelvis lowered so the leading foot stays on the ground, the trailing leg pushing off with
     its heel raised and its knee bent (both legs straight read as a pair of compasses on the
-    real photos). Fills `target`'s knees and ankles; returns the pelvis."""
+    real photos). Returns the pelvis and the knee and ankle targets."""
+    seg = limb_lengths(J)
     leg = seg["thigh"] + seg["shin"]
     pelvis = J["pelvis"] - [0, 0, (1 - math.cos(stride)) * leg]
+    target = {}
     for s, ang in (("L", stride), ("R", -stride)):
         hip = pelvis + (J["hip." + s] - J["pelvis"])
         # the rest pose stands with the feet 0.4 m apart: bring them under the hips
@@ -353,7 +362,7 @@ def walking_legs(J: dict, seg: dict, stride: float, h: float, target: dict) -> n
         if ankle[0] < hip[0] - 1e-6:
             ankle = ankle + [0, 0, 0.035 * h]
         target["knee." + s], target["ankle." + s] = _ik(hip, ankle, seg["thigh"], seg["shin"], [1, 0, 0])
-    return pelvis
+    return pelvis, target
 
 
 def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
@@ -362,17 +371,15 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
     (riders): pelvis, lean, hands and feet given."""
     h = float(v.get("height_m", 1.72))
     J = body.rest_joints(v, h)
-    seg = {j: float(np.linalg.norm(J[b + ".L"] - J[a + ".L"]))
-           for j, a, b in (("thigh", "hip", "knee"), ("shin", "knee", "ankle"),
-                           ("upper", "shoulder", "elbow"), ("fore", "elbow", "wrist"))}
+    seg = limb_lengths(J)
     arm = seg["upper"] + seg["fore"]
     stride = float(v.get("stride_rad", 0.0))
-    target = {}
     if joints is None:
-        pelvis = walking_legs(J, seg, stride, h, target)
+        pelvis, target = walking_legs(J, stride, h)
         lean, head_lift = (0.05 if stride else 0.0), 0.0
         hands = None
     else:
+        target = {}
         pelvis, lean = np.asarray(joints["pelvis"], float), joints["lean"]
         for s, foot in zip("LR", joints["feet"]):
             hip = pelvis + (J["hip." + s] - J["pelvis"])
@@ -525,11 +532,11 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         veh.add(vv, f, spokes)
         vv, f = cylinder(0.4 * r, 0.008, 16, "y", (x, -0.05, r))
         veh.add(vv, f, "alloy")
+        spoke, f = box((r - 2 * t - 0.06, 0.03, 0.028), (0, 0, 0))
         for k in range(5):
             a = 2 * np.pi * k / 5 + 0.3
             c = np.array([x, 0, r]) + (r - 2 * t + 0.06) / 2 * np.array([np.cos(a), 0, np.sin(a)])
-            vv, f = box((r - 2 * t - 0.06, 0.03, 0.028), (0, 0, 0))
-            veh.add(xf(vv, rot_y(-a), c), f, spokes)
+            veh.add(xf(spoke, rot_y(-a), c), f, spokes)
     if kind == "scooter":
         vv, f = box((wb * 0.5, 0.34, 0.08), (0.0, 0, r * 0.9))
         veh.add(vv, f, "plastic")

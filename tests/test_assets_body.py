@@ -102,10 +102,7 @@ def test_walking_person_swings_opposite_arm_and_leg():
     assert right[:, 2].max() > left[:, 2].max() + 0.03
     assert left[:, 2].min() - mb.vertices[:, 2].min() < 0.01
     J = body.rest_joints({"seed": 3}, 1.75)
-    seg = {j: float(np.linalg.norm(J[b + ".L"] - J[a + ".L"])) for j, a, b in (("thigh", "hip", "knee"),
-                                                                                ("shin", "knee", "ankle"))}
-    target = {}
-    pelvis = walking_legs(J, seg, 0.35, 1.75, target)
+    pelvis, target = walking_legs(J, 0.35, 1.75)
 
     def knee_deg(s):
         hip = pelvis + J["hip." + s] - J["pelvis"]

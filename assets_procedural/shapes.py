@@ -55,6 +55,23 @@ def _lower_body(L, hw, z_bot, tops, r=0.12):
     return loft(st)
 
 
+def _section_half_width(half_w, z0, z1, r, top_half_w, z):
+    """Half-width at height z of `rounded_section(half_w, z0, z1, r, top_half_w=...)`."""
+    r = min(r, (z1 - z0) / 2.01, top_half_w * 0.99, half_w * 0.99)
+    if z >= z1 - r:
+        return top_half_w - r + math.sqrt(max(r * r - (z - (z1 - r)) ** 2, 0.0))
+    if z <= z0 + r:
+        return half_w - r + math.sqrt(max(r * r - (z0 + r - z) ** 2, 0.0))
+    return half_w + (top_half_w - half_w) * (z - z0 - r) / (z1 - z0 - 2 * r)
+
+
+def _body_half_width(tops, hw, z_bot, x, z, r):
+    """Half-width of the `_lower_body` loft at (x, z), its stations interpolated linearly."""
+    xs = [t[0] for t in tops]
+    zt, wf = np.interp(x, xs, [t[1] for t in tops]), np.interp(x, xs, [t[2] for t in tops])
+    return _section_half_width(hw * wf, z_bot + (0.05 if wf < 0.97 else 0.0), zt, r, hw * wf * 0.96, z)
+
+
 CAR_SHAPES = {  # fractions: beltline/hood/deck heights of H; x positions of L; bottom of H
     "sedan": dict(belt=.63, hood=.58, deck=.66, ws=.20, roof_f=.03, roof_r=-.22, rw=-.36, bot=.13, axle=.30),
     "hatchback": dict(belt=.61, hood=.57, deck=.63, ws=.20, roof_f=.02, roof_r=-.38, rw=-.47, bot=.13, axle=.31),
@@ -85,21 +102,30 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
            (p["roof_r"] * L, rounded_section(hw * 0.93, zc, H - 0.035, 0.12, top_half_w=roof_hw)),
            (p["roof_f"] * L, rounded_section(hw * 0.93, zc, H - 0.035, 0.12, top_half_w=roof_hw)),
            (x_ws, rounded_section(hw * 0.95, zc, belt + 0.02, 0.05, top_half_w=hw * 0.93))]
-    vv, f = loft(cab)
+    # the rear slope painted (C- or D-pillars from the side, a band under the roof) round an
+    # inset window; all glass, the back of a hatchback, SUV or van was a tall dark panel that
+    # YOLOX-Nano took for a bus's rear on the real highway photos
+    vv, f = loft(cab[:2])
+    mb.add(vv, f, "paint")
+    vv, f = loft(cab[1:])
     mb.add(vv, f, "glass")
+    # a tailgate's window keeps to its upper part, a sedan's backlight fills its slope
+    z0, z1 = (max(belt + 0.1, 0.64 * H), H - 0.1) if v.get("kind") in TWO_BOX else (belt + 0.05, H - 0.07)
+    _rear_window(mb, (x_rw, 0.93 * hw - 0.05, belt + 0.02), (p["roof_r"] * L, roof_hw - 0.12, H - 0.035), z0, z1)
     roof = [(p["roof_r"] * L - 0.03, rounded_section(roof_hw * 1.02, H - 0.06, H, 0.025, top_half_w=roof_hw * 0.97)),
             (p["roof_f"] * L + 0.03, rounded_section(roof_hw * 1.02, H - 0.06, H, 0.025, top_half_w=roof_hw * 0.97))]
     vv, f = loft(roof)
     mb.add(vv, f, "paint", smooth=True)
-    # B- and C-pillars in black trim split the side glass into windows
+    # B- and C-pillars in black trim split the side glass into windows: strips on the glass from
+    # the belt up, following its tumblehome and rounded top (a straight lean stood out of the
+    # painted rear pillars seen from behind, as thin dark lines)
     xb = (p["roof_f"] + p["roof_r"]) / 2 * L
+    zs = np.linspace(belt, H - 0.06, 8)
+    ys = np.array([_section_half_width(hw * 0.93, zc, H - 0.035, 0.12, roof_hw, z) + 0.004 for z in zs])
     for s in (1, -1):
         for xp, wp in ((xb, 0.10), (p["roof_r"] * L + 0.05, 0.07)):
-            hh = H - 0.06 - zc
-            vv, f = box((wp, 0.03, hh), (xp, 0.0, zc + hh / 2))
-            # lean the pillar with the tumblehome: bottom at the glass base, top at the roof edge
-            vv[:, 1] = s * (hw * 0.94 - (hw * 0.94 - roof_hw) * (vv[:, 2] - zc) / hh + 0.005)
-            mb.add(vv, f, "plastic")
+            mb.add(*_grid(np.array([[[x, s * y, z] for y, z in zip(ys, zs)] for x in (xp - wp / 2, xp + wp / 2)])),
+                   "plastic")
     # wheels in black arches
     ax = p["axle"] * L
     for x in (ax, -ax):
@@ -127,10 +153,7 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for s in (1, -1):
         vv, f = box((0.03, 0.30, 0.11), (L / 2 + 0.005, s * y_lamp, zl))
         mb.add(vv, f, "lamp_head")
-        vv, f = box((0.06, 0.38, 0.15), (-L / 2 + 0.025, s * (hw - 0.25), deck - 0.15))
-        mb.add(vv, f, "lamp_tail")
-        vv, f = box((0.16, 0.02, 0.13), (-L / 2 + 0.1, s * (hw * 0.985), deck - 0.15))
-        mb.add(vv, f, "lamp_tail")
+        _tail_lamp(mb, tops, hw, zb, -L / 2, deck - 0.14, s)
         # mirror on a short arm at the front of the side glass
         vv, f = box((0.10, 0.17, 0.11), (x_ws - 0.14, s * (hw + 0.1), belt + 0.07))
         mb.add(vv, f, "paint")
@@ -144,6 +167,46 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     mb.add(vv, f, "chrome" if v.get("chrome_trim") else "plastic")
     vv, f = box((0.05, 0.3, 0.04), (p["roof_r"] * L - 0.02, 0, H - 0.07))
     mb.add(vv, f, "lamp_tail")
+
+
+TWO_BOX = ("hatchback", "suv", "van")
+
+
+def _grid(P):
+    """Quads over an (nu, nv, 3) grid of points."""
+    nu, nv = P.shape[:2]
+    idx = np.arange(nu * nv).reshape(nu, nv)
+    f = [[idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]] for i in range(nu - 1) for j in range(nv - 1)]
+    return P.reshape(-1, 3), f
+
+
+def _tail_lamp(mb, tops, hw, zb, x_rear, z_top, side, height=0.16, width=0.3, wrap=0.15):
+    """A tail-lamp cluster hugging the tail's rounded corner: a lens on the rear face whose
+    outer edge follows the corner's curve, wrapping `wrap` m round onto the side (boxes there
+    stood out of the tapered tail as red ears)."""
+    zs = np.linspace(z_top - 0.03 - height, z_top - 0.03, 4)
+    edge = np.array([_body_half_width(tops, hw, zb, x_rear, z, 0.2) for z in zs])
+    inner = edge.max() - width
+    back = np.array([[[x_rear - 0.004, side * y, z] for y, z in zip(ys, zs)]
+                     for ys in (np.full(4, inner), edge - 0.004)])
+    mb.add(*_grid(back), "lamp_tail")
+    xs = np.linspace(x_rear, x_rear + wrap, 7)
+    round_ = np.array([[[x, side * (_body_half_width(tops, hw, zb, x, z, 0.2) + 0.004), z] for z in zs] for x in xs])
+    mb.add(*_grid(round_), "lamp_tail")
+
+
+def _rear_window(mb, bottom, top, z0, z1):
+    """An inset glass panel on a tailgate's sloped face, the plane through its flat bottom
+    edge (x, half-width, z) and top edge; the glass from height z0 to z1, 0.82 of the face's
+    width, 5 mm proud of the paint."""
+    b, t = np.asarray(bottom, float), np.asarray(top, float)
+    dx, dz = t[0] - b[0], t[2] - b[2]
+    n = np.array([-dz, 0.0, dx]) / math.hypot(dx, dz)  # outward, backwards and up
+    P = []
+    for u in ((z0 - b[2]) / dz, (z1 - b[2]) / dz):
+        x, hwu, z = b + u * (t - b)
+        P.append([[x, y * 0.82 * hwu, z] + 0.005 * n for y in (-1, 1)])
+    mb.add(*_grid(np.array(P)), "glass")
 
 
 def _cab(mb, x_front, length, hw, z0, z1, glass_from):

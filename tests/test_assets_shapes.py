@@ -1,9 +1,10 @@
 """Vehicle shapes without Blender (assets_procedural/shapes.py on a MeshBuilder)."""
 
+import cv2
 import numpy as np
 
 from assets_procedural.meshkit import MeshBuilder
-from assets_procedural.shapes import BUILDERS
+from assets_procedural.shapes import BUILDERS, CAR_SHAPES
 from blendgen.scene.catalog import sample_variant
 from test_assets_body import _regions
 
@@ -27,6 +28,43 @@ def test_bus_rear_is_a_window_over_a_panel_and_louvres():
         assert len(np.unique(np.round(louvres[:, 2], 3))) >= 12  # six slats, top and bottom faces
         lamps = parts["lamp_tail"]
         assert np.ptp(lamps[lamps[:, 0] < rear][:, 2]) >= 0.45
+
+
+def _silhouette_from_behind(mb, slot, cm=0.01):
+    """Occupancy of the (y, z) plane, in `cm` cells, by the faces of `slot` seen along x."""
+    v, mat = mb.vertices, np.asarray(mb.mat)
+    img = np.zeros((400, 400), np.uint8)  # y in [-2, 2) m, z in [0, 4) m
+    for i in np.flatnonzero(mat == mb.slots.index(slot)):
+        yz = v[mb.faces[i]][:, 1:]
+        cv2.fillPoly(img, [np.round((yz + [2.0, 0.0]) / cm).astype(np.int32)], 1)
+    return img
+
+
+def test_car_rear_window_is_framed_and_tail_lamps_hug_the_tail():
+    """Seen from behind, a car's rear was one dark panel from the belt to the roof (YOLOX-Nano
+    took hatchbacks, SUVs and vans for buses on the real highway photos) with red boxes standing
+    out of the rounded tail like ears. The rear window is an inset panel within a painted
+    tailgate, and every tail-lamp point lies on the body's outline seen from behind."""
+    rng = np.random.default_rng(3)
+    kinds = set()
+    for _ in range(16):
+        v, (L, W, H) = sample_variant("car", rng)
+        kinds.add(v["kind"])
+        mb = MeshBuilder()
+        BUILDERS["car"](mb, v, L, W, H)
+        parts = _regions(mb)
+        glass, paint = parts["glass"], parts["paint"]
+        roof_rear = paint[paint[:, 2] > H - 0.01][:, 0].min()
+        back = glass[glass[:, 0] < roof_rear + 0.02]  # behind the side windows: the rear window only
+        assert len(back) == 4
+        assert np.ptp(back[:, 1]) < 0.8 * np.ptp(paint[:, 1])
+        belt = CAR_SHAPES[v["kind"]]["belt"] * H
+        assert back[:, 2].min() > belt + 0.04 and back[:, 2].max() < H - 0.05
+        body = cv2.dilate(_silhouette_from_behind(mb, "paint"), np.ones((3, 3), np.uint8))
+        lamps = parts["lamp_tail"]
+        cells = np.round((lamps[:, 1:] + [2.0, 0.0]) / 0.01).astype(int)
+        assert body[cells[:, 1], cells[:, 0]].all()
+    assert kinds == set(CAR_SHAPES)
 
 
 def test_motorcycle_shows_a_plate_indicators_and_open_wheels():

@@ -59,6 +59,8 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.principled(s, (0.55, 0.01, 0.01) if s == "tape_red" else (0.85, 0.85, 0.85), roughness=0.25)
         elif s == "plate":
             out[s] = M.principled("plate", (0.85, 0.85, 0.8), roughness=0.4)
+        elif s == "plate_text":
+            out[s] = M.principled("plate_text", (0.02, 0.025, 0.04), roughness=0.4)
         elif s == "indicator":  # an amber lens, never lit (lit at night both read as hazard lights)
             out[s] = M.principled("indicator", (0.45, 0.2, 0.01), roughness=0.1, coat=1.0)
         elif s in ("lamp_head", "lamp_tail", "lamp_sign"):  # switched per frame by the render driver

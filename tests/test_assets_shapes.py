@@ -67,6 +67,26 @@ def test_car_rear_window_is_framed_and_tail_lamps_hug_the_tail():
     assert kinds == set(CAR_SHAPES)
 
 
+def test_motorcycle_plates_carry_characters_on_their_outer_face():
+    """A plain white plate glowed like a sticker on the real photos: a motorcycle's plate carries
+    dark characters, on its outer face and inside its outline."""
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        v, (L, W, H) = sample_variant("motorcycle", rng)
+        mb = MeshBuilder()
+        BUILDERS["motorcycle"](mb, {**v, "part": "vehicle"}, L, W, H)
+        parts = _regions(mb)
+        plate, glyphs = parts["plate"], parts["plate_text"]
+        assert len(glyphs) >= 4 * 2 * 8  # four characters of two segments or more
+        assert plate[:, 1].min() < glyphs[:, 1].min() and glyphs[:, 1].max() < plate[:, 1].max()
+        assert plate[:, 2].min() < glyphs[:, 2].min() and glyphs[:, 2].max() < plate[:, 2].max()
+        # on the outer face: beyond the plate along its thinnest axis (the plate is tilted)
+        c = plate.mean(0)
+        n = np.linalg.svd(plate - c)[2][-1]
+        n = n if n[0] < 0 else -n
+        assert ((glyphs - c) @ n).min() >= ((plate - c) @ n).max() - 1e-6
+
+
 def test_motorcycle_shows_a_plate_indicators_and_open_wheels():
     """Seen from behind, the motorcycles of the real-photo runs were a narrow tyre under a red
     block with a white ball beside it (the silencer's chrome end mirroring the sky), and from

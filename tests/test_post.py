@@ -333,6 +333,28 @@ def test_composite_empty_mask_returns_background_bit_for_bit():
         assert np.array_equal(out, real)
 
 
+def test_soft_contact_shadow_keeps_its_depth_and_its_patch_leaves_no_outline():
+    """Without a sun, a vehicle's contact shadow lies right under it in a foreshortened catcher
+    patch, which its render region cuts where the sky it hides is still ~0.85. Under the BDD day
+    photo's van (catcher 0.05-0.08) the composite was only 15-25 % darker: a fade toward the
+    region's edge over 30 % of the (object-merged) patch's inradius halved it. Now the border's
+    value is divided out: the shadow keeps its depth and ends at 1 on the border."""
+    h, w = 320, 320
+    real = np.full((h, w, 3), 150, np.uint8)
+    p = _passes(h, w, box=(40, 60, 230, 200), alpha_edge=False)  # a van close ahead
+    sc = np.ones((h, w, 3), np.float32)
+    sc[:300] = 1.0004  # the render region: the catcher's noise, never exactly 1
+    sc[270:300] = 0.85  # the patch under the van, cut by the region's bottom edge
+    sc[270:278, 70:250] = 0.07  # the contact shadow under the bumper
+    p["shadow_catcher"] = sc
+    s = Post(color_transfer="none", sensor_match=False, relight=False)
+    out, _ = composite_frame(real, p, settings=s, illumination=None, seed=0)
+    lin = (out[..., 0].astype(float) / 255) ** 2.2 / (150 / 255) ** 2.2
+    assert lin[271:277, 100:220].max() < 0.12  # 0.07 / 0.85 = 0.08 of the road's light
+    assert np.abs(out[290:300].astype(int) - 150).max() <= 2  # no step at the region's edge
+    assert np.array_equal(out[301:], real[301:])
+
+
 def test_composite_paste_touches_only_object_and_shadow():
     real = _scene()
     h, w = real.shape[:2]

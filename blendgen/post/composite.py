@@ -36,8 +36,10 @@ STRENGTH_AFTER_ENV_LIGHT = 0.1
 STRENGTH_WITHOUT_ENV_LIGHT = 0.3
 RING_PX = 0.35  # background ring width, as a fraction of the object's box size
 MIN_RING_PX = 6
+# a patch's border keeps 0.77-0.9 of a soft sky shadow on the real photos; darker there is a
+# shadow its patch cuts off, which is not divided out
+FLOOR_MIN = 0.75
 SHADOW_EPS = 0.03  # (smoothed) shadow-catcher values below 1 - eps darken the background
-CONTACT_FADE = 0.3  # soft shadows reach full strength this far into the patch (of its inradius)
 HDR_MAX = 1e4  # clamp for +inf / absurd values in the EXR
 WINDOW_PAD = 16  # px around objects and catcher patches: > every neighbourhood a step reads
 WINDOW_GRID = 16  # window origin on this grid (a multiple of the 8x8 JPEG and 4-px sample grids)
@@ -96,13 +98,14 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
         mult = _rows3(sc[m], cv2.COLOR_RGB2BGR)
         mult /= baseline
         np.clip(mult, 0.0, 1.0, out=mult)
-        # the sky shadow under an object still blocks light at the catcher patch's edge: fade
-        # it out toward the edge, or the patch's outline shows on the road (sun shadows end
-        # a margin inside their patch, so the fade leaves them whole). The window holds
-        # whole patches, so the fade is the same as on the full frame.
+        # the sky shadow under an object still blocks light at the catcher patch's edge:
+        # divided by the patch's value there, it ends at 1, or the patch's outline shows on
+        # the road (sun shadows end a margin inside their patch, their floor is ~1). The
+        # window holds whole patches, so the floor is the same as on the full frame.
         my, mx = np.nonzero(m)
         my, mx = my + sb[0].start, mx + sb[1].start  # window coordinates
-        mult = 1.0 - _rep3(_edge_fade(shadow, (my, mx))) * (1.0 - mult)
+        floor = np.maximum(_patch_floor(shadow, idx[R], (my, mx)) / baseline, FLOOR_MIN)
+        mult = np.clip(mult / _rep3(floor), 0.0, 1.0)
         flat = (my + wy0) * W + (mx + wx0)  # flat frame indices: gathers ~5x faster than masks
         out2 = out.reshape(-1, 3)
         _put(out2, flat, linear_to_srgb_u8(srgb_u8_to_linear(np.take(out2, flat, axis=0)) * mult))
@@ -352,40 +355,48 @@ def _shadow_mask(catcher: np.ndarray, win):
     return grey < baseline * (1.0 - SHADOW_EPS), shadow, baseline
 
 
-def _edge_fade(catcher: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """At the pixels ``at`` (rows, cols): 0 at the edge of each catcher patch (pixels != 1.0)
-    rising to 1 at CONTACT_FADE of its inradius: a contact shadow's weight, so it fades into
-    the road instead of stopping."""
-    # != 1.0 in any channel, on the float bits; cvtColor of 255/0 bytes ORs the channels
-    # (numpy's any() over a 3-channel axis is slow)
+def _patch_floor(catcher: np.ndarray, idx: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """At the pixels ``at`` (rows, cols): the catcher's grey value on its patches' ground border,
+    spread inward (the border values' local mean, 33 px, else 129 px, else all of them). A soft
+    sky shadow has not ended where its patch does; dividing this floor out makes every shadow
+    end at 1 on the border, so the patch's outline never shows, while the contact shadow under
+    a vehicle keeps its depth. (A fade toward the border over a fraction of the patch's
+    inradius in pixels halved it on a foreshortened road: 0.05 under a bumper became 0.5.)"""
     c = np.asarray(catcher, dtype=np.float32)
     if c.ndim == 3 and c.shape[2] == 3:
         # 255 where a channel's float bits are not 1.0f (int32 compare), ORed by cvtColor
         ne = cv2.compare(c.view(np.int32).reshape(c.shape[0], -1), int(ONE_F32_BITS), cv2.CMP_NE)
         covered = cv2.cvtColor(ne.reshape(c.shape), cv2.COLOR_BGR2GRAY)
+        grey = cv2.cvtColor(c, cv2.COLOR_BGR2GRAY)
     else:
-        ne = (c.view(np.uint32) != ONE_F32_BITS).view(np.uint8)
-        covered = (cv2.cvtColor(ne * np.uint8(255), cv2.COLOR_BGR2GRAY) if ne.shape[2] == 3
-                   else ne[..., 0] * np.uint8(255))
-    # Only the patches' box (+1 px of zeros, so edge distances stay as they are) is transformed.
+        c = c.reshape(c.shape[:2])
+        covered = (c.view(np.uint32) != ONE_F32_BITS).astype(np.uint8) * np.uint8(255)
+        grey = c
+    ground = idx <= 0
+    covered[~ground] = 255  # an object stands inside its patch
+    # Only the patches' box (+1 px, so that a border on the box's edge is found).
     x, y, w, h = cv2.boundingRect(covered)
     H, W = covered.shape
     y0, x0, y1, x1 = max(0, y - 1), max(0, x - 1), min(H, y + h + 1), min(W, x + w + 1)
-    covered = covered[y0:y1, x0:x1]
-    at = (at[0] - y0, at[1] - x0)
-    dist = cv2.distanceTransform(covered, cv2.DIST_L2, 3)
-    # labels without stats (3x cheaper); a patch's largest distance by a masked max over the
-    # box, or, with many patches, over each patch's own box
-    n, labels = cv2.connectedComponents(covered, connectivity=8, ltype=cv2.CV_32S)
-    inradius = np.zeros(n, np.float32)
-    if n <= 8:
-        for i in range(1, n):
-            inradius[i] = cv2.minMaxLoc(dist, mask=cv2.compare(labels, i, cv2.CMP_EQ))[1]
-    else:
-        for i, sl in enumerate(ndimage.find_objects(labels), start=1):
-            if sl is not None:
-                inradius[i] = dist[sl][labels[sl] == i].max()
-    return np.clip(dist[at] / np.maximum(CONTACT_FADE * inradius[labels[at]], 1.0), 0.0, 1.0)
+    box = (slice(y0, y1), slice(x0, x1))
+    covered = covered[box]
+    # covered ground next to uncovered pixels (the frame's edge is no border: erode treats
+    # outside the image as covered)
+    border = ((covered > 0) & (cv2.erode(covered, np.ones((3, 3), np.uint8)) == 0) & ground[box]).astype(np.float32)
+    if not border.any():
+        return np.ones(len(at[0]), np.float32)
+    value = np.clip(grey[box], 0.0, 1.0) * border
+    rows, cols = at[0] - y0, at[1] - x0
+    floor = np.full(len(rows), float(np.median(value[border > 0])), np.float32)
+    todo = np.ones(len(rows), bool)
+    for k in (33, 129):
+        if not todo.any():
+            break
+        wsum = cv2.blur(border, (k, k))[rows, cols]
+        ok = todo & (wsum > 1e-4)
+        floor[ok] = cv2.blur(value, (k, k))[rows, cols][ok] / wsum[ok]
+        todo &= ~ok
+    return floor
 
 
 def _bbox(mask: np.ndarray, pad: int, H: int, W: int) -> tuple[slice, slice]:

@@ -195,9 +195,9 @@ def _tail_lamp(mb, tops, hw, zb, x_rear, z_top, side, height=0.16, width=0.3, wr
 
 
 def _rear_window(mb, bottom, top, z0, z1):
-    """An inset glass panel on a tailgate's sloped face, the plane through its flat bottom
-    edge (x, half-width, z) and top edge; the glass from height z0 to z1, 0.82 of the face's
-    width, 5 mm proud of the paint."""
+    """An inset glass panel on the greenhouse's painted rear slope, the plane through the
+    slope's flat bottom edge (x, half-width, z) and top edge; the glass from height z0 to z1,
+    0.82 of the slope's width, 5 mm proud of the paint."""
     b, t = np.asarray(bottom, float), np.asarray(top, float)
     dx, dz = t[0] - b[0], t[2] - b[2]
     n = np.array([-dz, 0.0, dx]) / math.hypot(dx, dz)  # outward, backwards and up

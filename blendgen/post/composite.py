@@ -360,8 +360,9 @@ def _patch_floor(catcher: np.ndarray, idx: np.ndarray, at: tuple[np.ndarray, np.
     spread inward (the border values' local mean, 33 px, else 129 px, else all of them). A soft
     sky shadow has not ended where its patch does; dividing this floor out makes every shadow
     end at 1 on the border, so the patch's outline never shows, while the contact shadow under
-    a vehicle keeps its depth. (A fade toward the border over a fraction of the patch's
-    inradius in pixels halved it on a foreshortened road: 0.05 under a bumper became 0.5.)"""
+    a vehicle keeps its depth. (A fade toward the border over 30 % of the covered area's
+    inradius, the whole render region with its objects, had a catcher of 0.05 under a van's
+    bumper composite as 0.75 of the road's light.)"""
     c = np.asarray(catcher, dtype=np.float32)
     if c.ndim == 3 and c.shape[2] == 3:
         # 255 where a channel's float bits are not 1.0f (int32 compare), ORed by cvtColor

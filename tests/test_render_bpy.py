@@ -452,10 +452,10 @@ def test_catcher_patches_catch_the_shadow_the_ground_catches(tmp_path):
 
 
 def test_ground_casts_no_shadow_on_the_catcher_patches(tmp_path):
-    """A map's roads sit up to 1.7 cm above z = 0 (no z-fighting in junctions), above the
-    catcher patches 0.2 mm over the objects' base: in the demo town they shadowed the patches
-    whole (catcher median 1e-5 under a cyclist, 0.73 once the ground casts no shadow; the
-    composite's old edge fade had hidden it). With patches the ground only bounces light."""
+    """In the demo town the twin's ground meshes shadowed the catcher patches whole (catcher
+    median 1e-5 under a cyclist, 0.73 once the ground casts no shadow; the composite's old edge
+    fade had hidden it). With patches the ground only bounces light. (This scene does not show
+    the fault: a plane 4.5 mm to 5 cm above a patch leaves it lit either way; the demo town does.)"""
     from blendgen.render import primitives as prim
     from blendgen.render.primitives import box_object
     from blendgen.render.session import RenderSession

@@ -298,7 +298,7 @@ class RenderSession:
                 # The ground stays for the light it bounces onto the objects (and reflections),
                 # but casts no shadow: a map twin's ground meshes (its roads sit up to 1.7 cm above
                 # z = 0) shadowed the patches whole (the demo town's catcher was ~0 under every
-                # object; which mesh does it was not isolated).
+                # object).
                 ob.is_holdout, ob.is_shadow_catcher, ob.hide_render = False, False, not catcher
                 ob.visible_camera = ob.visible_shadow = False
             elif role in HOLDOUT_ROLES:

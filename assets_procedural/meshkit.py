@@ -166,10 +166,14 @@ def torus(major, minor, center=(0, 0, 0), axis="y", nu=24, nv=8):
     return xf(verts, R, center), f
 
 
+def _corner_radius(half_w, tw, z0, z1, r):
+    return min(r, (z1 - z0) / 2.01, tw * 0.99, half_w * 0.99)
+
+
 def rounded_section(half_w, z0, z1, r, n_corner=3, top_half_w=None):
     """Cross-section (in y, z) of a rounded box, counter-clockwise seen from +x."""
     tw = half_w if top_half_w is None else top_half_w
-    r = min(r, (z1 - z0) / 2.01, tw * 0.99, half_w * 0.99)
+    r = _corner_radius(half_w, tw, z0, z1, r)
     pts = []
     for (cy, cz, a0) in ((half_w - r, z0 + r, -math.pi / 2), (tw - r, z1 - r, 0.0),
                          (-(tw - r), z1 - r, math.pi / 2), (-(half_w - r), z0 + r, math.pi)):
@@ -177,6 +181,27 @@ def rounded_section(half_w, z0, z1, r, n_corner=3, top_half_w=None):
             a = a0 + (math.pi / 2) * k / n_corner
             pts.append((cy + r * math.cos(a), cz + r * math.sin(a)))
     return pts
+
+
+def rounded_section_half_width(half_w, z0, z1, r, z, top_half_w=None):
+    """Half-width at height z of `rounded_section(half_w, z0, z1, r, top_half_w=...)` (exact
+    corners, not the polygon's chords)."""
+    tw = half_w if top_half_w is None else top_half_w
+    r = _corner_radius(half_w, tw, z0, z1, r)
+    if z >= z1 - r:
+        return tw - r + math.sqrt(max(r * r - (z - (z1 - r)) ** 2, 0.0))
+    if z <= z0 + r:
+        return half_w - r + math.sqrt(max(r * r - (z0 + r - z) ** 2, 0.0))
+    return half_w + (tw - half_w) * (z - z0 - r) / (z1 - z0 - 2 * r)
+
+
+def grid(P):
+    """Quads over an (nu, nv, 3) grid of points: (vertices, faces)."""
+    P = np.asarray(P, float)
+    nu, nv = P.shape[:2]
+    idx = np.arange(nu * nv).reshape(nu, nv)
+    f = [[idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]] for i in range(nu - 1) for j in range(nv - 1)]
+    return P.reshape(-1, 3), f
 
 
 def loft(stations, cap=True):

@@ -16,8 +16,8 @@ import math
 import numpy as np
 
 from assets_procedural import body
-from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, loft, rot_x, rot_y, rounded_section,
-                                       torus, tube, xf)
+from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, grid, loft, rot_x, rot_y,
+                                       rounded_section, rounded_section_half_width, torus, tube, xf)
 
 
 # ====================================================================== vehicles (4 wheels)
@@ -55,21 +55,11 @@ def _lower_body(L, hw, z_bot, tops, r=0.12):
     return loft(st)
 
 
-def _section_half_width(half_w, z0, z1, r, top_half_w, z):
-    """Half-width at height z of `rounded_section(half_w, z0, z1, r, top_half_w=...)`."""
-    r = min(r, (z1 - z0) / 2.01, top_half_w * 0.99, half_w * 0.99)
-    if z >= z1 - r:
-        return top_half_w - r + math.sqrt(max(r * r - (z - (z1 - r)) ** 2, 0.0))
-    if z <= z0 + r:
-        return half_w - r + math.sqrt(max(r * r - (z0 + r - z) ** 2, 0.0))
-    return half_w + (top_half_w - half_w) * (z - z0 - r) / (z1 - z0 - 2 * r)
-
-
 def _body_half_width(tops, hw, z_bot, x, z, r):
     """Half-width of the `_lower_body` loft at (x, z), its stations interpolated linearly."""
     xs = [t[0] for t in tops]
     zt, wf = np.interp(x, xs, [t[1] for t in tops]), np.interp(x, xs, [t[2] for t in tops])
-    return _section_half_width(hw * wf, z_bot + (0.05 if wf < 0.97 else 0.0), zt, r, hw * wf * 0.96, z)
+    return rounded_section_half_width(hw * wf, z_bot + (0.05 if wf < 0.97 else 0.0), zt, r, z, top_half_w=hw * wf * 0.96)
 
 
 CAR_SHAPES = {  # fractions: beltline/hood/deck heights of H; x positions of L; bottom of H
@@ -78,6 +68,9 @@ CAR_SHAPES = {  # fractions: beltline/hood/deck heights of H; x positions of L; 
     "suv": dict(belt=.60, hood=.61, deck=.63, ws=.22, roof_f=.06, roof_r=-.43, rw=-.48, bot=.14, axle=.31),
     "van": dict(belt=.52, hood=.46, deck=.54, ws=.40, roof_f=.27, roof_r=-.47, rw=-.495, bot=.11, axle=.33),
 }
+
+
+TWO_BOX = ("hatchback", "suv", "van")  # a tailgate: the rear window in its upper part
 
 
 def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
@@ -121,10 +114,11 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     # painted rear pillars seen from behind, as thin dark lines)
     xb = (p["roof_f"] + p["roof_r"]) / 2 * L
     zs = np.linspace(belt, H - 0.06, 8)
-    ys = np.array([_section_half_width(hw * 0.93, zc, H - 0.035, 0.12, roof_hw, z) + 0.004 for z in zs])
+    ys = np.array([rounded_section_half_width(hw * 0.93, zc, H - 0.035, 0.12, z, top_half_w=roof_hw) + 0.004
+                   for z in zs])
     for s in (1, -1):
         for xp, wp in ((xb, 0.10), (p["roof_r"] * L + 0.05, 0.07)):
-            mb.add(*_grid(np.array([[[x, s * y, z] for y, z in zip(ys, zs)] for x in (xp - wp / 2, xp + wp / 2)])),
+            mb.add(*grid(np.array([[[x, s * y, z] for y, z in zip(ys, zs)] for x in (xp - wp / 2, xp + wp / 2)])),
                    "plastic")
     # wheels in black arches
     ax = p["axle"] * L
@@ -168,17 +162,6 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     mb.add(vv, f, "lamp_tail")
 
 
-TWO_BOX = ("hatchback", "suv", "van")
-
-
-def _grid(P):
-    """Quads over an (nu, nv, 3) grid of points."""
-    nu, nv = P.shape[:2]
-    idx = np.arange(nu * nv).reshape(nu, nv)
-    f = [[idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]] for i in range(nu - 1) for j in range(nv - 1)]
-    return P.reshape(-1, 3), f
-
-
 def _tail_lamp(mb, tops, hw, zb, x_rear, z_top, side, height=0.16, width=0.3, wrap=0.15):
     """A tail-lamp cluster hugging the tail's rounded corner: a lens on the rear face whose
     outer edge follows the corner's curve, wrapping `wrap` m round onto the side (boxes there
@@ -188,10 +171,10 @@ def _tail_lamp(mb, tops, hw, zb, x_rear, z_top, side, height=0.16, width=0.3, wr
     inner = edge.max() - width
     back = np.array([[[x_rear - 0.004, side * y, z] for y, z in zip(ys, zs)]
                      for ys in (np.full(4, inner), edge - 0.004)])
-    mb.add(*_grid(back), "lamp_tail")
+    mb.add(*grid(back), "lamp_tail")
     xs = np.linspace(x_rear, x_rear + wrap, 7)
     round_ = np.array([[[x, side * (_body_half_width(tops, hw, zb, x, z, 0.2) + 0.004), z] for z in zs] for x in xs])
-    mb.add(*_grid(round_), "lamp_tail")
+    mb.add(*grid(round_), "lamp_tail")
 
 
 def _rear_window(mb, bottom, top, z0, z1):
@@ -205,7 +188,7 @@ def _rear_window(mb, bottom, top, z0, z1):
     for u in ((z0 - b[2]) / dz, (z1 - b[2]) / dz):
         x, hwu, z = b + u * (t - b)
         P.append([[x, y * 0.82 * hwu, z] + 0.005 * n for y in (-1, 1)])
-    mb.add(*_grid(np.array(P)), "glass")
+    mb.add(*grid(np.array(P)), "glass")
 
 
 # seven-segment digits over segments a-g (top, top right, bottom right, bottom, bottom left,

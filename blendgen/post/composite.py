@@ -81,7 +81,7 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
     wx0, wy0, wx1, wy1 = win
     R = (slice(wy0, wy1), slice(wx0, wx1))
     info["window_xywh"] = [int(wx0), int(wy0), int(wx1 - wx0), int(wy1 - wy0)]
-    shadowed, shadow, baseline = _shadow_mask(catcher, win) if catcher is not None else (None, None, 1.0)
+    shadowed, shadow, grey, baseline = _shadow_mask(catcher, win) if catcher is not None else (None,) * 3 + (1.0,)
     obj_any = idx[R] > 0
     has_shadow = shadowed is not None and shadowed.any()
     if not obj_any.any() and not has_shadow:
@@ -104,7 +104,7 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
         # window holds whole patches, so the floor is the same as on the full frame.
         my, mx = np.nonzero(m)
         my, mx = my + sb[0].start, mx + sb[1].start  # window coordinates
-        floor = np.maximum(_patch_floor(shadow, idx[R], (my, mx)) / baseline, FLOOR_MIN)
+        floor = np.maximum(_patch_floor(shadow, grey, idx[R], (my, mx)) / baseline, FLOOR_MIN)
         mult = np.clip(mult / _rep3(floor), 0.0, 1.0)
         flat = (my + wy0) * W + (mx + wx0)  # flat frame indices: gathers ~5x faster than masks
         out2 = out.reshape(-1, 3)
@@ -332,7 +332,7 @@ def _put(dst: np.ndarray, flat: np.ndarray, rows: np.ndarray) -> None:
 
 
 def _shadow_mask(catcher: np.ndarray, win):
-    """(shadowed, catcher (float32, finite), baseline) on the window ``win``."""
+    """(shadowed, catcher (float32, finite, 3-D), its grey level, baseline) on the window ``win``."""
     x0, y0, x1, y1 = win
     sc = catcher[y0:y1, x0:x1]
     if sc.ndim == 3 and sc.shape[2] == 3 and sc.dtype == np.float32:
@@ -351,28 +351,24 @@ def _shadow_mask(catcher: np.ndarray, win):
     baseline = baseline if 0.9 <= baseline < 1.0 else 1.0
     # The pass is a ratio of two noisy estimates; shadows are smooth, so a small blur before
     # the threshold keeps real shadows and drops the noise.
-    grey = cv2.blur(grey, (3, 3))
-    return grey < baseline * (1.0 - SHADOW_EPS), shadow, baseline
+    return cv2.blur(grey, (3, 3)) < baseline * (1.0 - SHADOW_EPS), shadow, grey, baseline
 
 
-def _patch_floor(catcher: np.ndarray, idx: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """At the pixels ``at`` (rows, cols): the catcher's grey value on its patches' ground border,
+def _patch_floor(catcher: np.ndarray, grey: np.ndarray, idx: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """At the pixels ``at`` (rows, cols): the catcher's grey level on its patches' ground border,
     spread inward (the border values' local mean, 33 px, else 129 px, else all of them). A soft
     sky shadow has not ended where its patch does; dividing this floor out makes every shadow
     end at 1 on the border, so the patch's outline never shows, while the contact shadow under
     a vehicle keeps its depth. (A fade toward the border over 30 % of the covered area's
     inradius, the whole render region with its objects, had a catcher of 0.05 under a van's
     bumper composite as 0.75 of the road's light.)"""
-    c = np.asarray(catcher, dtype=np.float32)
-    if c.ndim == 3 and c.shape[2] == 3:
+    c = np.asarray(catcher, dtype=np.float32)  # (h, w, 3) or (h, w, 1), as _shadow_mask gives it
+    if c.shape[2] == 3:
         # 255 where a channel's float bits are not 1.0f (int32 compare), ORed by cvtColor
         ne = cv2.compare(c.view(np.int32).reshape(c.shape[0], -1), int(ONE_F32_BITS), cv2.CMP_NE)
         covered = cv2.cvtColor(ne.reshape(c.shape), cv2.COLOR_BGR2GRAY)
-        grey = cv2.cvtColor(c, cv2.COLOR_BGR2GRAY)
     else:
-        c = c.reshape(c.shape[:2])
-        covered = (c.view(np.uint32) != ONE_F32_BITS).astype(np.uint8) * np.uint8(255)
-        grey = c
+        covered = (c[..., 0].view(np.uint32) != ONE_F32_BITS).astype(np.uint8) * np.uint8(255)
     ground = idx <= 0
     covered[~ground] = 255  # an object stands inside its patch
     # Only the patches' box (+1 px, so that a border on the box's edge is found).

@@ -41,8 +41,10 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
         elif s == "cargo":
             out[s] = M.principled(M._key("cargo", v.get("cargo", (0.8, 0.8, 0.78))), v.get("cargo", (0.8, 0.8, 0.78)),
                                   roughness=0.5, coat=0.3)
-        elif s == "glass":
+        elif s in ("glass", "visor"):
             out[s] = M.glass()
+        elif s == "helmet":  # in the two-wheeler's colour
+            out[s] = M.paint(paint, metallic)
         elif s == "rubber":
             out[s] = M.rubber()
         elif s == "chrome":

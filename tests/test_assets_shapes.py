@@ -87,6 +87,42 @@ def test_motorcycle_plates_carry_characters_on_their_outer_face():
         assert ((glyphs - c) @ n).min() >= ((plate - c) @ n).max() - 1e-6
 
 
+def test_riders_wear_the_helmet_of_their_two_wheeler():
+    """A 2-3 cm shell over the skull read as a bare head on the real photos (skin at the ears and
+    nape): a sport rider's full-face helmet holds the whole head above the neck with a visor in
+    front, a scooter rider's open-face helmet the head but the face; a cruiser rider's half
+    helmet and a cyclist's stay a shell over the skull."""
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(6)
+
+    def rider(cls, kind=None):
+        while True:
+            v, (L, W, H) = sample_variant(cls, rng)
+            if v.get("rider", {}).get("helmet") and kind in (None, v["kind"]):
+                mb = MeshBuilder()
+                BUILDERS[cls](mb, {**v, "part": "rider"}, L, W, H)
+                return _regions(mb)
+
+    for kind in ("sport", "scooter"):
+        parts = rider("motorcycle", kind)
+        helmet, skin = parts["helmet"], parts["skin"]
+        assert np.ptp(helmet[:, 1]) > 0.23 and np.ptp(helmet[:, 2]) > 0.25
+        # 8 cm over its lowest point: ears, eyes and crown (the neck enters from below, behind
+        # when a sport rider leans)
+        head = skin[skin[:, 2] > helmet[:, 2].min() + 0.08]
+        inside = Delaunay(helmet).find_simplex(head) >= 0
+        behind = head[:, 0] < helmet[:, 0].mean()  # the bike faces +x
+        assert behind.sum() > 50 and inside[behind].all(), "skin at the back of the head shows"
+        if kind == "sport":
+            assert inside.all() and parts["visor"][:, 0].mean() > helmet[:, 0].mean() + 0.05
+        else:
+            assert "visor" not in parts and not inside[~behind].all()  # the face is free
+    for cls, kind in (("motorcycle", "cruiser"), ("bicycle", None)):
+        parts = rider(cls, kind)
+        assert "visor" not in parts and np.ptp(parts["helmet"][:, 2]) < 0.2
+
+
 def test_motorcycle_shows_a_plate_indicators_and_open_wheels():
     """Seen from behind, the motorcycles of the real-photo runs were a narrow tyre under a red
     block with a white ball beside it (the silencer's chrome end mirroring the sky), and from

@@ -45,28 +45,29 @@ def _arch(mb, x, y_face, r, side, band=0.07, n=12):
     mb.add(v, f, "well")
 
 
-def _lower_body(L, hw, z_bot, tops, r=0.12):
-    """Loft of the lower body from rear (x=-L/2) to front; `tops` = [(x, z_top, width_frac)];
-    `r` the corner radius of the cross-section."""
-    st = []
-    for x, zt, wf in tops:
-        st.append((x, rounded_section(hw * wf, z_bot + (0.05 if wf < 0.97 else 0.0), zt, r,
-                                      top_half_w=hw * wf * 0.96)))
-    return loft(st)
+def _lower_body(hw, tops, r=0.12):
+    """Loft of the lower body from rear (x=-L/2) to front; `tops` = [(x, z_top, width_frac,
+    z_bottom)]; `r` the corner radius of the cross-section."""
+    return loft([(x, rounded_section(hw * wf, zb, zt, r, top_half_w=hw * wf * 0.96)) for x, zt, wf, zb in tops])
 
 
-def _body_half_width(tops, hw, z_bot, x, z, r):
+def _body_half_width(tops, hw, x, z, r):
     """Half-width of the `_lower_body` loft at (x, z), its stations interpolated linearly."""
     xs = [t[0] for t in tops]
-    zt, wf = np.interp(x, xs, [t[1] for t in tops]), np.interp(x, xs, [t[2] for t in tops])
-    return rounded_section_half_width(hw * wf, z_bot + (0.05 if wf < 0.97 else 0.0), zt, r, z, top_half_w=hw * wf * 0.96)
+    zt, wf, zb = (np.interp(x, xs, [t[k] for t in tops]) for k in (1, 2, 3))
+    return rounded_section_half_width(hw * wf, zb, zt, r, z, top_half_w=hw * wf * 0.96)
 
 
-CAR_SHAPES = {  # fractions: beltline/hood/deck heights of H; x positions of L; bottom of H
-    "sedan": dict(belt=.63, hood=.58, deck=.66, ws=.20, roof_f=.03, roof_r=-.22, rw=-.36, bot=.13, axle=.30),
-    "hatchback": dict(belt=.61, hood=.57, deck=.63, ws=.20, roof_f=.02, roof_r=-.38, rw=-.47, bot=.13, axle=.31),
-    "suv": dict(belt=.60, hood=.61, deck=.63, ws=.22, roof_f=.06, roof_r=-.43, rw=-.48, bot=.14, axle=.31),
-    "van": dict(belt=.52, hood=.46, deck=.54, ws=.40, roof_f=.27, roof_r=-.47, rw=-.495, bot=.11, axle=.33),
+CAR_SHAPES = {  # fractions: beltline/hood/deck heights of H; x positions of L; bottom (sills), the
+    # rear and front bumpers' lower edges (tail, nose) of H
+    "sedan": dict(belt=.63, hood=.58, deck=.66, ws=.20, roof_f=.03, roof_r=-.22, rw=-.36, bot=.13, axle=.30,
+                  tail=.22, nose=.15),
+    "hatchback": dict(belt=.61, hood=.57, deck=.63, ws=.20, roof_f=.02, roof_r=-.38, rw=-.47, bot=.13, axle=.31,
+                      tail=.22, nose=.15),
+    "suv": dict(belt=.60, hood=.61, deck=.63, ws=.22, roof_f=.06, roof_r=-.43, rw=-.48, bot=.14, axle=.31,
+                tail=.26, nose=.21),
+    "van": dict(belt=.52, hood=.46, deck=.54, ws=.40, roof_f=.27, roof_r=-.47, rw=-.495, bot=.11, axle=.33,
+                tail=.21, nose=.15),
 }
 
 
@@ -82,11 +83,22 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     belt, hood, deck = p["belt"] * H, p["hood"] * H, p["deck"] * H
     zb = max(p["bot"] * H, r * 0.55)
     x_ws, x_rw = p["ws"] * L, p["rw"] * L
+    ax = p["axle"] * L
+    # the overhangs rise from the sills to the bumpers' lower edges within 0.25 m of the tyres: a
+    # body down to the sills end to end stood on the road from behind, where a real car shows a
+    # dark gap under its bumper and its tyres either side
+    z_tail, z_nose = max(zb, p["tail"] * H), max(zb, p["nose"] * H)
+
+    def bottom(x, wf):
+        rise = np.clip([(-ax - r - x) / 0.25, (x - ax - r) / 0.25], 0, 1)
+        return zb + rise[0] * (z_tail - zb) + rise[1] * (z_nose - zb) + (0.05 if wf < 0.97 else 0.0)
+
     # lower body: rounded tail, shoulder along the belt, sloping hood and rounded nose
     tops = [(-L / 2, deck - 0.14, 0.88), (-L / 2 + 0.015 * L, deck - 0.03, 0.96), (-L / 2 + 0.05 * L, deck, 0.99),
             (x_rw, belt, 1.0), (x_ws, belt, 1.0), (L / 2 - 0.08 * L, hood, 0.99),
             (L / 2 - 0.02 * L, hood - 0.06, 0.95), (L / 2, hood - 0.16, 0.86)]
-    vv, f = _lower_body(L, hw, zb, tops, r=0.2)
+    tops = [(x, zt, wf, bottom(x, wf)) for x, zt, wf in tops]
+    vv, f = _lower_body(hw, tops, r=0.2)
     mb.add(vv, f, "paint", smooth=True)
     # greenhouse: tinted glass tapering inwards (tumblehome), the roof panel painted on top
     zc = belt - 0.04
@@ -121,7 +133,6 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
             mb.add(*grid(np.array([[[x, s * y, z] for y, z in zip(ys, zs)] for x in (xp - wp / 2, xp + wp / 2)])),
                    "plastic")
     # wheels in black arches
-    ax = p["axle"] * L
     for x in (ax, -ax):
         for s in (1, -1):
             _wheel(mb, x, s * (hw - 0.1), r, 0.22, "chrome" if v.get("chrome_trim") else "alloy")
@@ -130,14 +141,15 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for s in (1, -1):
         vv, f = box((2 * ax - 2 * r - 0.2, 0.02, 0.09), (0, s * (hw + 0.004), zb + 0.05))
         mb.add(vv, f, "plastic")
-    for x, sgn in ((L / 2 - 0.04, 1), (-L / 2 + 0.04, -1)):  # the bumpers stand 2 cm proud of the body
+    for x, sgn, ze in ((L / 2 - 0.04, 1, z_nose), (-L / 2 + 0.04, -1, z_tail)):  # 2 cm proud of the body
         # body-coloured covers as narrow as the rounded ends, over a black valance (a full-width
-        # black slab read as a toy's bumper on the real photos)
-        vv, f = box((0.12, hw * 1.74, 0.2), (x, 0, zb + 0.1))
+        # black slab read as a toy's bumper on the real photos); an SUV's valance is taller
+        lip = 0.13 if v.get("kind") == "suv" else 0.08
+        vv, f = box((0.12, hw * 1.74, 0.2), (x, 0, ze + 0.1))
         mb.add(vv, f, "paint")
-        vv, f = box((0.118, hw * 1.6, 0.07), (x + sgn * 0.001, 0, zb + 0.02))
+        vv, f = box((0.118, hw * 1.6, lip), (x + sgn * 0.001, 0, ze + 0.03 - lip / 2))
         mb.add(vv, f, "plastic")
-        _plate(mb, (0.02, 0.52, 0.12), (x + sgn * 0.045, 0, zb + 0.27))
+        _plate(mb, (0.02, 0.52, 0.12), (x + sgn * 0.045, 0, ze + 0.27))  # over the cover
     # head lamps and grille on the nose's front face (below the hood line, where the loft's
     # section is upright: higher up they sank into the rounded nose and showed as a speck),
     # tail lamps wrapping round the rear corners
@@ -146,7 +158,7 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     for s in (1, -1):
         vv, f = box((0.03, 0.30, 0.11), (L / 2 + 0.005, s * y_lamp, zl))
         mb.add(vv, f, "lamp_head")
-        _tail_lamp(mb, tops, hw, zb, -L / 2, deck - 0.14, s)
+        _tail_lamp(mb, tops, hw, -L / 2, deck - 0.14, s)
         # mirror on a short arm at the front of the side glass
         vv, f = box((0.10, 0.17, 0.11), (x_ws - 0.14, s * (hw + 0.1), belt + 0.07))
         mb.add(vv, f, "paint")
@@ -162,18 +174,18 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     mb.add(vv, f, "lamp_tail")
 
 
-def _tail_lamp(mb, tops, hw, zb, x_rear, z_top, side, height=0.16, width=0.3, wrap=0.15):
+def _tail_lamp(mb, tops, hw, x_rear, z_top, side, height=0.16, width=0.3, wrap=0.15):
     """A tail-lamp cluster hugging the tail's rounded corner: a lens on the rear face whose
     outer edge follows the corner's curve, wrapping `wrap` m round onto the side (boxes there
     stood out of the tapered tail as red ears)."""
     zs = np.linspace(z_top - 0.03 - height, z_top - 0.03, 4)
-    edge = np.array([_body_half_width(tops, hw, zb, x_rear, z, 0.2) for z in zs])
+    edge = np.array([_body_half_width(tops, hw, x_rear, z, 0.2) for z in zs])
     inner = edge.max() - width
     back = np.array([[[x_rear - 0.004, side * y, z] for y, z in zip(ys, zs)]
                      for ys in (np.full(4, inner), edge - 0.004)])
     mb.add(*grid(back), "lamp_tail")
     xs = np.linspace(x_rear, x_rear + wrap, 7)
-    round_ = np.array([[[x, side * (_body_half_width(tops, hw, zb, x, z, 0.2) + 0.004), z] for z in zs] for x in xs])
+    round_ = np.array([[[x, side * (_body_half_width(tops, hw, x, z, 0.2) + 0.004), z] for z in zs] for x in xs])
     mb.add(*grid(round_), "lamp_tail")
 
 

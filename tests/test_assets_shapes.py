@@ -40,6 +40,25 @@ def _silhouette_from_behind(mb, slot, cm=0.01):
     return img
 
 
+def test_car_bumpers_stand_clear_of_the_road_over_the_tyres():
+    """A body down to the sills end to end stood on the road seen from behind; a real car shows a
+    dark gap under its rear bumper with a tyre either side. Behind the rear tyres nothing is
+    lower than 0.14 of the car's height; the tyres reach the road."""
+    rng = np.random.default_rng(3)
+    kinds = set()
+    while kinds != set(CAR_SHAPES):
+        v, (L, W, H) = sample_variant("car", rng)
+        kinds.add(v["kind"])
+        mb = MeshBuilder()
+        BUILDERS["car"](mb, v, L, W, H)
+        parts = _regions(mb)
+        p = CAR_SHAPES[v["kind"]]
+        behind = -p["axle"] * L - v.get("wheel_radius", 0.33) - 0.25
+        rest = np.vstack([x for slot, x in parts.items() if slot not in ("rubber", "alloy", "chrome", "well")])
+        assert rest[rest[:, 0] < behind][:, 2].min() > 0.14 * H, v["kind"]
+        assert parts["rubber"][:, 2].min() < 0.01
+
+
 def test_car_rear_window_is_framed_and_tail_lamps_hug_the_tail():
     """Seen from behind, a car's rear was one dark panel from the belt to the roof (YOLOX-Nano
     took hatchbacks, SUVs and vans for buses on the real highway photos) with red boxes standing

@@ -672,6 +672,28 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         seat_z, seat_x = r + 0.55, xr + 0.4
         bar = np.array([xf_ - 0.25, 0, r + 0.8])
         peg_x, peg_z = 0.0, r * 0.9 + 0.06
+        # what a scooter shows from behind besides its smooth body: the engine and belt case on
+        # the left of the rear wheel, the silencer on the right, a grab rail behind the seat and,
+        # on every other one, a top box on its rack with a red reflector
+        vv, f = box((0.5, 0.09, 0.2), (xr + 0.2, 0.15, r * 0.95))
+        veh.add(vv, f, "metal")
+        end = np.array([xr - 0.12, -0.17, r * 0.85])
+        vv, f = tube([xr + 0.25, -0.14, r * 0.6], end, 0.04, 10)
+        veh.add(vv, f, "metal")
+        vv, f = cylinder(0.03, 0.01, 10, "x", end + [-0.002, 0, 0])
+        veh.add(vv, f, "well")
+        rail = [np.array([xr + 0.3, s * 0.14, r + 0.5]) for s in (1, -1)]
+        for a, b in ((rail[0], [xr - 0.08, 0.14, r + 0.52]), ([xr - 0.08, 0.14, r + 0.52], [xr - 0.08, -0.14, r + 0.52]),
+                     ([xr - 0.08, -0.14, r + 0.52], rail[1])):
+            vv, f = tube(a, b, 0.012, 6)
+            veh.add(vv, f, "plastic")
+        if int(v.get("seed", 0)) % 2 == 0:
+            z0 = r + 0.56
+            vv, f = loft([(x, rounded_section(0.2 * k, z0, z0 + 0.3 * k, 0.07)) for x, k in
+                          ((xr - 0.22, 0.9), (xr - 0.19, 1.0), (xr + 0.1, 1.0), (xr + 0.14, 0.9))])
+            veh.add(vv, f, "plastic", smooth=True)
+            vv, f = box((0.01, 0.22, 0.045), (xr - 0.222, 0, z0 + 0.13))
+            veh.add(vv, f, "tape_red")
     else:
         low = kind == "cruiser"
         vv, f = box((wb * 0.35, 0.3, 0.32), (0.0, 0, r + 0.05))

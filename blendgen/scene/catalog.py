@@ -138,6 +138,7 @@ def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[floa
             rv["helmet"] = bool(cls == "motorcycle" or rng.random() < 0.5)
             if cls == "motorcycle":  # what riders of each kind mostly wear (a cyclist's is a shell)
                 rv["helmet_kind"] = {"sport": "full_face", "scooter": "open_face", "cruiser": "half"}[kind]
+                rv.update(long_sleeves=True, skirt=False)  # a jacket or shirt, trousers
             v["rider"] = rv
             # the seated rider raises the top of the box to about 0.80-0.85 of their height
             H = max(H, rv["height_m"] * (0.83 if cls == "bicycle" else 0.78) + (0.55 if cls == "bicycle" else 0.45) * 0.5)

@@ -5,8 +5,8 @@ y left, z up, origin at the centre of the bottom face), shaped from the catalog 
 the target dims. `fit_to_dims` then maps the tight box exactly onto `dims`; builders are
 proportioned so that this correction stays within a few per cent.
 Material slot names: paint, glass, rubber, chrome, alloy, plastic, lamp_head, lamp_tail,
-lamp_red/amber/green (+ _off), skin, hair, shirt, pants, shoes, bag, cargo, saddle, housing,
-tape_red, tape_white (retroreflective truck tape), plate, plate_text (its characters).
+lamp_red/amber/green (+ _off), skin, hair, shirt, pants, shoes, bag, helmet, visor, cargo, saddle,
+housing, tape_red, tape_white (retroreflective tape), plate, plate_text (its characters).
 """
 
 from __future__ import annotations
@@ -682,9 +682,9 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         veh.add(vv, f, "metal")
         vv, f = cylinder(0.03, 0.01, 10, "x", end + [-0.002, 0, 0])
         veh.add(vv, f, "well")
-        rail = [np.array([xr + 0.3, s * 0.14, r + 0.5]) for s in (1, -1)]
-        for a, b in ((rail[0], [xr - 0.08, 0.14, r + 0.52]), ([xr - 0.08, 0.14, r + 0.52], [xr - 0.08, -0.14, r + 0.52]),
-                     ([xr - 0.08, -0.14, r + 0.52], rail[1])):
+        rail = [(xr + 0.3, 0.14, r + 0.5), (xr - 0.08, 0.14, r + 0.52), (xr - 0.08, -0.14, r + 0.52),
+                (xr + 0.3, -0.14, r + 0.5)]
+        for a, b in zip(rail, rail[1:]):
             vv, f = tube(a, b, 0.012, 6)
             veh.add(vv, f, "plastic")
         if int(v.get("seed", 0)) % 2 == 0:

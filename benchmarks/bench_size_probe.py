@@ -104,7 +104,7 @@ def main(argv=None):
         bands = sorted(native)
         ax.plot([b * 1.41 for b in bands], [native[b][0] / native[b][1] for b in bands], "o-", label="natively")
         if large:
-            ax.plot(a.to, [kept[px] / large for px in a.to], "s--", label=f"found large ones, shrunk")
+            ax.plot(a.to, [kept[px] / large for px in a.to], "s--", label="found large ones, shrunk")
         ax.set(xscale="log", xlabel="object height (px)", ylabel="found (score >= 0.3, IoU >= 0.5)",
                title=a.cls, ylim=(0, 1.05))
         ax.legend()

@@ -223,6 +223,32 @@ def test_realism_end_to_end_on_real_photos(tmp_path):
     assert main(["realism", str(out), "--detector", str(tmp_path / "nope.onnx")]) == 2
 
 
+def test_size_probe_shrinks_found_objects(tmp_path, capsys):
+    """benchmarks/bench_size_probe.py: real cars pasted ~127 px tall are found, then found less
+    often or not at all when the frame is shrunk until they are 20 px tall."""
+    if not MODEL.exists():
+        pytest.skip(f"needs {MODEL}")
+    photos = sorted(PHOTOS.glob("*.jpg"))[:3] if PHOTOS.exists() else []
+    if len(photos) < 3:
+        pytest.skip(f"needs {PHOTOS}/*.jpg")
+    import importlib.util
+
+    from blendgen.eval.realism import run_realism
+
+    out = _make_out(tmp_path, photos)
+    run_realism(out, MODEL, background="auto")
+    spec = importlib.util.spec_from_file_location("probe", Path(__file__).resolve().parents[1] / "benchmarks/bench_size_probe.py")
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    probe.main(["--runs", str(out), "--class", "car", "--to", "120", "20", "--detector", str(MODEL)])
+    rows = {line.split("|")[1].strip(): line.split("|")[3] for line in capsys.readouterr().out.splitlines()
+            if line.startswith("| ")}
+    assert rows["natively 80-160 px"].strip().startswith("3 ")
+    found_120 = int(rows["found at >= 100 px, shrunk to 120 px"].split()[0])
+    found_20 = int(rows["found at >= 100 px, shrunk to 20 px"].split()[0])
+    assert found_120 == 3 and found_20 < 3
+
+
 def test_recall_breakdown_by_attributes():
     from blendgen.eval.realism import recall_breakdown
 

@@ -166,10 +166,13 @@ def car(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "plastic")
     vv, f = box((0.03, 2 * (y_lamp - 0.17), 0.10), (L / 2 + 0.004, 0, zl))  # grille between the lamps
     mb.add(vv, f, "plastic")
-    # behind: a garnish strip between the tail lamps and a high-mounted stop lamp under the roof
-    # (a smooth blank tail between two small lamps read as a toy on real photos)
+    # behind: a dark garnish strip between the tail lamps with a small badge under it, and a
+    # high-mounted stop lamp under the roof (a smooth blank tail between two small lamps read as
+    # a toy on real photos; a chrome strip mirrored the sky as a second plate)
     vv, f = box((0.03, 2 * (hw - 0.45), 0.06), (-L / 2 + 0.01, 0, deck - 0.12))
-    mb.add(vv, f, "chrome" if v.get("chrome_trim") else "plastic")
+    mb.add(vv, f, "plastic")
+    vv, f = box((0.02, 0.1, 0.04), (-L / 2 + 0.005, 0, deck - 0.2))
+    mb.add(vv, f, "chrome")
     vv, f = box((0.05, 0.3, 0.04), (p["roof_r"] * L - 0.02, 0, H - 0.07))
     mb.add(vv, f, "lamp_tail")
 

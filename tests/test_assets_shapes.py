@@ -59,6 +59,19 @@ def test_car_bumpers_stand_clear_of_the_road_over_the_tyres():
         assert parts["rubber"][:, 2].min() < 0.01
 
 
+def test_car_tail_has_no_light_strip_between_the_lamps():
+    """A chrome garnish strip between the tail lamps mirrored the sky and read as a second plate:
+    between the lamps only a small badge is bright metal."""
+    rng = np.random.default_rng(11)
+    for _ in range(6):
+        v, (L, W, H) = sample_variant("car", rng)
+        mb = MeshBuilder()
+        BUILDERS["car"](mb, {**v, "chrome_trim": True}, L, W, H)
+        chrome = _regions(mb)["chrome"]
+        tail = chrome[(chrome[:, 0] < -L / 2 + 0.05) & (chrome[:, 2] > 0.4 * H)]
+        assert len(tail) and np.ptp(tail[:, 1]) < 0.15
+
+
 def test_car_rear_window_is_framed_and_tail_lamps_hug_the_tail():
     """Seen from behind, a car's rear was one dark panel from the belt to the roof (YOLOX-Nano
     took hatchbacks, SUVs and vans for buses on the real highway photos) with red boxes standing

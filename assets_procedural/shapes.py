@@ -504,12 +504,11 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
             mb.add(verts, faces, slots[region], smooth=True)
     if v.get("helmet"):
         Rh, a, b = T["head"]
-        kind = v.get("helmet_kind", "shell")
-        if kind in ("full_face", "open_face"):  # the whole head from behind, chin or cheeks to crown
+        if v.get("helmet_kind") == "full_face":  # the whole head, chin to crown
             centre = (J["head"] + [0.01 * h, 0, 0.015 * h] - a) @ Rh.T + b
-            for verts, faces, slot in _motorcycle_helmet(h, kind == "full_face"):
+            for verts, faces, slot in _full_face_helmet(h):
                 mb.add(xf(verts, Rh, centre), faces, slot, smooth=True)
-        else:  # a cyclist's helmet or a cruiser's half helmet: a shell 2-3 cm round the skull
+        else:  # a cyclist's helmet or a motorcyclist's half helmet: a shell 2-3 cm round the skull
             skull = (J["head"] + [0.021 * h, 0, 0.057 * h] - a) @ Rh.T + b
             vv, f = ellipsoid((0.076 * h, 0.066 * h, 0.052 * h), skull, 16, 8)
             mb.add(xf(vv - skull, Rh, skull), f, "helmet", smooth=True)
@@ -520,13 +519,12 @@ def figure(mb: MeshBuilder, v: dict, joints: dict | None = None):
         mb.add(xf(vv, R, pelvis + R @ np.array([-0.085 * h, 0, 0.2 * h])), f, "bag", smooth=True)
 
 
-def _motorcycle_helmet(h: float, full_face: bool):
-    """A motorcycle helmet round a head of a person `h` tall, about its centre (0.01 h before and
-    0.015 h above the head joint): a shell 0.17 h long, 0.144 h wide, from 0.09 h above the
-    centre (3-4 cm over the crown) to 0.075 h below it (under the chin), widest at ear level, its
-    lower half fuller than an ellipsoid's so that the opening round the neck stays ~0.8 of that
-    width. A full-face helmet has a dark visor over the eyes across the front 130 deg; an open-face
-    one leaves the face free (the front 120 deg under the brow)."""
+def _full_face_helmet(h: float):
+    """A full-face motorcycle helmet round a head of a person `h` tall, about its centre (0.01 h
+    before and 0.015 h above the head joint): a shell 0.17 h long, 0.144 h wide, from 0.09 h above
+    the centre (3-4 cm over the crown) to 0.075 h below it (under the chin), widest at ear level,
+    its lower half fuller than an ellipsoid's so that the opening round the neck stays ~0.8 of
+    that width; a dark visor over the eyes across the front 130 deg."""
     ax, ay, az, a_low, cut = 0.085 * h, 0.072 * h, 0.09 * h, 0.12 * h, 0.075 * h
 
     def surf(th, ph, grow=1.0):
@@ -535,16 +533,11 @@ def _motorcycle_helmet(h: float, full_face: bool):
 
     ths = np.linspace(-math.asin(cut / a_low), math.pi / 2, 12)
     phs = np.linspace(-math.pi, math.pi, 25)
-    verts, faces = grid(np.array([[surf(t, p) for p in phs] for t in ths]))
-    if not full_face:  # drop the quads over the face: under the brow (0.04 h over the centre), front 120 deg
-        c = verts[np.asarray(faces)].mean(1)
-        face = (c[:, 2] < 0.04 * h) & (np.abs(np.arctan2(c[:, 1] / ay, c[:, 0] / ax)) < math.radians(60))
-        faces = [f for f, drop in zip(faces, face) if not drop]
-    yield verts, faces, "helmet"
-    if full_face:  # the visor from the nose (0.025 h under the centre) to the brow (0.04 h over it)
-        tv = np.linspace(-math.asin(0.025 * h / a_low), math.asin(0.04 * h / az), 5)
-        pv = np.linspace(-math.radians(65), math.radians(65), 13)
-        yield (*grid(np.array([[surf(t, p, 1.012) for p in pv] for t in tv])), "visor")
+    yield (*grid(np.array([[surf(t, p) for p in phs] for t in ths])), "helmet")
+    # the visor from the nose (0.025 h under the centre) to the brow (0.04 h over it)
+    tv = np.linspace(-math.asin(0.025 * h / a_low), math.asin(0.04 * h / az), 5)
+    pv = np.linspace(-math.radians(65), math.radians(65), 13)
+    yield (*grid(np.array([[surf(t, p, 1.012) for p in pv] for t in tv])), "visor")
 
 
 def person(mb: MeshBuilder, v: dict, L: float, W: float, H: float):

@@ -120,10 +120,9 @@ def test_motorcycle_plates_carry_characters_on_their_outer_face():
 
 
 def test_riders_wear_the_helmet_of_their_two_wheeler():
-    """A 2-3 cm shell over the skull read as a bare head on the real photos (skin at the ears and
+    """A 2-3 cm shell over the skull read as a bare head on sport riders (skin at the ears and
     nape): a sport rider's full-face helmet holds the whole head above the neck with a visor in
-    front, a scooter rider's open-face helmet the head but the face; a cruiser rider's half
-    helmet and a cyclist's stay a shell over the skull."""
+    front; a scooter or cruiser rider's half helmet and a cyclist's stay a shell over the skull."""
     from scipy.spatial import Delaunay
 
     rng = np.random.default_rng(6)
@@ -136,21 +135,17 @@ def test_riders_wear_the_helmet_of_their_two_wheeler():
                 BUILDERS[cls](mb, {**v, "part": "rider"}, L, W, H)
                 return _regions(mb)
 
-    for kind in ("sport", "scooter"):
-        parts = rider("motorcycle", kind)
+    for _ in range(2):
+        parts = rider("motorcycle", "sport")
         helmet, skin = parts["helmet"], parts["skin"]
         assert np.ptp(helmet[:, 1]) > 0.23 and np.ptp(helmet[:, 2]) > 0.25
         # 8 cm over its lowest point: ears, eyes and crown (the neck enters from below, behind
         # when a sport rider leans)
         head = skin[skin[:, 2] > helmet[:, 2].min() + 0.08]
-        inside = Delaunay(helmet).find_simplex(head) >= 0
-        behind = head[:, 0] < helmet[:, 0].mean()  # the bike faces +x
-        assert behind.sum() > 50 and inside[behind].all(), "skin at the back of the head shows"
-        if kind == "sport":
-            assert inside.all() and parts["visor"][:, 0].mean() > helmet[:, 0].mean() + 0.05
-        else:
-            assert "visor" not in parts and not inside[~behind].all()  # the face is free
-    for cls, kind in (("motorcycle", "cruiser"), ("bicycle", None)):
+        assert len(head) > 100
+        assert Delaunay(helmet).find_simplex(head).min() >= 0, "skin of the head outside the helmet"
+        assert parts["visor"][:, 0].mean() > helmet[:, 0].mean() + 0.05  # in front: the bike faces +x
+    for cls, kind in (("motorcycle", "scooter"), ("motorcycle", "cruiser"), ("bicycle", None)):
         parts = rider(cls, kind)
         assert "visor" not in parts and np.ptp(parts["helmet"][:, 2]) < 0.2
 

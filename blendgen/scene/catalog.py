@@ -136,8 +136,8 @@ def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[floa
         if rng.random() < rider_p:
             rv, _ = _person(rng, pose="riding")
             rv["helmet"] = bool(cls == "motorcycle" or rng.random() < 0.5)
-            if cls == "motorcycle":  # what riders of each kind mostly wear (a cyclist's is a shell)
-                rv["helmet_kind"] = {"sport": "full_face", "scooter": "open_face", "cruiser": "half"}[kind]
+            if cls == "motorcycle":  # sport riders wear full-face helmets, others half helmets
+                rv["helmet_kind"] = "full_face" if kind == "sport" else "half"
                 rv.update(long_sleeves=True, skirt=False)  # a jacket or shirt, trousers
             v["rider"] = rv
             # the seated rider raises the top of the box to about 0.80-0.85 of their height

@@ -626,6 +626,15 @@ def bicycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
                                            "feet": [pedals[0] + [0, 0, 0.03], pedals[1] + [0, 0, 0.03]]})
 
 
+def _silencer(mb, start, end, radius, material):
+    """A silencer from `start` back to `end`, its open end dark (a closed rounded chrome end
+    mirrored the sky: a white ball beside the rear wheel)."""
+    vv, f = tube(start, end, radius, 10)
+    mb.add(vv, f, material)
+    vv, f = cylinder(radius - 0.01, 0.01, 10, "x", np.asarray(end, float) + [-0.002, 0, 0])
+    mb.add(vv, f, "well")
+
+
 def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     veh, rid = _parts(mb, v.get("part", "all"))
     kind = v.get("kind", "sport")
@@ -673,11 +682,7 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         # on every other one, a top box on its rack with a red reflector
         vv, f = box((0.5, 0.09, 0.2), (xr + 0.2, 0.15, r * 0.95))
         veh.add(vv, f, "metal")
-        end = np.array([xr - 0.12, -0.17, r * 0.85])
-        vv, f = tube([xr + 0.25, -0.14, r * 0.6], end, 0.04, 10)
-        veh.add(vv, f, "metal")
-        vv, f = cylinder(0.03, 0.01, 10, "x", end + [-0.002, 0, 0])
-        veh.add(vv, f, "well")
+        _silencer(veh, [xr + 0.25, -0.14, r * 0.6], [xr - 0.12, -0.17, r * 0.85], 0.04, "metal")
         rail = [(xr + 0.3, 0.14, r + 0.5), (xr - 0.08, 0.14, r + 0.52), (xr - 0.08, -0.14, r + 0.52),
                 (xr + 0.3, -0.14, r + 0.5)]
         for a, b in zip(rail, rail[1:]):
@@ -714,13 +719,8 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         # length, at shoulder height)
         bar = np.array([xf_ - (0.42 if low else 0.25), 0, r + (0.66 if low else 0.65)])
         peg_x, peg_z = seat_x + (0.35 if low else 0.05), r * (0.7 if low else 0.95)
-        # the silencer: chrome on a cruiser, brushed steel otherwise, its open end dark (a
-        # rounded chrome end mirrored the sky: a white ball beside the rear wheel)
-        end = np.array([xr - 0.2, -0.18, r * 0.9])
-        vv, f = tube([xr + 0.2, -0.16, r * 0.7], end, 0.045, 10)
-        veh.add(vv, f, "chrome" if low else "metal")
-        vv, f = cylinder(0.035, 0.01, 10, "x", end + [-0.002, 0, 0])
-        veh.add(vv, f, "well")
+        # the silencer: chrome on a cruiser, brushed steel otherwise
+        _silencer(veh, [xr + 0.2, -0.16, r * 0.7], [xr - 0.2, -0.18, r * 0.9], 0.045, "chrome" if low else "metal")
     for s in (1, -1):
         vv, f = tube([xf_, s * 0.09, r], bar + [0.05, s * 0.09, -0.1], 0.025, 8)
         veh.add(vv, f, "chrome" if kind == "cruiser" else "alloy")

@@ -196,12 +196,18 @@ def _make_out(tmp, photos, inject_size=200):
     return out
 
 
-def test_realism_end_to_end_on_real_photos(tmp_path):
+def _three_real_photos():
+    """The detector and three Udacity photos, or a skip naming what is missing."""
     if not MODEL.exists():
         pytest.skip(f"needs {MODEL}")
     photos = sorted(PHOTOS.glob("*.jpg"))[:3] if PHOTOS.exists() else []
     if len(photos) < 3:
         pytest.skip(f"needs {PHOTOS}/*.jpg")
+    return photos
+
+
+def test_realism_end_to_end_on_real_photos(tmp_path):
+    photos = _three_real_photos()
     from blendgen.cli import main
     from blendgen.eval.realism import run_realism
 
@@ -226,11 +232,7 @@ def test_realism_end_to_end_on_real_photos(tmp_path):
 def test_size_probe_shrinks_found_objects(tmp_path, capsys):
     """benchmarks/bench_size_probe.py: real cars pasted ~127 px tall are found, then found less
     often or not at all when the frame is shrunk until they are 20 px tall."""
-    if not MODEL.exists():
-        pytest.skip(f"needs {MODEL}")
-    photos = sorted(PHOTOS.glob("*.jpg"))[:3] if PHOTOS.exists() else []
-    if len(photos) < 3:
-        pytest.skip(f"needs {PHOTOS}/*.jpg")
+    photos = _three_real_photos()
     import importlib.util
 
     from blendgen.eval.realism import run_realism

@@ -75,15 +75,17 @@ def main(argv=None):
             if not gts:
                 continue
             dts = [x for x in d["detections"] if x["image_id"] == img and x["category_id"] == cid and x["score"] >= 0.3]
-            for g, s in zip(gts, match_image(dts, gts, 0.5, 100)[-1]):
+            hit = np.isfinite(match_image(dts, gts, 0.5, 100)[-1])  # at full size: `blendgen realism`'s detections
+            for g, ok in zip(gts, hit):
                 band = 40 * 2 ** int(np.log2(g["bbox"][3] / 40))
                 native.setdefault(band, [0, 0])
-                native[band][0] += bool(np.isfinite(s))
+                native[band][0] += bool(ok)
                 native[band][1] += 1
+            probe = [g for g, ok in zip(gts, hit) if ok and g["bbox"][3] >= a.min_height]
+            if not probe:
+                continue
             image = cv2.imread(str(Path(run) / "frames" / img / "composite.png"))
-            for g in gts:
-                if g["bbox"][3] < a.min_height or not found(det, image, g, cid):
-                    continue
+            for g in probe:
                 large += 1
                 for px in a.to:
                     kept[px] += found(det, *shrunk(image, g, px), cid)

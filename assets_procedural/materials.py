@@ -103,10 +103,34 @@ def _grime_mask(nt, coord, wear):
     return mul.outputs[0]
 
 
-def glass(tint=(0.006, 0.008, 0.009)):
+CABIN_SEATS = (0.68, 0.80)  # seat backs to headrests, share of a car's height: the cabin hides the view below
+
+
+def glass(tint=(0.006, 0.008, 0.009), see_through=0.0):
     """Tinted car glass: a dark cabin behind a smooth dielectric that mirrors the environment
-    (Fresnel: dark face-on, bright at grazing angles), as windows look from outside."""
-    return principled(_key("glass", tint), tint, roughness=0.015, ior=1.52)
+    (Fresnel: dark face-on, bright at grazing angles), as windows look from outside.
+    `see_through`: the share of the window that is a holdout, through which the composite shows
+    the real frame: what a camera sees through a car's windows is the street beyond it. The
+    cabin is not modelled: below the seat backs' height (CABIN_SEATS of the vehicle's height) the
+    glass stays dark, above it the share rises to `see_through`."""
+    m, new = _new(_key(f"glass_s{see_through:.2f}", tint))
+    if not new:
+        return m
+    _setup(m, tint, roughness=0.015, ior=1.52)
+    if see_through > 0:
+        nt = m.node_tree
+        mix, hold = nt.nodes.new("ShaderNodeMixShader"), nt.nodes.new("ShaderNodeHoldout")
+        gen, xyz = nt.nodes.new("ShaderNodeTexCoord"), nt.nodes.new("ShaderNodeSeparateXYZ")
+        ramp = nt.nodes.new("ShaderNodeMapRange")  # clamps to [To Min, To Max]
+        ramp.inputs["From Min"].default_value, ramp.inputs["From Max"].default_value = CABIN_SEATS
+        ramp.inputs["To Min"].default_value, ramp.inputs["To Max"].default_value = 0.0, see_through
+        nt.links.new(gen.outputs["Generated"], xyz.inputs[0])  # 0..1 over the object's bounds
+        nt.links.new(xyz.outputs["Z"], ramp.inputs["Value"])
+        nt.links.new(ramp.outputs["Result"], mix.inputs["Fac"])
+        nt.links.new(_bsdf(m).outputs[0], mix.inputs[1])
+        nt.links.new(hold.outputs[0], mix.inputs[2])
+        nt.links.new(mix.outputs[0], nt.nodes["Material Output"].inputs["Surface"])
+    return m
 
 
 def rubber():

@@ -21,14 +21,24 @@ from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, gr
 
 
 # ====================================================================== vehicles (4 wheels)
-def _wheel(mb, x, y, r, width, rim="alloy"):
-    """Tyre with a recessed rim and dark hub; the outer face at y + side * width / 2."""
+def _wheel(mb, x, y, r, width, rim="alloy", spokes=5):
+    """Tyre with a spoked rim and dark hub; the outer face at y + side * width / 2. Between the
+    spokes the dark brake and wheel well show (a plain light disc read as a hubcap)."""
     side = 1 if y > 0 else -1
     v, f = cylinder(r, width, 24, "y", (x, y, r))
     mb.add(v, f, "rubber", smooth=True)
-    v, f = cylinder(r * 0.66, 0.02, 20, "y", (x, y + side * (width / 2 - 0.004), r))
+    face = y + side * (width / 2 - 0.004)  # the spokes' centre plane; the dark disc 8 mm behind
+    v, f = cylinder(r * 0.66, 0.02, 20, "y", (x, face - side * 0.008 * bool(spokes), r))
+    mb.add(v, f, "well" if spokes else rim)  # no spokes: a truck's or bus's steel disc
+    v, f = torus(r * 0.62, r * 0.045, (x, face, r), "y", nu=24, nv=6)  # the rim's lip
+    mb.add(v, f, rim, smooth=True)
+    for k in range(spokes):
+        a = x * 7.3 + 2 * math.pi * k / spokes  # the wheels of one car do not turn in step
+        vv, f = box((r * 0.44, 0.02, r * 0.15))
+        mb.add(xf(vv, rot_y(a), (x + r * 0.39 * math.cos(a), face, r - r * 0.39 * math.sin(a))), f, rim)
+    v, f = cylinder(r * 0.2, 0.02, 10, "y", (x, face, r))
     mb.add(v, f, rim)
-    v, f = cylinder(r * 0.2, 0.02, 10, "y", (x, y + side * (width / 2 + 0.002), r))
+    v, f = cylinder(r * 0.08, 0.02, 8, "y", (x, face + side * 0.004, r))
     mb.add(v, f, "plastic")
 
 
@@ -318,7 +328,7 @@ def truck(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         _box_rear(mb, -L / 2, hw, z_box, H)
     for x in axles:
         for s in (1, -1):
-            _wheel(mb, x, s * (hw - 0.17), r, 0.32, "alloy")
+            _wheel(mb, x, s * (hw - 0.17), r, 0.32, "alloy", spokes=0)
 
 
 def _box_rear(mb, x, hw, z0, z1):
@@ -407,7 +417,7 @@ def bus(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
         mb.add(vv, f, "lamp_tail")
     for x in (L / 2 - 2.6, -L / 2 + 3.0):
         for s in (1, -1):
-            _wheel(mb, x, s * (hw - 0.13), r, 0.3, "alloy")
+            _wheel(mb, x, s * (hw - 0.13), r, 0.3, "alloy", spokes=0)
             _arch(mb, x, s * (hw + 0.006), r, s, band=0.09)
 
 

@@ -225,3 +225,33 @@ def test_bicycle_wheels_have_fine_steel_spokes():
         assert np.ptp(spokes[:, 1]) < 0.004
         per_wheel = np.sum(np.asarray(mb.mat) == mb.slots.index("spoke")) / 2
         assert per_wheel >= 16 * 6  # 16 wheel-wide tubes (32 spokes) of 4 sides and 2 caps
+
+
+def test_car_wheels_show_dark_gaps_between_alloy_spokes():
+    """From the side a car's rim was one light disc (a hubcap): now five spokes with the dark
+    brake and well between them, and a truck's or bus's steel disc stays whole."""
+    rng = np.random.default_rng(4)
+    for cls, spoked in (("car", True), ("car", True), ("truck", False)):
+        v, (L, W, H) = sample_variant(cls, rng)
+        mb = MeshBuilder()
+        BUILDERS[cls](mb, v, L, W, H)
+        parts = _regions(mb)
+        tyre = parts["rubber"]
+        tyre = tyre[(tyre[:, 1] > 0) & (tyre[:, 0] > 0) & (tyre[:, 2] < 1.3)]  # the front left wheel
+        x0, r = (tyre[:, 0].min() + tyre[:, 0].max()) / 2, tyre[:, 2].max() / 2
+        rim = "chrome" if v.get("chrome_trim") else "alloy"
+        img = np.zeros((300, 600), np.uint8)  # x in [x0 - 1.5, x0 + 1.5), z in [0, 1.5) m, 5 mm cells
+        mat = np.asarray(mb.mat)
+        outer = tyre[:, 1].max() - 0.03  # faces on the wheel's outer face
+        for i in np.flatnonzero(mat == mb.slots.index(rim)):
+            p = mb.vertices[mb.faces[i]]
+            if p[:, 1].min() > outer:
+                cv2.fillPoly(img, [np.round((p[:, [0, 2]] - [x0 - 1.5, 0.0]) / 0.005).astype(np.int32)], 1)
+        a = np.linspace(0, 2 * np.pi, 180, endpoint=False)
+        ring = img[np.round(r * (1 + 0.45 * np.sin(a)) / 0.005).astype(int),
+                   np.round((1.5 + 0.45 * r * np.cos(a)) / 0.005).astype(int)]
+        if spoked:
+            assert 0.2 < ring.mean() < 0.5, (cls, ring.mean())  # five spokes, dark between
+            assert np.count_nonzero(np.diff(np.r_[ring, ring[0]].astype(int)) == 1) == 5
+        else:
+            assert ring.mean() == 1.0

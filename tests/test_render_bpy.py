@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 pytest.importorskip("bpy")
 
@@ -510,5 +511,70 @@ def test_night_mirrors_show_the_scene_not_the_ambient(tmp_path):
             p = read_passes(tmp_path / "r.exr")
             mean[reflected] = float(p["rgba"][..., :3][p["index"] == 1].mean())
         assert mean[0.03] < 0.25 * mean[None], mean  # the mirror facing the camera shows the world behind it
+    finally:
+        s.close()
+
+
+def test_mirrors_show_the_real_frame_when_given_one(tmp_path):
+    """With the real frame's environment map a mirror facing the camera shows the frame as if
+    it were not there (it mirrors what lies behind the camera: the view ahead, mirrored);
+    without one, the lighting's uniform sky."""
+    from blendgen.render.environment import plate_environment
+    from blendgen.render.primitives import add_object, box_mesh, material
+    from blendgen.render.session import RenderSession
+
+    def mirror(obj):
+        ob = add_object(f"obj{obj.id}", box_mesh(f"obj{obj.id}", obj.dims))
+        ob.data.materials.append(material(f"mirror{obj.id}", (0.9, 0.9, 0.9), roughness=0.02, metallic=1.0))
+        ob.pass_index = int(obj.id)
+        ob.location = tuple(float(c) for c in obj.position)
+        return ob
+
+    cam = Camera.from_hfov(160, 90, 50)
+    frame = np.zeros((90, 160, 3), np.uint8)
+    frame[:, :80], frame[:, 80:] = (20, 20, 220), (20, 220, 20)  # red left, green right (BGR)
+    s = RenderSession(None, None, Render(samples=16, denoise=False), cam, object_builder=mirror)
+    try:
+        plan = FramePlan("f1", 0.0, T.tolist(), [card(1, 6.0, 0.0, 1.5, 2.5)], SUN)
+        rgb = {}
+        for env in (None, plate_environment(frame, cam, T)):
+            info = s.render_frame(plan, tmp_path / "r.exr", {"rgba", "index"}, environment=env)
+            p = read_passes(tmp_path / "r.exr")
+            mine = p["index"] == 1
+            rgb[env is None] = [p["rgba"][..., :3][mine & half].mean(0) for half in
+                                (np.arange(160)[None, :] < 80, np.arange(160)[None, :] >= 80)]
+        left, right = rgb[False]
+        assert left[0] > 3 * left[1] and right[1] > 3 * right[0], rgb  # the frame's halves, unflipped
+        assert info["reflections"] == "the real frame"
+        left, right = rgb[True]
+        np.testing.assert_allclose(left, right, rtol=0.15)  # one uniform sky
+    finally:
+        s.close()
+
+
+def test_car_windows_let_the_frame_show_through_above_the_seats(tmp_path):
+    """A procedural car from behind: its rear window's upper part is partly held out (the
+    composite shows the street beyond through it), still labelled as the car; body, lower
+    window and the rider's visor stay opaque."""
+    pytest.importorskip("assets_procedural.objects")
+    from assets_procedural.objects import WINDOW_SEE_THROUGH
+    from blendgen.render.session import RenderSession
+    from blendgen.scene.catalog import sample_variant
+
+    rng = np.random.default_rng(3)
+    v, d = next((v, d) for v, d in iter(lambda: sample_variant("car", rng), None) if v["kind"] == "sedan")
+    cam = Camera.from_hfov(320, 180, 40)
+    s = RenderSession(None, None, Render(samples=8, denoise=False), cam)
+    try:
+        s.render_frame(FramePlan("f1", 0.0, T.tolist(), [PlacedObject(1, "car", (9.0, 0.0, 0.0), 0.0, d, v)], SUN),
+                       tmp_path / "r.exr", {"rgba", "index"})
+        p = read_passes(tmp_path / "r.exr")
+        inner = ndimage.binary_erosion(p["index"] == 1, iterations=2)  # not the anti-aliased rim
+        a = p["rgba"][..., 3][inner]
+        see = np.abs(p["rgba"][..., 3] - (1 - WINDOW_SEE_THROUGH)) < 0.03
+        assert 0.03 * a.size < np.count_nonzero(see & inner) < 0.3 * a.size  # the windows above the seats
+        assert np.count_nonzero(a > 0.99) > 0.6 * a.size  # the rest is opaque
+        ys, car_ys = np.nonzero(see & inner)[0], np.nonzero(inner)[0]
+        assert ys.max() < car_ys.min() + 0.5 * (car_ys.max() - car_ys.min())  # in the car's upper half
     finally:
         s.close()

@@ -131,6 +131,9 @@ class Render(Section):
     # exposure for motion blur; auto: by the frame's light (render.effects.shutter_for)
     shutter_s: Annotated[float, Field(ge=0, le=1)] | Literal["auto"] = "auto"
     device: Literal["CPU", "GPU"] = "CPU"
+    # what glass and clear coat mirror by day: the real frame around the camera
+    # (render.environment) or the lighting estimate's uniform sky
+    reflections: Literal["frame", "sky"] = "frame"
     threads: Annotated[int, Field(ge=0)] = 0  # 0: all cores of the worker
 
 

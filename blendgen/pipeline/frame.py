@@ -114,7 +114,8 @@ class FrameProcessor:
         # An EXR deleted after the frame (export.save_exr: false) is written uncompressed:
         # ~0.15 CPU-s less to write and read (docs/render.md).
         info = self.session.render_frame(plan, exr, render_outputs(job),
-                                         compression="zip" if job.export.save_exr else "none")
+                                         compression="zip" if job.export.save_exr else "none",
+                                         environment=self._environment(real, plan, fa))
         passes = read_passes(exr)
         timings["render"] = time.perf_counter() - t1
 
@@ -173,6 +174,19 @@ class FrameProcessor:
                 k: getattr(illum, k) for k in ("condition", "visibility_cue", "sun_visible", "sun_azimuth_deg",
                                                "sun_direction_source", "road_albedo", "notes")},
         }
+
+    def _environment(self, real: np.ndarray, plan: FramePlan, fa) -> np.ndarray | None:
+        """What glass and clear coat mirror by day: the real frame around the camera, its hood cut
+        off. At dusk and night the lighting's dim uniform world and the lamp's glint (a frame's
+        lamps and glare, spread around the car, turned black paint grey on the BDD night street)."""
+        if self.job.render.reflections != "frame" or (plan.lighting or {}).get("condition", "day") != "day":
+            return None
+        from blendgen.render.environment import plate_environment
+
+        hood_top = None
+        if fa is not None and fa.hood:
+            hood_top = min(p[1] for p in fa.hood) * self.camera.height / fa.height
+        return plate_environment(real, self.camera, plan.T_world_cam, hood_top=hood_top)
 
     def _analysis(self, frame_id: str):
         """The frame's analysis (ground-plane jobs) and its real boxes at the render resolution."""

@@ -25,6 +25,7 @@ from blendgen.atomic import atomic_path
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import Camera
 from blendgen.render import effects as fx
+from blendgen.render import environment as plate_env
 from blendgen.render import passes as passes_mod
 from blendgen.render.exr import empty_passes, read_passes, write_passes
 from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
@@ -231,7 +232,11 @@ class RenderSession:
         nt.links.new(gmix.outputs[0], mix.inputs[1])
         nt.links.new(sky.outputs[0], mix.inputs[2])
         nt.links.new(mix.outputs[0], out.inputs["Surface"])
-        self._world_nodes = {"bg": bg, "sky": sky, "mirrored": mirrored, "ramp": ramp}
+        # What glossy rays see of a real frame's surround (render.environment), when given.
+        env = nt.nodes.new("ShaderNodeTexEnvironment")
+        w, h = plate_env.MAP_SIZE
+        env.image = bpy.data.images.new("blendgen_plate_environment", w, h, float_buffer=True, alpha=False)
+        self._world_nodes = {"bg": bg, "sky": sky, "mirrored": mirrored, "ramp": ramp, "env": env}
 
     def _build_twin(self, twin_path: Path):
         try:
@@ -244,7 +249,7 @@ class RenderSession:
         self.twin_info = build_twin(load_twin(twin_path))
 
     # ------------------------------------------------------------------ per frame state
-    def _apply_lighting(self, lighting: dict, *, background: bool):
+    def _apply_lighting(self, lighting: dict, *, background: bool, environment: np.ndarray | None = None):
         sun_dir = fx.sun_direction(lighting)
         sun = self.sun
         if sun_dir is None:
@@ -272,6 +277,7 @@ class RenderSession:
         reflected = lighting.get("reflected_strength")
         n["mirrored"].inputs["Color"].default_value = (*sky, 1.0)
         n["mirrored"].inputs["Strength"].default_value = strength if reflected is None else float(reflected)
+        self._set_environment(environment)
         # Camera-ray sky for opaque backgrounds: paler at the horizon, the sky colour above.
         horizon = 0.5 * sky + 0.5 * float(sky.mean()) + 0.1
         ramp = n["ramp"].color_ramp
@@ -279,6 +285,26 @@ class RenderSession:
         ramp.elements[0].color = (*horizon, 1.0)
         ramp.elements[1].color = (*(sky * 0.8), 1.0)
         n["sky"].inputs["Strength"].default_value = strength if background else 0.0
+
+    def _set_environment(self, environment: np.ndarray | None):
+        """Glossy rays see `environment` (plate_env.plate_environment: rows from the top, linear
+        RGB in render units) or, without one, the uniform sky of the lighting."""
+        n, nt = self._world_nodes, self.scene.world.node_tree
+        colour = n["mirrored"].inputs["Color"]
+        for link in list(colour.links):
+            nt.links.remove(link)
+        if environment is None:
+            return
+        img = n["env"].image
+        h, w = environment.shape[:2]
+        if (w, h) != tuple(img.size):
+            img.scale(w, h)
+        rgba = np.ones((h, w, 4), np.float32)
+        rgba[..., :3] = environment[::-1]  # Blender stores the bottom row first
+        img.pixels.foreach_set(rgba.ravel())
+        img.update()
+        nt.links.new(n["env"].outputs["Color"], colour)
+        n["mirrored"].inputs["Strength"].default_value = 1.0  # the frame is in render units
 
     def _set_twin_mode(self, mode: str, catcher: bool):
         """mode 'composite': structures holdout, ground catches shadows (or is hidden);
@@ -544,9 +570,11 @@ class RenderSession:
         if RenderSession._current is not self:
             raise StageError("this RenderSession was closed or replaced by a newer one in this process")
 
-    def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str], *, compression: str = "zip") -> dict:
+    def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str], *, compression: str = "zip",
+                     environment: np.ndarray | None = None) -> dict:
         """See docs/render.md. `compression`: the EXR codec (exr.COMPRESSIONS, lossless); "none"
-        when the caller reads the file once and deletes it."""
+        when the caller reads the file once and deletes it. `environment`: what glass and clear
+        coat mirror (plate_env.plate_environment of the real frame); None: the lighting's sky."""
         self._check_current()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
@@ -580,7 +608,8 @@ class RenderSession:
         kept = set(eff.objects.value)
         info["objects"] = self._sync_objects(plan, kept)
         self._set_camera(plan.T_world_cam)
-        self._apply_lighting(lighting, background=False)
+        self._apply_lighting(lighting, background=False, environment=environment)
+        info["reflections"] = "the real frame" if environment is not None else "the lighting's uniform sky"
         info["lamps_on"] = bool(lighting.get("lights_on", False))  # head/tail lamps: night and dusk
         from assets_procedural.materials import set_vehicle_lamps
 

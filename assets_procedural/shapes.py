@@ -22,14 +22,21 @@ from assets_procedural.meshkit import (MeshBuilder, box, cylinder, ellipsoid, gr
 
 # ====================================================================== vehicles (4 wheels)
 def _wheel(mb, x, y, r, width, rim="alloy", spokes=5):
-    """Tyre with a spoked rim and dark hub; the outer face at y + side * width / 2. Between the
-    spokes the dark brake and wheel well show (a plain light disc read as a hubcap)."""
+    """Tyre with a spoked rim and dark hub; the outer face at y + side * width / 2. Between a
+    car's spokes the dark brake and well show (a plain light disc read as a hubcap); `spokes`
+    0: a truck's or bus's steel disc."""
     side = 1 if y > 0 else -1
     v, f = cylinder(r, width, 24, "y", (x, y, r))
     mb.add(v, f, "rubber", smooth=True)
-    face = y + side * (width / 2 - 0.004)  # the spokes' centre plane; the dark disc 8 mm behind
-    v, f = cylinder(r * 0.66, 0.02, 20, "y", (x, face - side * 0.008 * bool(spokes), r))
-    mb.add(v, f, "well" if spokes else rim)  # no spokes: a truck's or bus's steel disc
+    face = y + side * (width / 2 - 0.004)  # the rim's outer plane
+    if not spokes:
+        v, f = cylinder(r * 0.66, 0.02, 20, "y", (x, face, r))
+        mb.add(v, f, rim)
+        v, f = cylinder(r * 0.2, 0.02, 10, "y", (x, y + side * (width / 2 + 0.002), r))
+        mb.add(v, f, "plastic")
+        return
+    v, f = cylinder(r * 0.66, 0.02, 20, "y", (x, face - side * 0.008, r))  # 8 mm behind the spokes
+    mb.add(v, f, "well")
     v, f = torus(r * 0.62, r * 0.045, (x, face, r), "y", nu=24, nv=6)  # the rim's lip
     mb.add(v, f, rim, smooth=True)
     for k in range(spokes):

@@ -578,3 +578,36 @@ def test_car_windows_let_the_frame_show_through_above_the_seats(tmp_path):
         assert ys.max() < car_ys.min() + 0.5 * (car_ys.max() - car_ys.min())  # in the car's upper half
     finally:
         s.close()
+
+
+def test_patches_lie_over_the_twins_layered_roads(tmp_path):
+    """A map twin layers its ground surfaces millimetres apart (the demo town's crossing road
+    1-2 mm over its main road). A catcher patch under such a layer saw no sky: the object's sun
+    shadow caught 0 there, a black polygon in the composite. Patches now lie over the layer,
+    and the shadow is the one caught over a single road."""
+    from blendgen.render import primitives as prim
+    from blendgen.render.primitives import box_object
+    from blendgen.render.session import RenderSession
+
+    cam = Camera.from_hfov(240, 135, 60)
+    plan = FramePlan("f9", 0.0, T.tolist(), [PlacedObject(3, "car", (10.0, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5))], SUN)
+    shadow = {}
+    for layered in (False, True):
+        def twin():
+            prim.add_object("road", prim.plane_mesh("road", 200, 200), role="road")
+            if layered:
+                ob = prim.add_object("road_cross", prim.plane_mesh("road_cross", 200, 200), role="road")
+                ob.location = (0.0, 0.0, 0.002)
+
+        s = RenderSession(None, None, Render(samples=16, denoise=False), cam, object_builder=box_object,
+                          twin_builder=twin)
+        try:
+            s.render_frame(plan, tmp_path / "r.exr", {"rgba", "shadow_catcher"})
+            p = read_passes(tmp_path / "r.exr")
+        finally:
+            s.close()
+        sc, alpha = p["shadow_catcher"].mean(axis=2), p["rgba"][..., 3]
+        shadow[layered] = sc[(alpha < 0.02) & (sc < 0.9)]
+    assert len(shadow[False]) > 50 and len(shadow[True]) > 50
+    single, layered = np.median(shadow[False]), np.median(shadow[True])
+    assert single > 0.1 and abs(layered - single) < 0.1, (single, layered)

@@ -111,6 +111,7 @@ class RenderSession:
             self._ground = make_ground()
         self._roles = {ob.name: ob.get("blendgen_role") for ob in sc.objects if ob.get("blendgen_role")}
         self.twin_objects = [ob for ob in sc.objects if ob.name in self._roles]
+        self._ground_bvh = self._static_ground_bvh()
         self.setup_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ setup
@@ -350,11 +351,43 @@ class RenderSession:
         verts, faces = [], []
         for poly in polygons:
             faces.append(tuple(range(len(verts), len(verts) + len(poly))))
-            lift = fx.catcher_lift_m(poly)
+            lift = fx.catcher_lift_m(poly) + self._ground_clearance(poly)
             verts.extend((float(x), float(y), float(z) + lift) for x, y, z in poly)
         me.from_pydata(verts, [], faces)
         me.update()
         self._catcher.hide_render = False
+
+    def _static_ground_bvh(self):
+        """The twin's ground surfaces (they never move) as one BVH tree; None without a twin."""
+        from mathutils.bvhtree import BVHTree
+
+        self.view_layer.update()  # matrix_world of objects a builder has just placed
+        verts, polys = [], []
+        for ob in self.twin_objects:
+            if ob is self._ground or ob.type != "MESH" or self._roles.get(ob.name) not in GROUND_ROLES:
+                continue
+            me = ob.data
+            co = np.empty(3 * len(me.vertices))
+            me.vertices.foreach_get("co", co)
+            M = np.array(ob.matrix_world)
+            base = len(verts)
+            verts.extend((co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]).tolist())
+            polys.extend([base + i for i in p.vertices] for p in me.polygons)
+        return BVHTree.FromPolygons(verts, polys) if polys else None
+
+    def _ground_clearance(self, poly: np.ndarray) -> float:
+        """How far the twin's ground stands above a patch's base height under it (<= 3 cm). A
+        map twin layers its surfaces millimetres apart (the demo town's crossing road 1-2 mm
+        over the main road); a patch under one caught no light, and its shadows were black."""
+        if self._ground_bvh is None:
+            return 0.0
+        pts = np.vstack([poly, poly.mean(axis=0)])
+        up = 0.0
+        for x, y, z in pts:
+            hit = self._ground_bvh.ray_cast(Vector((x, y, z + 0.03)), Vector((0.0, 0.0, -1.0)), 0.03)[0]
+            if hit is not None:
+                up = max(up, hit.z - z)
+        return up
 
     def _catcher_material(self):
         from blendgen.render.primitives import material

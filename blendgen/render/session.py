@@ -208,6 +208,10 @@ class RenderSession:
             ob.hide_render = True
         world = bpy.data.worlds.new("blendgen_world")
         sc.world = world
+        # No importance map: the renders are bit-identical without it (the light the world casts
+        # is uniform), and with the frame's environment map (render.environment) in the world
+        # Cycles rebuilt one for every frame: 0.13 -> 0.58 s per 480x270 demo frame.
+        world.cycles.sampling_method = "NONE"
         with warnings.catch_warnings():  # deprecated in 5.0 but still needed for a new world
             warnings.simplefilter("ignore", DeprecationWarning)
             world.use_nodes = True

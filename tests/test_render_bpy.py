@@ -482,26 +482,29 @@ def test_ground_casts_no_shadow_on_the_catcher_patches(tmp_path):
     assert caught.sum() > 100 and np.median(sc[caught]) > 0.5  # a shadow on a lit patch
 
 
+def _mirror(obj):
+    """A PlacedObject as a polished metal box (what glossy rays see)."""
+    from blendgen.render.primitives import add_object, box_mesh, material
+
+    ob = add_object(f"obj{obj.id}", box_mesh(f"obj{obj.id}", obj.dims))
+    ob.data.materials.append(material(f"mirror{obj.id}", (0.9, 0.9, 0.9), roughness=0.03, metallic=1.0))
+    ob.pass_index = int(obj.id)
+    ob.location = tuple(float(c) for c in obj.position)
+    return ob
+
+
 def test_night_mirrors_show_the_scene_not_the_ambient(tmp_path):
     """At night glossy rays see the world at `reflected_strength` (the frame's mean radiance),
     not the ambient that lights the objects, and the soft street-light key is not mirrored as a
     broad patch (a car's rear window on the BDD night street read lighter than its body)."""
-    from blendgen.render.primitives import add_object, box_mesh, material
     from blendgen.render.session import RenderSession
-
-    def mirror(obj):
-        ob = add_object(f"obj{obj.id}", box_mesh(f"obj{obj.id}", obj.dims))
-        ob.data.materials.append(material(f"mirror{obj.id}", (0.9, 0.9, 0.9), roughness=0.05, metallic=1.0))
-        ob.pass_index = int(obj.id)
-        ob.location = tuple(float(c) for c in obj.position)
-        return ob
 
     night = {"sun_direction": [0.0, 0.0, 1.0], "sun_strength": 0.0, "sun_color": [1, 1, 1], "sun_angle_deg": 2.0,
              "sky_color": [0.9, 0.95, 1.0], "sky_strength": 0.3, "sun_visible": False, "condition": "night",
              "lights_on": True, "street_light": {"direction": [0.2, 0.2, 0.95], "strength": 0.8,
                                                  "color": [1.0, 0.9, 0.7], "angle_deg": 30.0, "share": 0.7}}
     cam = Camera.from_hfov(160, 90, 50)
-    s = RenderSession(None, None, Render(samples=16, denoise=False), cam, object_builder=mirror)
+    s = RenderSession(None, None, Render(samples=16, denoise=False), cam, object_builder=_mirror)
     try:
         assert not s.street.visible_glossy and not s.glint.visible_diffuse and not s.glint.data.use_shadow
         mean = {}
@@ -520,20 +523,12 @@ def test_mirrors_show_the_real_frame_when_given_one(tmp_path):
     it were not there (it mirrors what lies behind the camera: the view ahead, mirrored);
     without one, the lighting's uniform sky."""
     from blendgen.render.environment import plate_environment
-    from blendgen.render.primitives import add_object, box_mesh, material
     from blendgen.render.session import RenderSession
-
-    def mirror(obj):
-        ob = add_object(f"obj{obj.id}", box_mesh(f"obj{obj.id}", obj.dims))
-        ob.data.materials.append(material(f"mirror{obj.id}", (0.9, 0.9, 0.9), roughness=0.02, metallic=1.0))
-        ob.pass_index = int(obj.id)
-        ob.location = tuple(float(c) for c in obj.position)
-        return ob
 
     cam = Camera.from_hfov(160, 90, 50)
     frame = np.zeros((90, 160, 3), np.uint8)
     frame[:, :80], frame[:, 80:] = (20, 20, 220), (20, 220, 20)  # red left, green right (BGR)
-    s = RenderSession(None, None, Render(samples=16, denoise=False), cam, object_builder=mirror)
+    s = RenderSession(None, None, Render(samples=16, denoise=False), cam, object_builder=_mirror)
     try:
         # an importance map of the world, rebuilt for every frame's map, cost 0.45 s a demo frame
         assert s.scene.world.cycles.sampling_method == "NONE"

@@ -106,14 +106,14 @@ def _grime_mask(nt, coord, wear):
 CABIN_SEATS = (0.68, 0.80)  # seat backs to headrests, share of a car's height: the cabin hides the view below
 
 
-def glass(tint=(0.006, 0.008, 0.009), see_through=0.0):
+def glass(tint=(0.006, 0.008, 0.009), see_through=0.0, seats=CABIN_SEATS):
     """Tinted car glass: a dark cabin behind a smooth dielectric that mirrors the environment
     (Fresnel: dark face-on, bright at grazing angles), as windows look from outside.
     `see_through`: the share of the window that is a holdout, through which the composite shows
     the real frame: what a camera sees through a car's windows is the street beyond it. The
-    cabin is not modelled: below the seat backs' height (CABIN_SEATS of the vehicle's height) the
-    glass stays dark, above it the share rises to `see_through`."""
-    m, new = _new(_key(f"glass_s{see_through:.2f}", tint))
+    cabin is not modelled: below the seat backs' height (`seats`, shares of the vehicle's height)
+    the glass stays dark, above it the share rises to `see_through`."""
+    m, new = _new(_key(f"glass_s{see_through:.2f}_{seats[0]:.2f}", tint))
     if not new:
         return m
     _setup(m, tint, roughness=0.015, ior=1.52)
@@ -122,7 +122,7 @@ def glass(tint=(0.006, 0.008, 0.009), see_through=0.0):
         mix, hold = nt.nodes.new("ShaderNodeMixShader"), nt.nodes.new("ShaderNodeHoldout")
         gen, xyz = nt.nodes.new("ShaderNodeTexCoord"), nt.nodes.new("ShaderNodeSeparateXYZ")
         ramp = nt.nodes.new("ShaderNodeMapRange")  # clamps to [To Min, To Max]
-        ramp.inputs["From Min"].default_value, ramp.inputs["From Max"].default_value = CABIN_SEATS
+        ramp.inputs["From Min"].default_value, ramp.inputs["From Max"].default_value = seats
         ramp.inputs["To Min"].default_value, ramp.inputs["To Max"].default_value = 0.0, see_through
         nt.links.new(gen.outputs["Generated"], xyz.inputs[0])  # 0..1 over the object's bounds
         nt.links.new(xyz.outputs["Z"], ramp.inputs["Value"])

@@ -20,6 +20,8 @@ from assets_procedural.shapes import LAMP_COLORS, build_shape, traffic_light_pol
 from blendgen.scene.catalog import sample_variant
 from blendgen.scene.plan import PlacedObject
 
+# seat backs to headrests (shares of the height) where they differ from a car's: a bus's passengers
+SEATS = {"bus": (0.40, 0.50)}
 WINDOW_SEE_THROUGH = 0.12  # tinted glass twice (rear window, windscreen) and the seats in between
 LIT_STRENGTH = 6.0  # emission of a lit signal lamp: bright, still saturated in colour
 
@@ -43,7 +45,7 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.principled(M._key("cargo", v.get("cargo", (0.8, 0.8, 0.78))), v.get("cargo", (0.8, 0.8, 0.78)),
                                   roughness=0.5, coat=0.3)
         elif s == "glass":  # windows: the street beyond shows through them
-            out[s] = M.glass(see_through=WINDOW_SEE_THROUGH)
+            out[s] = M.glass(see_through=WINDOW_SEE_THROUGH, seats=SEATS.get(obj.cls, M.CABIN_SEATS))
         elif s == "visor":
             out[s] = M.glass()
         elif s == "helmet":  # in the two-wheeler's colour

@@ -113,7 +113,7 @@ def glass(tint=(0.006, 0.008, 0.009), see_through=0.0, seats=CABIN_SEATS):
     the real frame: what a camera sees through a car's windows is the street beyond it. The
     cabin is not modelled: below the seat backs' height (`seats`, shares of the vehicle's height)
     the glass stays dark, above it the share rises to `see_through`."""
-    m, new = _new(_key(f"glass_s{see_through:.2f}_{seats[0]:.2f}", tint))
+    m, new = _new(_key(f"glass_s{see_through:.2f}_{seats[0]:.2f}-{seats[1]:.2f}", tint))
     if not new:
         return m
     _setup(m, tint, roughness=0.015, ior=1.52)

@@ -7,6 +7,7 @@ The decisions about what to render are bpy-free (effects.py); this module applie
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import shutil
@@ -111,7 +112,6 @@ class RenderSession:
             self._ground = make_ground()
         self._roles = {ob.name: ob.get("blendgen_role") for ob in sc.objects if ob.get("blendgen_role")}
         self.twin_objects = [ob for ob in sc.objects if ob.name in self._roles]
-        self._ground_bvh = self._static_ground_bvh()
         self.setup_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------------ setup
@@ -361,8 +361,10 @@ class RenderSession:
         me.update()
         self._catcher.hide_render = False
 
-    def _static_ground_bvh(self):
-        """The twin's ground surfaces (they never move) as one BVH tree; None without a twin."""
+    @functools.cached_property
+    def _ground_bvh(self):
+        """The twin's ground surfaces (they never move) as one BVH tree, built when the first
+        catcher patch needs it; None without a twin."""
         from mathutils.bvhtree import BVHTree
 
         self.view_layer.update()  # matrix_world of objects a builder has just placed

@@ -168,7 +168,9 @@ def test_class_weights_hold_for_long_vehicles():
         for o in plan_sequence(twin, CAM, [("f000000", 0.0, np.asarray(fa.T_world_cam))], inject, seed,
                                real=real)[0].objects:
             n[o.cls] += 1
-    assert n["bus"] >= 0.4 * (n["bus"] + n["car"]), n  # 0.47 (drawn one at a time: 0.32)
+    # 0.47 with the twin's lanes, 0.39 in the painted ones (the left lane's centre at 3.65 m
+    # puts a bus's left wheels past this frame's road estimate, 4.5 m); drawn one at a time: 0.32
+    assert n["bus"] >= 0.36 * (n["bus"] + n["car"]), n
 
 
 

@@ -54,6 +54,7 @@ class FrameAnalysis:
     road_direction_deg: float | None = None          # road yaw relative to the camera's heading (0 = straight ahead)
     centre_line_m: float | None = None               # lateral offset (left > 0) of the line beyond which traffic comes towards the camera
     edge_line_m: float | None = None                 # lateral offset (< 0) of the solid right edge line: no traffic beyond it
+    lane_lines: list[list[float]] = field(default_factory=list)  # painted lines [y10, slope, cover] (analysis.lanes)
     real_objects: list[RealObject] = field(default_factory=list)
     decisions: list[dict[str, Any]] = field(default_factory=list)  # {"what", "value", "reason"}: what the manifest records
     version: int = SCHEMA_VERSION

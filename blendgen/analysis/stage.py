@@ -19,12 +19,13 @@ import cv2
 import numpy as np
 
 from blendgen import atomic
-from blendgen.analysis import ground, objects, road
+from blendgen.analysis import ground, lanes, objects, road
 from blendgen.analysis.model import CameraEstimate, FrameAnalysis
 from blendgen.geometry import Camera
 
 log = logging.getLogger(__name__)
 EGO_BOX_MIN_WIDTH = 0.5   # a "vehicle" box this wide (fraction of the image) touching the bottom is our own hood
+LANE_WIDTH_MISFIT = 0.15  # the ego lane measured this far off the job's lane width: the camera does not fit
 
 
 def not_ego(users: list, hmask: np.ndarray | None, W: int, H: int) -> tuple[list, list]:
@@ -112,12 +113,21 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
     decisions.append({"what": "centre_line_m", "value": None if centre is None else round(centre, 2), "reason": how})
     edge, how = road.edge_line(image, road_px, camera, T) if road_px is not None else (None, "no road region")
     decisions.append({"what": "edge_line_m", "value": None if edge is None else round(edge, 2), "reason": how})
+    lines, how = lanes.lane_lines(image, road_px, camera, T)
+    ego = lanes.ego_lane(lines, lanes.X_REF, lane_width_m)
+    if ego is not None and abs((ego[1] - ego[0]) / lane_width_m - 1) > LANE_WIDTH_MISFIT:
+        # a lane bounded by two lines, measured in the frame's metric (height, pitch): the
+        # vehicles follow the paint, but everything virtual is out of scale with the road
+        how += (f"; the ego lane measures {ego[1] - ego[0]:.2f} m for lane_width_m {lane_width_m:g}: "
+                f"the camera height ({est.height_m:.2f} m) or pitch ({est.pitch_deg:+.1f} deg) does not fit this frame")
+        log.warning("%s: %s", frame_id, how)
+    decisions.append({"what": "lane_lines", "value": len(lines), "reason": how})
     fa = FrameAnalysis(frame_id=frame_id, width=W, height=H, camera=est, T_world_cam=T.tolist(),
                        horizon=horizon, hood=[list(map(float, p)) for p in hood] if hood else None,
                        road_mask=f"{frame_id}_road.png" if mask is not None else None,
                        road_direction_deg=None if yaw is None else round(yaw, 2),
                        centre_line_m=None if centre is None else round(centre, 2),
-                       edge_line_m=None if edge is None else round(edge, 2), real_objects=kept,
+                       edge_line_m=None if edge is None else round(edge, 2), lane_lines=lines, real_objects=kept,
                        decisions=decisions)
     return fa, mask
 

@@ -41,6 +41,7 @@ SCENARIO_PERIOD_S = 8.0   # a scenario whose actors are gone is re-staged after 
 SCENARIO_RETRY_S = 1.0
 SIGNAL_CYCLE = (("green", 12.0), ("amber", 3.0), ("red", 15.0))
 VEHICLES = ("car", "bus", "truck", "motorcycle")
+LANE_SMOOTH_S = 0.5         # a video's vehicles follow their painted lane, smoothed over this (Gaussian sigma)
 POLE_OFF_ROAD_M = (0.8, 2.0)  # a ground-plane signal pole stands this far beyond the road edge
 FLOW_SPEED = (0.85, 1.15)  # real video: a vehicle's speed as a share of the ego's (the traffic it drives in)
 FLOW_MIN_EGO_MPS = 3.0     # below this the ego crawls or stands: class speeds
@@ -260,7 +261,8 @@ class Planner:
         if n == 0:
             return None
         s, tt = s[:n], tt[:n]
-        cd = rg.lane_d(index, direction, s)  # the lane centre follows a map's varying widths
+        # the lane centre follows a map's varying widths, a real frame's painted lines
+        cd = rg.lane_d(index, direction, s) + self._real_lane_shifts(k0, rg, index, direction, s, tt)
         d = cd + np.full(n, lat) if lat_profile is None else cd + lat_profile(tt)
         xy = rg.line.offset_point(s, d)
         _, tan = rg.line.at(s)
@@ -270,6 +272,37 @@ class Planner:
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         m = self._limit(k0, xy)
         return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
+
+    def _real_lane_shift(self, k, rg, index, direction, s) -> float | None:
+        """Metres to add to the twin lane's centre offset at arc length s so that a vehicle
+        there runs along the matching real lane of frame k (`RealScene.lane_centre`; None
+        without one): the ground-plane twin's lanes are the job's width with the camera on a
+        lane centre, the real ones are where the paint is."""
+        ego = self.ego.lane[k] if self.real is not None else None
+        if ego is None or self.twin.roads[ego.road] is not rg:
+            return None
+        cd = float(rg.lane_d(index, direction, np.array([s]))[0])
+        x, y = rg.line.offset_point(np.array([s]), np.array([cd]))[0]
+        n = int(round((cd - ego.center_d) / ego.width))
+        real = self.real.lane_centre(k, self.ego.T[k], n, float(x), ego.width)
+        return None if real is None else real - float(y)
+
+    def _real_lane_shifts(self, k0, rg, index, direction, s, tt=(0.0,)) -> np.ndarray | float:
+        """`_real_lane_shift` for a track's frames k0, k0 + 1, ... (at times tt from k0): on video
+        it keeps the vehicle in its painted lane however the ego motion drifts across the road,
+        smoothed over LANE_SMOOTH_S (each frame's lines are a few cm apart from the next's); a
+        frame without lines takes its neighbours'."""
+        if self.real is None:
+            return 0.0
+        shifts = np.array([np.nan if v is None else v for v in (
+            self._real_lane_shift(k0 + i, rg, index, direction, float(si)) for i, si in enumerate(s))])
+        ok = np.isfinite(shifts)
+        if not ok.any():
+            return 0.0
+        t = np.asarray(tt, float)[:len(shifts)]
+        logw = -0.5 * ((t[:, None] - t[None, ok]) / LANE_SMOOTH_S) ** 2
+        w = np.exp(logw - logw.max(axis=1, keepdims=True))  # a frame 20 s from any line still gets one
+        return w @ shifts[ok] / w.sum(axis=1)
 
     def _road_track(self, cls, variant, dims, k0, xy, yaw, scenario):
         """A wheeled track on the road surface: its height, pitch and roll follow the road."""
@@ -421,7 +454,8 @@ class Planner:
         # the ego, so the vehicle keeps the lane and travels against it (and is parked facing so)
         towards = False
         if self.real is not None:  # decided where the vehicle will be, not where it was sampled
-            cd = rg.lane_d(lane.index, lane.direction, np.array([lane.s]))
+            cd = rg.lane_d(lane.index, lane.direction, np.array([lane.s])) + self._real_lane_shifts(
+                k, rg, lane.index, lane.direction, [lane.s])
             xy = rg.line.offset_point(np.array([lane.s]), cd + lat * lane.direction)[0]
             towards = self.real.oncoming(k, self.ego.T[k], xy)
         # `lat` is relative to the travel direction (left > 0); lane_track wants road-frame d

@@ -1,0 +1,119 @@
+"""The real lanes in a frame: painted lines along the road and the lanes between them (bpy-free).
+
+The ground-plane twin lays its lanes out from the job's lane width with the ego lane centred
+on the camera; a real camera rarely is (the Udacity highway photos: 0.4 m off its lane's
+centre) and the real lane's width in the frame's metric is what the camera height and focal
+length make of it (2.95 m there for the job's 3.7 m). A vehicle at the twin's lane centre
+then stands on a real lane line. Here the lines themselves are found: the painted stripes
+(`road._painted`) on the ground, grouped into straight lines y = y10 + slope (x - 10)
+(x ahead, y left of the camera, metres) by a vote over slopes (a pitch that is off fans the
+lines out on the ground), a line being one that covers LINE_MIN_COVER of its range's 1 m
+steps (a dashed line ~0.25-0.6, tyre tracks in snow less) and is thin. `lane_centres` turns
+them into lane centres at a distance ahead: the ego lane between the nearest line on each
+side, neighbours out to the next line (or one lane width beyond).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from blendgen.analysis import road
+from blendgen.geometry import Camera
+
+RANGE_M = (5.0, 30.0)          # ahead of the camera: resolved, past the hood
+X_REF = 10.0                   # lines are given by their offset here
+SLOPES = np.linspace(-0.08, 0.08, 33)   # lateral metres per metre ahead
+BIN_M = 0.1
+HALF_WIDTH_M = 0.15            # a stripe's pixels lie within this of its line
+LINE_MIN_COVER = 0.2          # of the range's 1 m steps (dashes, US 10 ft on 40 ft: 0.25 + the top-hat's smear)
+LINE_MIN_PX = 30
+MIN_GAP_M = 0.8                # two lines closer than this at X_REF are one
+MAX_LINES = 6
+LANE_SPAN = (0.7, 1.35)        # a lane between two lines, as a share of the job's lane width
+
+
+def lane_lines(image: np.ndarray, road_px: np.ndarray | None, camera: Camera, T_world_cam: np.ndarray
+               ) -> tuple[list[list[float]], str]:
+    """([[y10, slope, cover], ...] from left to right (y10 descending), how it was decided)."""
+    if road_px is None or not road_px.any():
+        return [], "no road region"
+    lab, r, s = road._work_lab(image, road_px)
+    _, _, x, y = road._painted(lab, r, camera, T_world_cam, s)
+    ok = (x > RANGE_M[0]) & (x < RANGE_M[1]) & (np.abs(y) < 8.0)
+    x, y = x[ok], y[ok]
+    steps = int(RANGE_M[1] - RANGE_M[0])
+    lines = []
+    while len(x) >= LINE_MIN_PX and len(lines) < MAX_LINES:
+        best = None
+        for b in SLOPES:  # the densest offset per slope; its cover decides
+            q = y - b * (x - X_REF)
+            h, edges = np.histogram(q, bins=np.arange(-8.0 - 0.8, 8.8, BIN_M))
+            h = np.convolve(h, np.ones(3), "same")
+            for i in np.argsort(h)[-3:]:
+                q0 = edges[i] + BIN_M / 2
+                on = np.abs(q - q0) < HALF_WIDTH_M
+                if on.sum() < LINE_MIN_PX:
+                    continue
+                cover = len(np.unique(np.floor(x[on] - RANGE_M[0]).astype(int))) / steps
+                if best is None or cover > best[0]:
+                    best = (cover, b, q0, on)
+        if best is None or best[0] < LINE_MIN_COVER:
+            break
+        cover, b, q0, on = best
+        slope, y10 = np.polyfit(x[on] - X_REF, y[on], 1)  # least squares on the stripe's pixels
+        if abs(slope) > SLOPES[-1] * 1.5:
+            slope, y10 = b, q0
+        if all(abs(y10 - l[0]) >= MIN_GAP_M for l in lines):
+            lines.append([round(float(y10), 3), round(float(slope), 4), round(cover, 2)])
+        keep = np.abs(y - (y10 + slope * (x - X_REF))) > 2 * HALF_WIDTH_M
+        x, y = x[keep], y[keep]
+    lines.sort(key=lambda l: -l[0])
+    if not lines:
+        return [], f"no painted line along the road covering {LINE_MIN_COVER:.0%} of {RANGE_M[0]:g}-{RANGE_M[1]:g} m"
+    return lines, "painted lines at " + ", ".join(f"{l[0]:+.1f} m ({l[2]:.0%})" for l in lines) + f" ({X_REF:g} m ahead)"
+
+
+def ego_lane(lines: list[list[float]], x: float, lane_width_m: float) -> tuple[float, float, np.ndarray] | None:
+    """(right edge, left edge, every kept line's offset) of the camera's lane `x` metres ahead,
+    or None when the lines bound none: no line within a lane's width on either side, or the
+    nearest two a lane's width apart beyond LANE_SPAN. One line alone bounds the lane on its side."""
+    w = lane_width_m
+    kept = []  # strongest first; a weaker line within a lane's width of a kept one is a track or crack
+    for l in sorted(lines, key=lambda l: -l[2]):
+        if all(abs(l[0] - k[0]) >= LANE_SPAN[0] * w for k in kept):
+            kept.append(l)
+    xc = float(np.clip(x, *RANGE_M)) - X_REF
+    ys = np.array([l[0] + l[1] * xc for l in kept])
+    left, right = np.sort(ys[ys > 0]), np.sort(ys[ys <= 0])[::-1]
+    near_l = left[0] if len(left) and left[0] < LANE_SPAN[1] * w else None
+    near_r = right[0] if len(right) and -right[0] < LANE_SPAN[1] * w else None
+    if near_l is not None and near_r is not None:
+        if not LANE_SPAN[0] * w <= near_l - near_r <= LANE_SPAN[1] * w:
+            return None
+        return near_r, near_l, ys
+    if near_l is not None and near_l >= 0.3 * w:
+        return near_l - w, near_l, ys
+    if near_r is not None and -near_r >= 0.3 * w:
+        return near_r, near_r + w, ys
+    return None
+
+
+def lane_centres(lines: list[list[float]], x: float, lane_width_m: float, n_max: int = 3
+                 ) -> dict[int, float] | None:
+    """Lateral offsets (left > 0) of the lane centres `x` metres ahead, by lane: 0 the ego lane
+    (`ego_lane`), +1 the next on the left, -1 on the right, ... up to n_max; a neighbour reaches
+    to the next line about a lane's width out, or is as wide as the ego lane. None without an
+    ego lane."""
+    ego = ego_lane(lines, x, lane_width_m) if lines else None
+    if ego is None:
+        return None
+    lo, hi, ys = ego
+    we = hi - lo
+    out = {0: (lo + hi) / 2}
+    for side, edge in ((1, hi), (-1, lo)):
+        for n in range(1, n_max + 1):
+            nxt = [v for v in ys if LANE_SPAN[0] * we <= side * (v - edge) <= LANE_SPAN[1] * we]
+            far = min(nxt, key=lambda v: side * v) if nxt else edge + side * we
+            out[side * n] = (edge + far) / 2
+            edge = far
+    return out

@@ -127,8 +127,8 @@ def test_a_camera_that_does_not_fit_the_lanes_is_said():
 
 def test_a_video_track_follows_its_lane_through_frames_without_lines():
     """On video each frame's lines move the track; frames without lines, even 30 s from the
-    nearest with them, take their neighbours' shift (no NaN from vanishing weights). (A vehicle
-    that first appears in a frame without lines keeps the twin's lane: NOTES.)"""
+    nearest with them, take their neighbours' shift (no NaN from vanishing weights), and a
+    vehicle that first appears in a frame without lines takes the nearest frame's lanes."""
     fa, mask = _off_centre()
     T = np.asarray(fa.T_world_cam)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-2.0, lane_width_m=3.5, analysis=True))
@@ -141,9 +141,8 @@ def test_a_video_track_follows_its_lane_through_frames_without_lines():
     for seed in range(4):
         for k, p in enumerate(plan_sequence(twin, CAM, poses, inject, seed, real=real)):
             for o in p.objects:
-                if k == 0 or (seed, o.id) in ys:  # born in the frame with lines
-                    ys.setdefault((seed, o.id), []).append(o.position[1] - T[1, 3])
-    assert any(len(track) == 4 for track in ys.values()), ys
+                ys.setdefault((seed, o.id), []).append(o.position[1] - T[1, 3])
+    assert any(len(track) == 4 for track in ys.values()) and any(len(track) < 4 for track in ys.values()), ys
     centres = np.array([-0.6, 2.9, 6.4])
     for y in (v for track in ys.values() for v in track):
         assert np.isfinite(y) and np.min(np.abs(y - centres)) < 0.15, ys

@@ -42,6 +42,7 @@ SCENARIO_RETRY_S = 1.0
 SIGNAL_CYCLE = (("green", 12.0), ("amber", 3.0), ("red", 15.0))
 VEHICLES = ("car", "bus", "truck", "motorcycle")
 LANE_SMOOTH_S = 0.5         # a video's vehicles follow their painted lane, smoothed over this (Gaussian sigma)
+LANE_BORROW_FRAMES = 30     # a video track born without lines takes the nearest of this many frames' lanes
 POLE_OFF_ROAD_M = (0.8, 2.0)  # a ground-plane signal pole stands this far beyond the road edge
 FLOW_SPEED = (0.85, 1.15)  # real video: a vehicle's speed as a share of the ego's (the traffic it drives in)
 FLOW_MIN_EGO_MPS = 3.0     # below this the ego crawls or stands: class speeds
@@ -291,14 +292,17 @@ class Planner:
         """`_real_lane_shift` for a track's frames k0, k0 + 1, ... (at times tt from k0): on video
         it keeps the vehicle in its painted lane however the ego motion drifts across the road,
         smoothed over LANE_SMOOTH_S (each frame's lines are a few cm apart from the next's); a
-        frame without lines takes its neighbours'."""
+        frame without lines takes its neighbours', a track without any the nearest frame's
+        with lines (video only: stills do not share a world)."""
         if self.real is None:
             return 0.0
         shifts = np.array([np.nan if v is None else v for v in (
             self._real_lane_shift(k0 + i, rg, index, direction, float(si)) for i, si in enumerate(s))])
         ok = np.isfinite(shifts)
         if not ok.any():
-            return 0.0
+            near = np.argsort(np.abs(self.times - self.times[k0]))[:LANE_BORROW_FRAMES] if self.inject.sequences else []
+            borrowed = (self._real_lane_shift(int(k), rg, index, direction, float(s[0])) for k in near)
+            return next((v for v in borrowed if v is not None), 0.0)
         t = np.asarray(tt, float)[:len(shifts)]
         logw = -0.5 * ((t[:, None] - t[None, ok]) / LANE_SMOOTH_S) ** 2
         w = np.exp(logw - logw.max(axis=1, keepdims=True))  # a frame 20 s from any line still gets one

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen.analysis.lanes import lane_lines  # noqa: E402
-from blendgen.analysis.stage import read_analysis, read_road_mask  # noqa: E402
+from blendgen.analysis.stage import read_road_mask  # noqa: E402
 from blendgen.job.schema import load_job  # noqa: E402
 from blendgen.recording.folder import read_frame, read_recording  # noqa: E402
 from blendgen.scene.ground_plane import GroundPlaneTwin  # noqa: E402
@@ -57,7 +57,8 @@ def run(out: Path, job_path: Path, seeds: int) -> dict:
                                           rec.camera.scaled(rf.fa.width, rf.fa.height),
                                           np.asarray(rf.fa.T_world_cam))[0]
     lines = {rf.fa.frame_id: list(rf.fa.lane_lines) for rf in real.frames if rf is not None}
-    poses = [(f, float(i), np.asarray(read_analysis(out / "analysis", f).T_world_cam)) for i, f in enumerate(ids)]
+    poses = [(rf.fa.frame_id, float(rec.frames_t[int(rf.fa.frame_id.lstrip("f"))]), np.asarray(rf.fa.T_world_cam))
+             for rf in real.frames]
     twin = GroundPlaneTwin.from_job(job.ground_plane)
     res = {}
     for variant in ("twin lanes", "painted lanes"):

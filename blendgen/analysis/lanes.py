@@ -2,15 +2,16 @@
 
 The ground-plane twin lays its lanes out from the job's lane width with the ego lane centred
 on the camera; a real camera rarely is (the Udacity highway photos: 0.4 m off its lane's
-centre) and the real lane's width in the frame's metric is what the camera height and focal
-length make of it (2.95 m there for the job's 3.7 m). A vehicle at the twin's lane centre
-then stands on a real lane line. Here the lines themselves are found: the painted stripes
-(`road._painted`) on the ground, grouped into straight lines y = y10 + slope (x - 10)
-(x ahead, y left of the camera, metres) by a vote over slopes (a pitch that is off fans the
-lines out on the ground), a line being one that covers LINE_MIN_COVER of its range's 1 m
-steps (a dashed line ~0.25-0.6, tyre tracks in snow less) and is thin. `lane_centres` turns
-them into lane centres at a distance ahead: the ego lane between the nearest line on each
-side, neighbours out to the next line (or one lane width beyond).
+centre) and the real lane's width in the frame's metric is what the camera height and pitch
+make of it (2.7 m there for the job's 3.7 m with a pitch that did not fit). A vehicle at the
+twin's lane centre then stood on a real lane line. Here the lines themselves are found: the
+painted stripes (`road._painted`) on the ground, grouped into straight lines
+y = y10 + slope (x - 10) (x ahead, y left of the camera, metres) by a vote over slopes (a
+pitch that is off fans the lines out on the ground), a line being a 0.3 m wide band whose
+stripes cover LINE_MIN_COVER of its range's 1 m steps. `ego_lane` and `lane_centres` turn
+them into lanes at a distance ahead: the ego lane between the nearest line on each side when
+they are a plausible lane's width apart (the BDD snow street's tyre tracks, 0.3-0.6 covered,
+are not), neighbours out to the next line (or one lane width beyond).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ X_REF = 10.0                   # lines are given by their offset here
 SLOPES = np.linspace(-0.08, 0.08, 33)   # lateral metres per metre ahead
 BIN_M = 0.1
 HALF_WIDTH_M = 0.15            # a stripe's pixels lie within this of its line
-LINE_MIN_COVER = 0.2          # of the range's 1 m steps (dashes, US 10 ft on 40 ft: 0.25 + the top-hat's smear)
+LINE_MIN_COVER = 0.2           # of the range's 1 m steps (a US freeway's dashes: 0.3-0.6, solid lines 0.9-1)
 LINE_MIN_PX = 30
 MIN_GAP_M = 0.8                # two lines closer than this at X_REF are one
 MAX_LINES = 6
@@ -104,7 +105,7 @@ def lane_centres(lines: list[list[float]], x: float, lane_width_m: float, n_max:
     (`ego_lane`), +1 the next on the left, -1 on the right, ... up to n_max; a neighbour reaches
     to the next line about a lane's width out, or is as wide as the ego lane. None without an
     ego lane."""
-    ego = ego_lane(lines, x, lane_width_m) if lines else None
+    ego = ego_lane(lines, x, lane_width_m)
     if ego is None:
         return None
     lo, hi, ys = ego

@@ -5,6 +5,7 @@ measured 2.7 m in the frame's metric for the job's 3.7 m)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
@@ -132,14 +133,14 @@ def test_a_video_track_follows_its_lane_through_frames_without_lines():
     fa, mask = _off_centre()
     T = np.asarray(fa.T_world_cam)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-2.0, lane_width_m=3.5, analysis=True))
-    bare = RealFrame(fa.__class__(**{**fa.__dict__, "lane_lines": []}), mask, None)
+    bare = RealFrame(dataclasses.replace(fa, lane_lines=[]), mask, None)
     frames = [RealFrame(fa, mask, None)] + [bare] * 3
     real = RealScene(frames, CAM)
     poses = [(f"f{i:06d}", t, T) for i, t in enumerate((0.0, 10.0, 20.0, 40.0))]
     inject = Inject(objects_per_frame=(2, 2), classes={"car": 1}, distance_m=(8, 30), sequences=True)
     ys = {}
     for seed in range(4):
-        for k, p in enumerate(plan_sequence(twin, CAM, poses, inject, seed, real=real)):
+        for p in plan_sequence(twin, CAM, poses, inject, seed, real=real):
             for o in p.objects:
                 ys.setdefault((seed, o.id), []).append(o.position[1] - T[1, 3])
     assert any(len(track) == 4 for track in ys.values()) and any(len(track) < 4 for track in ys.values()), ys

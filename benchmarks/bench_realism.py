@@ -73,11 +73,16 @@ HEIGHT_BINS = [(0, 20, "< 20 px"), (20, 40, "20-40 px"), (40, 80, "40-80 px"), (
 TRANSFERS = ("none", "reinhard", "mkl", "histogram")
 DEFAULT_VARIANT = f"ct={Post().color_transfer}"  # the pipeline's default post
 BDD_NIGHT = "9aa94005-ff1d4c9a"
-# Ground planes: Udacity as jobs/udacity_photos.yaml (lane lines' horizon); BDD's horizon is
-# near row 300 of 720 at ~60 deg FOV: pitch -3 deg, a car's roof camera 1.3 m up.
+# Ground planes as the example jobs have them (2026-11-29): Udacity as jobs/udacity_photos.yaml
+# (1.23 m from `blendgen calibrate`, pitch and roll per photo from its lane lines), BDD as
+# jobs/dashcam_photos.yaml (all estimated per photo). Before, both were fixed guesses
+# (Udacity 1.4 m at pitch -1 deg: its horizon 55 px too high; BDD 1.3 m at -3 deg): sets
+# rendered before then are not comparable with later ones (docs/benchmarks/realism.md).
 RECORDINGS = {
-    "udacity": {"hfov": 55, "ground_plane": {"camera_height_m": 1.4, "pitch_deg": -1.0, "lane_width_m": 3.7}},
-    "bdd": {"hfov": 60, "ground_plane": {"camera_height_m": 1.3, "pitch_deg": -3.0, "lane_width_m": 3.3}},
+    "udacity": {"hfov": 55, "ground_plane": {"camera_height_m": 1.23, "pitch_deg": "auto", "roll_deg": "auto",
+                                             "lane_width_m": 3.7}},
+    "bdd": {"hfov": 60, "ground_plane": {"camera_height_m": "auto", "pitch_deg": "auto", "roll_deg": "auto",
+                                         "lane_width_m": 3.5}},
 }
 
 

@@ -9,8 +9,10 @@ planner plans every analysed frame twice on the same real scene: with the frame'
 the job's width, the camera on a lane centre: before). Per car, bus and truck:
 - across a line: a painted line found in the frame (cover >= 0.3) passes under the body at its
   near end (within its width less 0.15 m a side): the vehicle stands on the line (goal 0);
+- on video, a vehicle's lateral step between consecutive frames (cm; goal: below a pixel), also
+  for each frame's lines taken unsmoothed (`planner.LANE_SMOOTH_S` near 0);
 - plan CPU seconds per frame.
-Prints a table and writes benchmarks/results/lanes.png. Planning only: nothing is rendered.
+Prints a table and writes benchmarks/results/lanes.png (`--plot`). Planning only: nothing is rendered.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from blendgen.analysis.stage import read_road_mask  # noqa: E402
 from blendgen.job.schema import load_job  # noqa: E402
 from blendgen.recording.folder import read_frame, read_recording  # noqa: E402
 from blendgen.scene.ground_plane import GroundPlaneTwin  # noqa: E402
+from blendgen.scene import planner  # noqa: E402
 from blendgen.scene.planner import plan_sequence  # noqa: E402
 from blendgen.scene.real_scene import load_real_scene  # noqa: E402
 
@@ -60,20 +63,31 @@ def run(out: Path, job_path: Path, seeds: int) -> dict:
     poses = [(rf.fa.frame_id, float(rec.frames_t[int(rf.fa.frame_id.lstrip("f"))]), np.asarray(rf.fa.T_world_cam))
              for rf in real.frames]
     twin = GroundPlaneTwin.from_job(job.ground_plane)
-    res = {}
-    for variant in ("twin lanes", "painted lanes"):
+    variants = {"twin lanes": (False, planner.LANE_SMOOTH_S), "painted lanes": (True, planner.LANE_SMOOTH_S)}
+    if job.inject.sequences:  # what the smoothing is for: each frame's lines as they are
+        variants = {**variants, "painted, unsmoothed": (True, 1e-3)}
+    res, smooth = {}, planner.LANE_SMOOTH_S
+    for variant, (painted, planner.LANE_SMOOTH_S) in variants.items():
         for rf in real.frames:
             if rf is not None:
-                rf.fa.lane_lines = lines[rf.fa.frame_id] if variant == "painted lanes" else []
+                rf.fa.lane_lines = lines[rf.fa.frame_id] if painted else []
         n = bad = 0
+        steps = []
         t0 = time.process_time()
         for seed in range(seeds):
-            for p, (f, _, T) in zip(plan_sequence(twin, rec.camera, poses, job.inject, seed, real=real), poses):
+            tracks = {}
+            for k, (p, (f, _, T)) in enumerate(zip(plan_sequence(twin, rec.camera, poses, job.inject, seed, real=real),
+                                                   poses)):
                 for o in p.objects:
                     if o.cls in VEHICLES:
                         n += 1
                         bad += across_line(o, T, lines[f])
-        res[variant] = (n, bad, (time.process_time() - t0) / (seeds * len(poses)))
+                        tracks.setdefault(o.id, []).append((k, o.position[1]))
+            for tr in tracks.values():  # a track's lateral step between consecutive frames
+                tr = np.asarray(tr)
+                steps += list(np.abs(np.diff(tr[:, 1]))[np.diff(tr[:, 0]) == 1])
+        res[variant] = (n, bad, (time.process_time() - t0) / (seeds * len(poses)), np.asarray(steps) * 100)
+    planner.LANE_SMOOTH_S = smooth
     return res
 
 
@@ -81,16 +95,20 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("pairs", nargs="+", help="OUT JOB [OUT JOB ...]")
     ap.add_argument("--seeds", type=int, default=40)
+    ap.add_argument("--plot", type=Path, default=ROOT / "benchmarks" / "results" / "lanes.png")
     a = ap.parse_args(argv)
     if len(a.pairs) % 2:
         ap.error("give OUT and JOB in pairs")
     rows = []
-    print("| job folder | lanes | vehicles | across a painted line | share | plan CPU s/frame |")
-    print("|---|---|---:|---:|---:|---:|")
+    print("| job folder | lanes | vehicles | across a painted line | share | lateral step per frame, median / p95 (cm) "
+          "| plan CPU s/frame |")
+    print("|---|---|---:|---:|---:|---:|---:|")
     for out, job in zip(a.pairs[::2], a.pairs[1::2]):
-        for variant, (n, bad, cpu) in run(Path(out), Path(job), a.seeds).items():
+        for variant, (n, bad, cpu, steps) in run(Path(out), Path(job), a.seeds).items():
             rows.append((Path(out).name, variant, n, bad))
-            print(f"| {Path(out).name} | {variant} | {n} | {bad} | {bad / max(n, 1):.1%} | {cpu:.3f} |", flush=True)
+            step = f"{np.median(steps):.1f} / {np.percentile(steps, 95):.1f}" if len(steps) else "- (stills)"
+            print(f"| {Path(out).name} | {variant} | {n} | {bad} | {bad / max(n, 1):.1%} | {step} | {cpu:.3f} |",
+                  flush=True)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -103,10 +121,9 @@ def main(argv=None):
     ax.set_ylabel("vehicles across a painted line")
     ax.legend()
     fig.tight_layout()
-    dst = ROOT / "benchmarks" / "results" / "lanes.png"
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(dst, dpi=100)
-    print(f"wrote {dst}")
+    a.plot.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(a.plot, dpi=100)
+    print(f"wrote {a.plot}")
 
 
 if __name__ == "__main__":

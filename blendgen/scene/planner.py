@@ -262,16 +262,18 @@ class Planner:
         if n == 0:
             return None
         s, tt = s[:n], tt[:n]
-        # the lane centre follows a map's varying widths, a real frame's painted lines
-        cd = rg.lane_d(index, direction, s) + self._real_lane_shifts(k0, rg, index, direction, s, tt)
+        cd = rg.lane_d(index, direction, s)  # the lane centre follows a map's varying widths
         d = cd + np.full(n, lat) if lat_profile is None else cd + lat_profile(tt)
         xy = rg.line.offset_point(s, d)
+        m = self._limit(k0, xy)
+        if self.real is not None:  # and a real frame's painted lines, over the frames kept
+            s, tt, d = s[:m], tt[:m], d[:m] + self._real_lane_shifts(k0, rg, index, direction, s[:m], tt[:m])
+            xy, n = rg.line.offset_point(s, d), m
         _, tan = rg.line.at(s)
         yaw = np.arctan2(tan[:, 1], tan[:, 0]) + (0.0 if travel > 0 else math.pi)
         if n > 1 and lat_profile is not None:  # heading follows the lane change
             left_rate = np.gradient(d, tt) * travel if n > 2 else np.zeros(n)
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
-        m = self._limit(k0, xy)
         return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
 
     def _real_lane_shift(self, k, rg, index, direction, s) -> float | None:
@@ -304,9 +306,20 @@ class Planner:
             borrowed = (self._real_lane_shift(int(k), rg, index, direction, float(s[0])) for k in near)
             return next((v for v in borrowed if v is not None), 0.0)
         t = np.asarray(tt, float)[:len(shifts)]
-        logw = -0.5 * ((t[:, None] - t[None, ok]) / LANE_SMOOTH_S) ** 2
-        w = np.exp(logw - logw.max(axis=1, keepdims=True))  # a frame 20 s from any line still gets one
-        return w @ shifts[ok] / w.sum(axis=1)
+        t_ok, v_ok = t[ok], shifts[ok]
+        # Gaussian weights within 4 sigma (a track can last a whole video: no n x n matrix); a
+        # frame farther than that from any line takes the nearest frame's
+        lo = np.searchsorted(t_ok, t - 4 * LANE_SMOOTH_S)
+        hi = np.searchsorted(t_ok, t + 4 * LANE_SMOOTH_S, side="right")
+        j = np.clip(np.searchsorted(t_ok, t), 1, len(t_ok) - 1) if len(t_ok) > 1 else np.zeros(len(t), int)
+        if len(t_ok) > 1:
+            j -= (t - t_ok[j - 1]) < (t_ok[j] - t)  # the earlier neighbour when it is nearer
+        nearest = v_ok[j]
+        out = np.empty(len(t))
+        for i, (a, b) in enumerate(zip(lo, hi)):
+            w = np.exp(-0.5 * ((t_ok[a:b] - t[i]) / LANE_SMOOTH_S) ** 2)
+            out[i] = w @ v_ok[a:b] / w.sum() if b > a else nearest[i]
+        return out
 
     def _road_track(self, cls, variant, dims, k0, xy, yaw, scenario):
         """A wheeled track on the road surface: its height, pitch and roll follow the road."""

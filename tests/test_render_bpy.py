@@ -168,8 +168,10 @@ def test_frame_without_visible_objects_costs_almost_nothing(tmp_path):
     try:
         behind = PlacedObject(1, "car", (-12.0, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5))
         t0 = time.perf_counter()
+        made = []  # nor is the environment map made (render_frame takes a function for it)
         info = s.render_frame(FramePlan("f4", 0.0, T.tolist(), [behind], SUN), tmp_path / "e.exr",
-                              {"rgba", "index", "shadow_catcher"})
+                              {"rgba", "index", "shadow_catcher"}, environment=lambda: made.append(1))
+        assert not made
         dt = time.perf_counter() - t0
         # Blender is not called (no "render" timing); writing the empty EXR takes milliseconds
         # (the bound leaves room for the shared machine's load).
@@ -534,7 +536,7 @@ def test_mirrors_show_the_real_frame_when_given_one(tmp_path):
         assert s.scene.world.cycles.sampling_method == "NONE"
         plan = FramePlan("f1", 0.0, T.tolist(), [card(1, 6.0, 0.0, 1.5, 2.5)], SUN)
         rgb = {}
-        for env in (None, plate_environment(frame, cam, T)):
+        for env in (None, lambda: plate_environment(frame, cam, T)):  # made when the frame is rendered
             info = s.render_frame(plan, tmp_path / "r.exr", {"rgba", "index"}, environment=env)
             p = read_passes(tmp_path / "r.exr")
             mine = p["index"] == 1

@@ -610,10 +610,11 @@ class RenderSession:
             raise StageError("this RenderSession was closed or replaced by a newer one in this process")
 
     def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str], *, compression: str = "zip",
-                     environment: np.ndarray | None = None) -> dict:
+                     environment=None) -> dict:
         """See docs/render.md. `compression`: the EXR codec (exr.COMPRESSIONS, lossless); "none"
         when the caller reads the file once and deletes it. `environment`: what glass and clear
-        coat mirror (plate_env.plate_environment of the real frame); None: the lighting's sky."""
+        coat mirror (plate_env.plate_environment of the real frame), or a function that makes it
+        (called only when the frame is rendered); None: the lighting's sky."""
         self._check_current()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
@@ -647,6 +648,8 @@ class RenderSession:
         kept = set(eff.objects.value)
         info["objects"] = self._sync_objects(plan, kept)
         self._set_camera(plan.T_world_cam)
+        if callable(environment):
+            environment = environment()
         self._apply_lighting(lighting, background=False, environment=environment)
         info["reflections"] = "the real frame" if environment is not None else "the lighting's uniform sky"
         info["lamps_on"] = bool(lighting.get("lights_on", False))  # head/tail lamps: night and dusk

@@ -143,7 +143,8 @@ def test_exr_passes_present_and_finite(tmp_path):
         import cv2
 
         inner = cv2.erode(on.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-        assert on.sum() > 50 and p["rgba"][inner, 3].min() > 0.99 and p["rgba"][on, 3].min() >= 0.4
+        # an edge pixel takes the id of some of its samples: 3 of 8 covered happens (seed per frame)
+        assert on.sum() > 50 and p["rgba"][inner, 3].min() > 0.99 and p["rgba"][on, 3].min() >= 0.25
         d = p["depth"][on]
         assert d.min() > 9.0 and d.max() < 14.5
         assert p["diffuse_color"][on].mean() > 0.05 and p["diffuse_direct"][on].max() > 0
@@ -152,7 +153,8 @@ def test_exr_passes_present_and_finite(tmp_path):
         assert sc[:y0].min() == 1.0 and sc[:, x1:].min() == 1.0     # neutral outside the region
         assert p["depth"][:y0].max() == 0                            # nothing rendered outside
         catcher = (sc[..., 0] < 0.9) & ~on
-        assert catcher.sum() > 20 and p["depth"][catcher].min() > 3  # the shadow lies on the road patch
+        # the shadow lies on the road patch (but for a pixel or two of sampling noise at its rim)
+        assert catcher.sum() > 20 and np.mean(p["depth"][catcher] > 3) > 0.97
         assert sc[y0:y1, x0:x1].min() < 0.6                          # the car's shadow on the road
         assert (x1 - x0) * (y1 - y0) < 0.5 * cam.width * cam.height
         # the patch has the ground plane's albedo (it stands in for it)
@@ -255,6 +257,22 @@ def test_render_background_png(tmp_path):
         assert img.shape == (90, 160, 3) and img.dtype == np.uint8
         assert img[:30].mean() > img[-20:].mean()  # sky above a darker road
         assert info["timings"]["render"] > 0
+    finally:
+        s.close()
+
+
+def test_noise_differs_between_frames_and_repeats_per_frame(tmp_path):
+    """One sampling seed per frame: every frame had the same noise pattern."""
+    import cv2
+
+    s = session(Camera.from_hfov(160, 90, 70))
+    try:
+        for name in ("a", "b", "again/a"):
+            (tmp_path / name).parent.mkdir(exist_ok=True)
+            s.render_background(T, SUN, tmp_path / f"{name}.png", 2)
+        a, b, a2 = (cv2.imread(str(tmp_path / f"{n}.png")).astype(int) for n in ("a", "b", "again/a"))
+        assert np.array_equal(a, a2)
+        assert np.abs(a - b).mean() > 0.2
     finally:
         s.close()
 

@@ -266,6 +266,23 @@ def test_permanent_failure_keeps_log_and_summary(tmp_path):
     assert s2.ok and s2.processed == 2 and s2.already_done == 4
 
 
+def test_hung_worker_is_killed_and_its_task_retried(tmp_path):
+    """A worker that finishes no item for farm.item_timeout_s is taken for hung (not dead)."""
+    out = tmp_path / "job"
+    ids = items(4)
+    t0 = time.monotonic()
+    s = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out), "hang_once": "000002"},
+                  workers=1, chunk=2, item_timeout_s=3, progress=False)
+    assert time.monotonic() - t0 < 60  # not the 120 s the hang sleeps
+    assert s.ok and s.done == 4 and s.worker_deaths == 1
+    assert_outputs_complete(out, ids)
+    with sqlite3.connect(out / ".blendgen" / "ledger.sqlite") as db:
+        errors = [r[0] for r in db.execute("SELECT error FROM attempts WHERE error IS NOT NULL")]
+    assert len(errors) == 1 and "finished no item in" in errors[0] and "item 000002" in errors[0]
+    with pytest.raises(UserError, match="item_timeout_s"):
+        run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)}, item_timeout_s=0)
+
+
 def test_bad_input_fails_that_item_alone(tmp_path):
     """Issue 16: a UserError in one item (a corrupt frame) fails that item at once, with its
     reason; its task neighbours are produced, nothing is retried, no worker is retired."""

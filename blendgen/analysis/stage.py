@@ -151,31 +151,38 @@ def read_road_mask(folder: Path, fa: FrameAnalysis) -> np.ndarray | None:
 
 
 def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model: Path | None = None,
-                 progress: bool = False) -> dict[str, FrameAnalysis]:
+                 progress: bool = False, on_progress=None) -> dict[str, FrameAnalysis]:
     """Analyse the frames not yet analysed in `folder`; return every frame's analysis.
 
     Hood (`hood.find_hood`), real road users, then the camera (`camera.estimate_cameras`,
     which scales the height with the real cars found), then road, direction and footprints.
-    `gp`: the job's ground_plane section (numbers fix values, "auto" estimates them)."""
+    `gp`: the job's ground_plane section (numbers fix values, "auto" estimates them).
+    `on_progress(frames_done, phase)`: called as the phases go (pipeline.outputs.StageProgress)."""
+    report = on_progress or (lambda done, phase: None)
     from blendgen.analysis.camera import estimate_cameras, is_sequence, read_frames
     from blendgen.analysis.hood import find_hood
 
     folder = Path(folder)
     todo = [f for f in frame_ids if not (folder / f"{f}.json").is_file()]
+    before = len(frame_ids) - len(todo)
     if todo:
         t0 = time.process_time()
         detector = objects.load_detector(detector_model)
+        report(before, "hood")
         hoods = find_hood(rec, frame_ids)  # a video's hood comes from many frames
         users = {}
-        for fid, image in read_frames(rec, todo, progress=progress, desc="road users"):
+        for n, (fid, image) in enumerate(read_frames(rec, todo, progress=progress, desc="road users")):
+            report(before + n, "road users")
             if image is None:
                 continue
             users[fid] = not_ego(objects.road_users(image, detector), hood_mask(hoods.get(fid), image.shape[1],
                                                                                  image.shape[0]), *image.shape[1::-1])[0]
+        report(before, "camera")
         cams = estimate_cameras(rec, todo, user=gp, hoods=hoods, progress=progress,
                                 car_boxes={f: [o.box for o in u if o.cls == "car"] for f, u in users.items()})
         shared = (time.process_time() - t0) / len(todo)
         for n, (fid, image) in enumerate(read_frames(rec, todo)):
+            report(before + n, "road, lanes, footprints")
             t1 = time.process_time()
             if image is None:
                 continue
@@ -208,6 +215,7 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
     analyses = {f: read_analysis(folder, f) for f in frame_ids}
     if is_sequence(rec) and len(frame_ids) > 1 and any(
             not any(d["what"] == "pose" for d in fa.decisions) for fa in analyses.values()):
+        report(len(frame_ids), "ego motion")
         moving_poses(analyses, rec, folder, progress=progress)
     return analyses
 

@@ -4,7 +4,8 @@ Workers are fresh `python -m blendgen.farm.worker` interpreters (never forks of 
 process), so bpy's sys.path pollution cannot reach them. One event loop over the workers'
 pipes: dispatch a task to each idle worker, record items as they finish, re-queue at once
 the task of a worker that failed or died, recycle workers after `recycle_after` items or
-above `max_rss_mb`, retire a worker slot that keeps failing.
+above `max_rss_mb`, kill a worker that finishes no item for `item_timeout_s` (a hang: its
+task is retried like a crash's), retire a worker slot that keeps failing.
 """
 
 from __future__ import annotations
@@ -28,6 +29,10 @@ from .books import Books
 
 SLOT_MAX_FAILURES_IN_ROW = 3  # a slot failing this many times in a row gets no more tasks
 STOP_GRACE_S = 10.0           # time a stopping worker gets to close() its processor
+# item_timeout_s "auto": a worker that finishes no item for 30 min, or for 10x the slowest item
+# of this run when that is longer, is taken for hung
+AUTO_TIMEOUT_FLOOR_S = 1800.0
+AUTO_TIMEOUT_FACTOR = 10.0
 
 
 def worker_env(tmp_dir: str | os.PathLike | None = None) -> dict[str, str]:
@@ -78,12 +83,16 @@ class _Worker:
     rss_mb: float = 0.0
     buf: bytes = b""
     eof: bool = False
+    since: float = 0.0         # monotonic time of its task's start or last finished item
+    hung: str | None = None    # why the supervisor killed it
 
 
 class LocalEngine:
     def __init__(self, books: Books, processor: str, processor_args: dict, *, workers: int,
-                 recycle_after: int, max_rss_mb: int):
+                 recycle_after: int, max_rss_mb: int, item_timeout_s: float | str | None = "auto"):
         self.books = books
+        self.item_timeout_s = item_timeout_s
+        self.slowest_item_s = 0.0
         self.processor, self.processor_args = processor, processor_args
         self.n_slots = workers
         self.recycle_after, self.max_rss_mb = recycle_after, max_rss_mb
@@ -169,6 +178,7 @@ class LocalEngine:
                 self.books.on_task_done(tid)
                 continue
             w.state, w.task, w.attempt, w.items_left, w.error = "busy", tid, attempt, items, None
+            w.since = time.monotonic()
             # a failed send means it just died: _poll sees the exit and re-queues the task
             self._send(w, {"op": "task", "task": tid, "attempt": attempt, "items": items,
                            "log": log})
@@ -184,9 +194,23 @@ class LocalEngine:
         return None
 
     # -- events ----------------------------------------------------------------------------
+    def _item_limit_s(self) -> float | None:
+        if self.item_timeout_s != "auto":
+            return self.item_timeout_s
+        return max(AUTO_TIMEOUT_FLOOR_S, AUTO_TIMEOUT_FACTOR * self.slowest_item_s)
+
     def _poll(self, timeout: float) -> None:
         for key, _ in self.sel.select(timeout):
             self._read(key.data)
+        limit = self._item_limit_s()
+        now = time.monotonic()
+        for w in self.workers.values():
+            if limit is not None and w.state == "busy" and w.hung is None and now - w.since > limit:
+                item = w.items_left[0] if w.items_left else "?"
+                w.hung = (f"worker {w.name} finished no item in {now - w.since:.0f} s (farm.item_timeout_s: "
+                          f"{limit:.0f} s) and was killed during item {item}; worker log: {w.log}")
+                with contextlib.suppress(ProcessLookupError):
+                    w.proc.kill()
         for w in list(self.workers.values()):
             if w.eof or w.proc.poll() is not None:
                 self._read(w, drain=True)  # events sent just before it died still count
@@ -209,6 +233,9 @@ class LocalEngine:
 
     def _on_message(self, w: _Worker, ev: dict) -> None:
         kind = ev["ev"]
+        if kind in ("item", "item_failed") and ev.get("task") == w.task:  # progress: not hung
+            w.since = time.monotonic()
+            self.slowest_item_s = max(self.slowest_item_s, ev.get("process_s", 0.0))
         if kind == "ready":
             w.rss_mb = ev.get("rss_mb", 0.0)
             if w.state == "starting":  # not if it was told to stop while starting
@@ -287,8 +314,8 @@ class LocalEngine:
         self.books.summary.worker_deaths += 1
         if w.task is not None:
             where = f" during item {w.items_left[0]}" if w.items_left else ""
-            self._task_failed(w.task, w, f"worker {w.name} died ({how}){where}; "
-                                         f"worker log: {w.log}")
+            self._task_failed(w.task, w, w.hung or f"worker {w.name} died ({how}){where}; "
+                                                   f"worker log: {w.log}")
         else:
             # died while starting or idle: counts against the slot, not against a task
             self.fails_in_row[w.slot] += 1

@@ -16,15 +16,17 @@ ENGINES = ("local", "ray")
 def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
               processor_args: dict, *, engine: str = "local", workers: int = 1, chunk: int = 4,
               max_attempts: int = 3, recycle_after: int = 200, max_rss_mb: int = 6000,
-              address: str | None = None, progress: bool = True, seed: int = 0,
-              redo=()) -> FarmSummary:
+              item_timeout_s: float | str | None = "auto", address: str | None = None,
+              progress: bool = True, seed: int = 0, redo=()) -> FarmSummary:
     """Run `processor` over `items` (frame ids) in chunks of `chunk`, resuming from the ledger.
 
     Items already done in `OUT/.blendgen/ledger.sqlite` (or recorded in `OUT/manifest.jsonl`)
     are not dispatched, except those in `redo` (their outputs are gone); workers also skip
     items whose `is_done(item)` is true. Returns a
     `FarmSummary`; failed tasks (after `max_attempts`) are listed in `summary.failed` with
-    their error and log, and `summary.ok` is False. Ctrl-C kills the workers, gives their
+    their error and log, and `summary.ok` is False. A local worker that finishes no item for
+    `item_timeout_s` ("auto": 30 min or 10x the slowest item so far; None: never) is killed and
+    its task retried. Ctrl-C kills the workers, gives their
     tasks back, and re-raises KeyboardInterrupt: running again resumes.
     """
     check_processor_spec(processor)
@@ -37,6 +39,10 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
                              ("max_rss_mb", max_rss_mb, 1)):
         if not isinstance(value, int) or value < low:
             raise UserError(f"expected an integer >= {low}, got {value!r}", where=f"farm.{name}")
+    if item_timeout_s not in ("auto", None) and not (isinstance(item_timeout_s, (int, float))
+                                                     and item_timeout_s > 0):
+        raise UserError(f"expected seconds > 0, 'auto' or null, got {item_timeout_s!r}",
+                        where="farm.item_timeout_s")
     try:
         json.dumps(processor_args)
     except TypeError as e:
@@ -53,7 +59,8 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
             from .local import LocalEngine
 
             LocalEngine(books, processor, processor_args, workers=workers,
-                        recycle_after=recycle_after, max_rss_mb=max_rss_mb).run(books.task_ids)
+                        recycle_after=recycle_after, max_rss_mb=max_rss_mb,
+                        item_timeout_s=item_timeout_s).run(books.task_ids)
         else:
             from .ray_engine import RayEngine
 

@@ -11,9 +11,8 @@ from pathlib import Path
 from .ledger import LEDGER_DIR, connect, ledger_path
 
 
-def _supervisor_alive(out_dir: Path) -> bool | None:
-    """True/False when the supervisor lock tells (same host), None when it cannot."""
-    path = Path(out_dir) / LEDGER_DIR / "supervisor.lock"
+def lock_held(path: Path) -> bool | None:
+    """Whether a process holds the flock on `path` (same host), None when it cannot tell."""
     if not path.exists():
         return None
     try:
@@ -28,7 +27,11 @@ def _supervisor_alive(out_dir: Path) -> bool | None:
         return None
 
 
-def _fmt_s(s: float) -> str:
+def _supervisor_alive(out_dir: Path) -> bool | None:
+    return lock_held(Path(out_dir) / LEDGER_DIR / "supervisor.lock")
+
+
+def fmt_duration(s: float) -> str:
     s = max(0, int(round(s)))
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
@@ -65,7 +68,7 @@ def _stage_lines(conn, run, alive: bool | None, now: float) -> list[str]:
         stale = alive is False or (alive is None and now - (run["heartbeat"] or 0) > 30)
         where = f"pid {run['pid']} on {run['host']}"
         state = (f"NOT RESPONDING: supervisor ({where}) is gone, last heartbeat "
-                 f"{_fmt_s(now - (run['heartbeat'] or now))} ago; run again to resume"
+                 f"{fmt_duration(now - (run['heartbeat'] or now))} ago; run again to resume"
                  if stale else f"running ({where})")
     else:
         state = f"finished: {run['state']}"
@@ -80,8 +83,8 @@ def _stage_lines(conn, run, alive: bool | None, now: float) -> list[str]:
     if new["n"] and elapsed > 0:
         rate = new["n"] / elapsed
         todo = total - done - failed
-        eta = f", ETA {_fmt_s(todo / rate)}" if todo and state.startswith("running") else ""
-        lines.append(f"  rate {rate:.2f} frames/s over {_fmt_s(elapsed)}{eta}")
+        eta = f", ETA {fmt_duration(todo / rate)}" if todo and state.startswith("running") else ""
+        lines.append(f"  rate {rate:.2f} frames/s over {fmt_duration(elapsed)}{eta}")
     for t in conn.execute("SELECT task_id, items, attempts, error, log_path FROM tasks WHERE "
                           "run_id=? AND state='failed' ORDER BY task_id", (rid,)):
         its = json.loads(t["items"])

@@ -164,6 +164,9 @@ class Farm(Section):
     max_attempts: Annotated[int, Field(ge=1, le=20)] = 3
     recycle_after_frames: Annotated[int, Field(ge=1)] = 200
     max_rss_mb: Annotated[int, Field(ge=256)] = 6000
+    # a local worker that finishes no item for this long is killed and its task retried; "auto":
+    # 30 min or 10x the run's slowest item; null: never
+    item_timeout_s: Annotated[float, Field(gt=0)] | Literal["auto"] | None = "auto"
     address: str | None = None  # Ray: "auto" or HOST:PORT
 
 

@@ -110,7 +110,14 @@ def cmd_status(args) -> int:
         raise UserError("not a blendgen job folder (no job.resolved.yaml)", where=str(args.out))
     stages = ["sync", "analysis", "plan", "export"] if folder.stage_done("analysis") else ["sync", "plan", "export"]
     print(f"{args.out}: " + ", ".join(f"{s} {'done' if folder.stage_done(s) else 'not done'}" for s in stages))
+    line = folder.progress_line()  # analysis or plan, which run in the job's own process
+    if line:
+        print(line)
+    from blendgen.farm.ledger import ledger_path
     from blendgen.farm.status import status_report
 
-    print(status_report(folder.root))
+    if ledger_path(folder.root).exists():
+        print(status_report(folder.root))
+    elif not line:
+        print("no frame has been rendered yet (no farm ledger)")
     return 0

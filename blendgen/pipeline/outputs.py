@@ -6,6 +6,8 @@ import contextlib
 import fcntl
 import json
 import os
+import socket
+import time
 from pathlib import Path
 
 import yaml
@@ -111,3 +113,57 @@ class JobFolder:
         p = self.state / f"{stage}.done"
         return json.loads(p.read_text()) if p.exists() else {}
 
+    # ---- progress of the stages that run in this process (farm stages have the ledger)
+    def progress(self, stage: str, total: int) -> "StageProgress":
+        return StageProgress(self.state / "progress.json", stage, total)
+
+    def running(self) -> bool | None:
+        """Whether a blendgen holds this folder's job lock (None: it cannot tell)."""
+        from blendgen.farm.status import lock_held
+
+        return lock_held(self.state / "job.lock")
+
+    def progress_line(self) -> str | None:
+        """`blendgen status`'s line for an in-process stage that has not finished, or None."""
+        path = self.state / "progress.json"
+        try:
+            p = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return None
+        from blendgen.farm.status import fmt_duration
+
+        if self.stage_done(p["stage"]):
+            return None
+        done, total = p["done"], p["total"]
+        rate = (done - p["done_at_start"]) / max(p["updated"] - p["started"], 1e-6)
+        head = f"[{p['stage']}{': ' + p['phase'] if p['phase'] else ''}] {done}/{total} frames"
+        if not self.running():
+            return f"{head}, stopped (pid {p['pid']} on {p['host']} is gone); run again to resume"
+        eta = f", ETA {fmt_duration((total - done) / rate)}" if rate > 0 and done < total else ""
+        return (f"{head}, running (pid {p['pid']} on {p['host']}), {rate:.2f} frames/s, last update "
+                f"{fmt_duration(time.time() - p['updated'])} ago{eta}")
+
+
+class StageProgress:
+    """Call with the number of frames done (and the stage's current phase): written atomically
+    at most every EVERY_S seconds, at a new phase and at the last frame, for `blendgen status`
+    from another shell."""
+
+    EVERY_S = 2.0
+
+    def __init__(self, path: Path, stage: str, total: int):
+        self.path, self.doc = path, {"stage": stage, "phase": "", "done": 0, "total": int(total),
+                                     "pid": os.getpid(), "host": socket.gethostname()}
+        self._last = 0.0
+        self(0)
+
+    def __call__(self, done: int, phase: str = "") -> None:
+        now = time.time()
+        new_phase = phase != self.doc["phase"] or "started" not in self.doc
+        if not new_phase and now - self._last < self.EVERY_S and done < self.doc["total"]:
+            return
+        if new_phase:  # the rate is per phase
+            self.doc.update(phase=phase, started=now, done_at_start=int(done))
+        self._last = now
+        self.doc.update(done=int(done), updated=now)
+        atomic.write_json(self.path, self.doc)

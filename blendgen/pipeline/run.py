@@ -32,7 +32,8 @@ class Runner:
         farm = job.farm
         self.farm = dict(engine=engine or farm.engine, workers=workers or farm.workers, chunk=chunk or farm.chunk,
                          max_attempts=farm.max_attempts, recycle_after=farm.recycle_after_frames,
-                         max_rss_mb=farm.max_rss_mb, address=address or farm.address)
+                         max_rss_mb=farm.max_rss_mb, item_timeout_s=farm.item_timeout_s,
+                         address=address or farm.address)
         self.progress = progress
         self.times: dict[str, float] = {}
         self.skipped: list[str] = []
@@ -156,7 +157,8 @@ class Runner:
             return poses, True  # read back from poses.csv, which holds the analysed poses
         self._say("analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
         run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
-                     detector_model=self.job.path(gp.detector) if gp.detector else None)
+                     detector_model=self.job.path(gp.detector) if gp.detector else None,
+                     on_progress=self.folder.progress("analysis", len(ids)))
         poses = self._write_analysis_poses(poses, set(ids))
         self.folder.mark_stage("analysis", {"frames": ids})
         return poses, True
@@ -197,8 +199,9 @@ class Runner:
             real = load_real_scene(self.folder.analysis, ids, camera)
         # the layout's stream starts from (seed, first frame id): a job starting at another frame
         # gets its own layout, not the same one shifted (README: seed + frame id)
+        assets = self.assets()
         plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]),
-                              assets=self.assets(), real=real)
+                              assets=assets, real=real, on_progress=self.folder.progress("plan", len(sel)))
         n_obj = sum(len(p.objects) for p in plans)
         self.warnings = unplaced_warnings(plans, job.inject)
         self._say("plan", f"{len(plans)} frames, {n_obj} objects")

@@ -811,13 +811,15 @@ class Planner:
                                 scenario="cyclist_overtake")]
 
     # ------------------------------------------------------------ main loop
-    def run(self) -> list[FramePlan]:
+    def run(self, on_progress=None) -> list[FramePlan]:
         lo, hi = self.inject.objects_per_frame
         target, target_until = 0, -1.0
         last_staged = {s: -1e9 for s in self.inject.scenarios}
         retry_at = {s: -1e9 for s in self.inject.scenarios}
         plans = []
         for k, (frame_id, t, T) in enumerate(self.poses):
+            if on_progress is not None:
+                on_progress(k)
             if not self.inject.sequences:
                 self.tracks = []
             if t >= target_until or not self.inject.sequences:
@@ -927,13 +929,14 @@ def signal_state(t: float) -> str:
 
 
 def plan_sequence(twin: Twin, camera: Camera, poses, inject, seed: int, *, assets=None,
-                  real=None) -> list[FramePlan]:
+                  real=None, on_progress=None) -> list[FramePlan]:
     """Per-frame plans for `poses` = [(frame_id, t, T_world_cam)], deterministic per seed.
 
     `inject` is a `blendgen.job.schema.Inject`. With `inject.sequences` objects keep their id
     and move along their lane/path across frames; otherwise every frame is planned afresh.
     `assets` (an AssetSampler) mixes library assets in; scenario actors stay procedural.
-    `real`: a `scene.real_scene.RealScene` with the real frames' constraints (ground-plane jobs)."""
+    `real`: a `scene.real_scene.RealScene` with the real frames' constraints (ground-plane jobs).
+    `on_progress(frames_done)` is called before each frame."""
     if not poses:
         return []
-    return Planner(twin, camera, poses, inject, seed, assets=assets, real=real).run()
+    return Planner(twin, camera, poses, inject, seed, assets=assets, real=real).run(on_progress)

@@ -73,6 +73,7 @@ METHODS = {  # name -> (which render, Post settings)
     "reinhard": ("default", Post(color_transfer="reinhard", relight=False, sensor_match=False)),
     "mkl": ("default", Post(color_transfer="mkl", relight=False, sensor_match=False)),
     "histogram": ("default", Post(color_transfer="histogram", relight=False, sensor_match=False)),
+    "env-light, render only": ("env", Post(color_transfer="none", relight=False, sensor_match=False)),
     "env-light": ("env", Post(color_transfer="none", relight=True, sensor_match=False)),
     "env-light + reinhard": ("env", Post(color_transfer="reinhard", relight=True, sensor_match=False)),
     "env-light + mkl": ("env", Post(color_transfer="mkl", relight=True, sensor_match=False)),

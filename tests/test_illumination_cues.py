@@ -79,6 +79,22 @@ def test_sun_behind_camera_falls_back_with_reason():
     assert any("no real road users" in n for n in est.notes)
 
 
+def test_golden_hour_sun_stays_the_key():
+    """Sun 4 deg up (dusk by the ephemeris): seen (shadows across the road, or a clear sky) it
+    lights the scene (lamps on, no street-light key); behind cloud it is dusk as before."""
+    img, _ = _street([(14.0, -3.5), (20.0, -6.0), (11.0, -2.5)], 180.0, sun_el=4.0)  # shadows across the road
+    est = estimate_illumination(img, sun_az_el=(180.0, 4.0))
+    light = est.to_lighting()
+    assert est.condition == "dusk" and est.sun_visible and est.visibility_cue == "shadows", est.notes
+    assert light["lights_on"] and light["sun_strength"] > 0 and light["street_light"] is None
+    plain, _ = _street([], 180.0)
+    est = estimate_illumination(plain, sun_az_el=(180.0, 4.0))
+    assert est.condition == "dusk" and est.visibility_cue == "clear_sky" and 0.2 < est.sun_fraction < 0.3
+    plain[:150] = (200, 198, 196)  # grey cloud
+    est = estimate_illumination(plain, sun_az_el=(180.0, 4.0))
+    assert est.condition == "dusk" and not est.sun_visible and est.to_lighting()["street_light"] is not None
+
+
 def test_grey_sky_two_tone_road_is_not_sun():
     img, _ = _street([], 0.0)
     img[:150] = (222, 218, 214)  # grey-white cloud

@@ -221,7 +221,11 @@ def test_dark_frame_is_night_without_sun_shadow():
 
 def test_dusk_from_sun_elevation():
     est = estimate_illumination(_scene(), sun_az_el=(250.0, 2.0))  # bright frame, sun 2 deg up
-    assert est.condition == "dusk" and est.to_lighting()["lights_on"] and not est.sun_visible
+    assert est.condition == "dusk" and est.to_lighting()["lights_on"]
+    # a clear sky: the sun is out, but 2 deg up it gives little of the light
+    assert est.visibility_cue == "clear_sky" and est.sun_fraction < 0.2
+    est = estimate_illumination(_scene(), sun_az_el=(250.0, -3.0))  # set
+    assert est.condition == "dusk" and not est.sun_visible and est.to_lighting()["street_light"] is not None
 
 
 def test_light_concrete_road_does_not_wash_objects_out():

@@ -10,11 +10,12 @@ What is measured, and how:
   from the shadows that the real road users cast (shadow_direction.py), else a default;
 - sun visibility: lit vs shadowed road (two-class Otsu split of the road's log luminance,
   lane markings removed by a top-hat), with a clear-blue-sky cue when the road shows no
-  shadow; never under a grey-white sky (snow banks make two-tone roads), at night or dusk
-  (street lights and headlights make bimodal roads too);
+  shadow; never under a grey-white sky (snow banks make two-tone roads), at night, or at dusk
+  unless the sun is known to be up (street lights and headlights make bimodal roads too);
 - condition day / dusk / night: the sun's elevation when the ephemeris gives it (civil
   twilight, -6..6 deg, is dusk), else the frame's log-average luminance and sky brightness.
-  At night and dusk vehicle lights are on and an overhead street-light key replaces the sun.
+  At night and dusk vehicle lights are on and an overhead street-light key replaces the sun,
+  except at a dusk whose sun is known to be up (0..6 deg) and is seen (road shadows, clear sky).
 
 `Illumination.to_lighting()` turns the estimate into the lighting dict of
 docs/architecture.md, in units that make a Cycles render (Standard view transform, film
@@ -125,7 +126,7 @@ class Illumination:
         """Night/dusk: an overhead key from the lamps' colour (shades of grey weighs the bright
         lamps most), soft, from high up beside the road; no sun shadow is caught from it."""
         share = STREET_LIGHT_SHARE.get(self.condition)
-        if share is None:
+        if share is None or self.sun_visible:
             return None
         direction = enu_from_az_el(self.sun_azimuth_deg, STREET_LIGHT_ELEVATION_DEG)
         sin_el = math.sin(math.radians(STREET_LIGHT_ELEVATION_DEG))
@@ -253,7 +254,9 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     # Sun visibility.
     if el <= 0:
         visible, f, cue = False, 0.0, "below_horizon"
-    elif condition != "day":
+    elif condition == "night" or (condition == "dusk" and source == "default"):
+        # at dusk a sun known to be up is judged as by day (shadows, clear sky): golden hour,
+        # not street lamps (taken as set, its long shadows and warm key were lost)
         visible, f, cue = False, 0.0, condition
     elif sky_bgr is not None and _overcast_sky(sky_bgr, sky_sat):
         # A grey-white sky is cloud: a two-tone road under it is snow banks, wet or white

@@ -53,7 +53,7 @@ def flat_road(pts):
     return np.zeros(len(np.atleast_2d(pts)))
 
 
-def _row(name, est, ref, cam720, cpu):
+def _row(name, est, ref, cam720, cpu, cov=None):
     a = trajectory_errors(est, ref, camera=cam720)
     E = np.array([T[:3, 3] for T in est])
     G = np.array([T[:3, 3] for T in ref])
@@ -72,7 +72,8 @@ def _row(name, est, ref, cam720, cpu):
     print(f"  {name:34s} CPU {cpu:5.1f} s  ATE {a['ate_rmse_m']:.4f}  horiz {a['ate_h_rmse_m']:.4f}  "
           f"along {np.sqrt(np.mean(along**2)):.4f} ({along.mean():+.4f})  across {np.sqrt(np.mean(across**2)):.4f} "
           f"({across.mean():+.4f})  rot {a['rot_median_deg']:.4f} (pitch {rv[:, 0].mean():+.4f} yaw "
-          f"{rv[:, 1].mean():+.4f})  px {a['reproj_median_px']:.3f} (rotation alone {px_rot:.3f}, position alone {px_pos:.3f})", flush=True)
+          f"{rv[:, 1].mean():+.4f})  px {a['reproj_median_px']:.3f} (rotation alone {px_rot:.3f}, position alone {px_pos:.3f})"
+          + ("" if cov is None else f"  smoother's own horiz std {np.sqrt(np.mean(cov[:, 0] + cov[:, 1])):.4f}"), flush=True)
 
 
 def _floor(rec, traj, t_span):
@@ -106,7 +107,7 @@ def run_seed(seed: int, frames: bool, args) -> None:
     with tempfile.TemporaryDirectory() as d:
         res = pl.run_sync(rec, Sync(**kw), Path(d), georef=GEOREF, progress=False, road_surface=flat_road)
     _row("blendgen" + (" full (VO)" if frames else " IMU+GNSS") + " + twin road", [p[2] for p in res.poses],
-         ref, cam720, time.process_time() - c0)
+         ref, cam720, time.process_time() - c0, res.cov)
     if frames:
         return
     try:
@@ -119,10 +120,12 @@ def run_seed(seed: int, frames: bool, args) -> None:
     t0 = rec.imu[0, 0]
     x0 = (traj.position(t0), traj.velocity(t0), traj.R(t0)[0])
     c0 = time.process_time()
+    info = {"want_h_std": True}
     with single_thread_blas():
         est = peer_gtsam.run_gtsam(rec, g_t, g_xyz, args.gnss_std or 1.0, rec.frames_t, x0, nhc=True,
-                                   road=(flat_road, CAM_H))
+                                   road=(flat_road, CAM_H), info=info)
     _row("GTSAM peer, same information", est, ref, cam720, time.process_time() - c0)
+    print(f"  {'':34s} the peer's own horiz std {info['h_std_m']:.4f}")
 
 
 def main() -> None:

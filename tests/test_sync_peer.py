@@ -67,11 +67,13 @@ def test_peer_estimates_a_tilted_imu_mount():
     t0 = rec.imu[0, 0]
     R_vi = Rotation.from_euler("xyz", np.radians([2.0, 4.0, 0.0])).as_matrix()  # IMU axes -> vehicle axes
     x0 = (traj.position(t0), traj.velocity(t0), traj.R(t0)[0] @ R_vi)
-    info = {}
+    info = {"want_h_std": True}
     pg.run_gtsam(rec, g_t, g_xyz, 1.0, rec.frames_t, x0, nhc=True, mount_std_deg=(2.0, 5.0, 2.0), info=info)
     roll, pitch, _ = info["mount_rpy_deg"]
     # 1.70 / 3.67 deg measured (blendgen: within 0.3); a batch re-solve gives the same
     assert abs(roll - 2.0) < 0.5 and abs(pitch - 4.0) < 0.5, info
+    # its own horizontal std: above what 400 fixes of 1 m averaged would give, below one fix
+    assert np.sqrt(2 / 400) < info["h_std_m"] < 1.0, info
 
 
 def test_peer_road_height_removes_the_height_error():

@@ -152,6 +152,13 @@ def run_gtsam(rec, g_t, g_xyz, g_std, out_t, x0, *, prior_sigmas=(1.0, 0.05, 0.1
     est = isam.calculateEstimate()
     if mount_key is not None and info is not None:
         info["mount_rpy_deg"] = np.degrees(est.atRot3(mount_key).rpy()).tolist()
+    if info is not None and info.get("want_h_std"):  # the MAP's own horizontal std (RMS over keys)
+        var = []
+        for k in range(0, len(times), 10):
+            R = est.atPose3(X(k)).rotation().matrix()
+            S = R @ isam.marginalCovariance(X(k))[3:, 3:] @ R.T  # Pose3 tangent: rotation, then translation
+            var.append(S[0, 0] + S[1, 1])
+        info["h_std_m"] = float(np.sqrt(np.mean(var)))
     Ts = [est.atPose3(X(k)).matrix() for k in range(len(times))]
     return _interp_cam(np.array(times), Ts, np.asarray(out_t), invert_pose(rec.T_cam_imu))
 

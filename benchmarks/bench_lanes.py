@@ -5,7 +5,7 @@
 OUT is a finished ground-plane job's folder (its `analysis/` is read; frames without lane
 lines in an older analysis get them from `analysis.lanes`), JOB its job YAML. For N seeds the
 planner plans every analysed frame twice on the same real scene: with the frame's lane lines
-(`RealScene.lane_centre`, the default since 2026-11-29) and without them (the twin's lanes of
+(`RealScene.lane_centres`, the default since 2026-11-29) and without them (the twin's lanes of
 the job's width, the camera on a lane centre: before). Per car, bus and truck:
 - across a line: a painted line found in the frame (cover >= 0.3) passes under the body at its
   near end (within its width less 0.15 m a side): the vehicle stands on the line (goal 0);

@@ -159,9 +159,29 @@ def test_lane_shifts_over_a_long_video_stay_finite_smooth_and_cheap():
     rng = np.random.default_rng(0)
     n = 15000
     vals = np.where(rng.random(n) < 0.7, rng.normal(0.3, 0.05, n), np.nan)
-    stub = type("Stub", (), {"real": object(), "inject": Inject(sequences=True),
-                             "_real_lane_shift": lambda self, k, *a: None if np.isnan(vals[k]) else float(vals[k])})()
+    stub = type("Stub", (), {"real": object(), "inject": Inject(sequences=True), "_real_lanes": lambda self, k, *a:
+                             None if np.isnan(vals[k]) else (0, 0.0, {0: float(vals[k])}, 3.5)})()
     t0 = time.process_time()
     out = Planner._real_lane_shifts(stub, 0, None, 0, 1, np.zeros(n), np.arange(n) / 25.0)
     assert time.process_time() - t0 < 5.0
     assert np.isfinite(out).all() and abs(out.mean() - 0.3) < 0.01 and out.std() < 0.015
+
+
+def test_a_vehicle_keeps_its_lane_when_the_camera_changes_lanes():
+    """The camera drifts from one real lane into the next over 100 frames; the twin's lanes lie
+    0.4 m beside the real ones, so the camera crosses a twin boundary at another moment than the
+    real one. A vehicle in the twin lane centred at y = 0.4 m keeps to the real lane at y = 0
+    (a first version took the lane by its number from the twin's ego lane and jumped a lane)."""
+    from blendgen.scene.planner import Planner
+
+    w, n = 3.5, 100
+    cam_y = np.linspace(0.0, w, n)
+
+    def real_lanes(self, k, *a):
+        ego_centre = round(cam_y[k] / w) * w  # the real lane the camera is in
+        twin_ego = round((cam_y[k] - 0.4) / w)  # the twin lane it is in (centres at 0.4 + w m)
+        return 0 - twin_ego, 0.4, {m: ego_centre + m * w for m in range(-3, 4)}, w
+
+    stub = type("Stub", (), {"real": object(), "inject": Inject(sequences=True), "_real_lanes": real_lanes})()
+    out = Planner._real_lane_shifts(stub, 0, None, 0, 1, np.zeros(n), np.arange(n) / 25.0)
+    assert np.allclose(out, -0.4), out

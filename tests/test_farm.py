@@ -283,6 +283,27 @@ def test_hung_worker_is_killed_and_its_task_retried(tmp_path):
         run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)}, item_timeout_s=0)
 
 
+def test_hung_worker_that_survives_sigkill_is_left_behind(tmp_path, monkeypatch):
+    """A worker stuck in the kernel ignores SIGKILL: the job must not wait for it forever."""
+    import blendgen.farm.local as local
+
+    monkeypatch.setattr(local, "STOP_GRACE_S", 2.0)
+    monkeypatch.setattr(subprocess.Popen, "kill", lambda self: None)  # the kill does not take
+    out = tmp_path / "job"
+    ids = items(4)
+    try:
+        s = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out), "hang_once": "000002"},
+                      workers=1, chunk=2, item_timeout_s=2, progress=False)
+        assert s.ok and s.done == 4
+        assert_outputs_complete(out, ids)
+        with sqlite3.connect(out / ".blendgen" / "ledger.sqlite") as db:
+            errors = [r[0] for r in db.execute("SELECT error FROM attempts WHERE error IS NOT NULL")]
+        assert len(errors) == 1 and "did not exit 2 s after SIGKILL" in errors[0], errors
+    finally:
+        with contextlib.suppress(Exception):
+            os.kill(int((out / "hang.pid").read_text()), signal.SIGKILL)
+
+
 def test_bad_input_fails_that_item_alone(tmp_path):
     """Issue 16: a UserError in one item (a corrupt frame) fails that item at once, with its
     reason; its task neighbours are produced, nothing is retried, no worker is retired."""

@@ -93,6 +93,10 @@ def test_golden_hour_sun_stays_the_key():
     plain[:150] = (200, 198, 196)  # grey cloud
     est = estimate_illumination(plain, sun_az_el=(180.0, 4.0))
     assert est.condition == "dusk" and not est.sun_visible and est.to_lighting()["street_light"] is not None
+    # a frame darker than its high sun (a tunnel's mouth, a lamp-lit underpass) is dusk without it
+    dark = (img * 0.52).astype(np.uint8)
+    est = estimate_illumination(dark, sun_az_el=(180.0, 40.0))
+    assert est.condition == "dusk" and not est.sun_visible and est.to_lighting()["street_light"] is not None
 
 
 def test_grey_sky_two_tone_road_is_not_sun():

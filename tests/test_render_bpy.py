@@ -273,6 +273,14 @@ def test_noise_differs_between_frames_and_repeats_per_frame(tmp_path):
         a, b, a2 = (cv2.imread(str(tmp_path / f"{n}.png")).astype(int) for n in ("a", "b", "again/a"))
         assert np.array_equal(a, a2)
         assert np.abs(a - b).mean() > 0.2
+        # a job's frame seed sets it (frame k of two drives does not share its noise)
+        plan = FramePlan("f000001", 0.0, T.tolist(), [PlacedObject(3, "car", (12.0, 0.0, 0.0), 0.5, (4.4, 1.8, 1.5))],
+                         SUN)
+        rgb = []
+        for i, seed in enumerate((7, 7, 8)):
+            s.render_frame(plan, tmp_path / f"r{i}.exr", {"rgba"}, seed=seed)
+            rgb.append(read_passes(tmp_path / f"r{i}.exr")["rgba"])
+        assert np.array_equal(rgb[0], rgb[1]) and not np.array_equal(rgb[0], rgb[2])
     finally:
         s.close()
 

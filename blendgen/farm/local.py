@@ -85,6 +85,7 @@ class _Worker:
     eof: bool = False
     since: float = 0.0         # monotonic time of its task's start or last finished item
     hung: str | None = None    # why the supervisor killed it
+    killed_at: float = 0.0
 
 
 class LocalEngine:
@@ -93,6 +94,8 @@ class LocalEngine:
         self.books = books
         self.item_timeout_s = item_timeout_s
         self.slowest_item_s = 0.0
+        self.last_check = time.monotonic()
+        self.abandoned: list[subprocess.Popen] = []  # killed workers that did not exit
         self.processor, self.processor_args = processor, processor_args
         self.n_slots = workers
         self.recycle_after, self.max_rss_mb = recycle_after, max_rss_mb
@@ -202,19 +205,46 @@ class LocalEngine:
     def _poll(self, timeout: float) -> None:
         for key, _ in self.sel.select(timeout):
             self._read(key.data)
-        limit = self._item_limit_s()
-        now = time.monotonic()
-        for w in self.workers.values():
-            if limit is not None and w.state == "busy" and w.hung is None and now - w.since > limit:
-                item = w.items_left[0] if w.items_left else "?"
-                w.hung = (f"worker {w.name} finished no item in {now - w.since:.0f} s (farm.item_timeout_s: "
-                          f"{limit:.0f} s) and was killed during item {item}; worker log: {w.log}")
-                with contextlib.suppress(ProcessLookupError):
-                    w.proc.kill()
+        self._kill_hung()
         for w in list(self.workers.values()):
             if w.eof or w.proc.poll() is not None:
                 self._read(w, drain=True)  # events sent just before it died still count
                 self._on_exit(w)
+
+    def _kill_hung(self) -> None:
+        """Kill busy workers that finished no item for the limit; give up on one that SIGKILL
+        does not end within STOP_GRACE_S (stuck in the kernel, e.g. in a GPU driver): its task
+        goes back to the queue and the slot to a new worker."""
+        now = time.monotonic()
+        if now - self.last_check > 60.0:  # this supervisor was stopped (Ctrl-Z): that time is no one's
+            for w in self.workers.values():
+                w.since += now - self.last_check
+        self.last_check = now
+        limit = self._item_limit_s()
+        for w in list(self.workers.values()):
+            if w.state != "busy" or limit is None:
+                continue
+            if w.hung is None and now - w.since > limit:
+                self._read(w, drain=True)  # an item that finished just now counts
+                if now - w.since <= limit or w.state != "busy":
+                    continue
+                item = w.items_left[0] if w.items_left else "?"
+                w.hung = (f"worker {w.name} finished no item in {now - w.since:.0f} s (farm.item_timeout_s: "
+                          f"{limit:.0f} s) and was killed during item {item}; worker log: {w.log}")
+                w.killed_at = now
+                with contextlib.suppress(ProcessLookupError):
+                    w.proc.kill()
+            elif w.hung is not None and now - w.killed_at > STOP_GRACE_S and w.proc.poll() is None:
+                self.sel.unregister(w.rfd)
+                for fd in (w.rfd, w.wfd):
+                    with contextlib.suppress(OSError):
+                        os.close(fd)
+                del self.workers[w.slot]
+                self.abandoned.append(w.proc)  # not waited for: it may never exit
+                self.books.summary.worker_deaths += 1
+                self.books.ledger.worker_update(self.books.run_id, w.name, state="exited", exit="killed, did not exit")
+                self._task_failed(w.task, w, w.hung + f"; it did not exit {STOP_GRACE_S:.0f} s after SIGKILL (left "
+                                                      f"behind, pid {w.proc.pid})")
 
     def _read(self, w: _Worker, drain: bool = False) -> None:
         while not w.eof:

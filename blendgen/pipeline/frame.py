@@ -115,7 +115,7 @@ class FrameProcessor:
         # ~0.15 CPU-s less to write and read (docs/render.md).
         info = self.session.render_frame(plan, exr, render_outputs(job),
                                          compression="zip" if job.export.save_exr else "none",
-                                         environment=lambda: self._environment(real, plan, fa))
+                                         environment=lambda: self._environment(real, plan, fa), seed=seed)
         passes = read_passes(exr)
         timings["render"] = time.perf_counter() - t1
 

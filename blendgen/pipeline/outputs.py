@@ -80,6 +80,7 @@ class JobFolder:
             f.truncate()
             f.write(f"pid {os.getpid()}\n")
             f.flush()
+            (self.state / "progress.json").unlink(missing_ok=True)  # a dead run's stage is not this run's
             yield
 
     # ---- the resolved job: one output folder holds one job
@@ -124,19 +125,17 @@ class JobFolder:
         return lock_held(self.state / "job.lock")
 
     def progress_line(self) -> str | None:
-        """`blendgen status`'s line for an in-process stage that has not finished, or None."""
-        path = self.state / "progress.json"
-        try:
-            p = json.loads(path.read_text())
-        except (OSError, ValueError):
-            return None
+        """`blendgen status`'s line for an in-process stage that is running or was cut short,
+        or None (its file exists only from the stage's start to its end, in one run)."""
         from blendgen.farm.status import fmt_duration
 
-        if self.stage_done(p["stage"]):
+        try:
+            p = json.loads((self.state / "progress.json").read_text())
+            done, total, phase = int(p["done"]), int(p["total"]), p["phase"]
+            rate = (done - p["done_at_start"]) / max(p["updated"] - p["started"], 1e-6)
+        except (OSError, ValueError, KeyError, TypeError):  # none, or not ours
             return None
-        done, total = p["done"], p["total"]
-        rate = (done - p["done_at_start"]) / max(p["updated"] - p["started"], 1e-6)
-        head = f"[{p['stage']}{': ' + p['phase'] if p['phase'] else ''}] {done}/{total} frames"
+        head = f"[{p['stage']}{': ' + phase if phase else ''}] {done}/{total} frames"
         if not self.running():
             return f"{head}, stopped (pid {p['pid']} on {p['host']} is gone); run again to resume"
         eta = f", ETA {fmt_duration((total - done) / rate)}" if rate > 0 and done < total else ""
@@ -147,7 +146,7 @@ class JobFolder:
 class StageProgress:
     """Call with the number of frames done (and the stage's current phase): written atomically
     at most every EVERY_S seconds, at a new phase and at the last frame, for `blendgen status`
-    from another shell."""
+    from another shell. As a context manager, the file goes when the stage ends without error."""
 
     EVERY_S = 2.0
 
@@ -167,3 +166,10 @@ class StageProgress:
         self._last = now
         self.doc.update(done=int(done), updated=now)
         atomic.write_json(self.path, self.doc)
+
+    def __enter__(self) -> "StageProgress":
+        return self
+
+    def __exit__(self, exc_type, *_) -> None:
+        if exc_type is None:
+            self.path.unlink(missing_ok=True)

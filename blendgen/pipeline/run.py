@@ -156,9 +156,9 @@ class Runner:
             self._say("analysis", f"analyses exist ({self.folder.analysis})")
             return poses, True  # read back from poses.csv, which holds the analysed poses
         self._say("analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
-        run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
-                     detector_model=self.job.path(gp.detector) if gp.detector else None,
-                     on_progress=self.folder.progress("analysis", len(ids)))
+        with self.folder.progress("analysis", len(ids)) as p:
+            run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
+                         detector_model=self.job.path(gp.detector) if gp.detector else None, on_progress=p)
         poses = self._write_analysis_poses(poses, set(ids))
         self.folder.mark_stage("analysis", {"frames": ids})
         return poses, True
@@ -200,8 +200,9 @@ class Runner:
         # the layout's stream starts from (seed, first frame id): a job starting at another frame
         # gets its own layout, not the same one shifted (README: seed + frame id)
         assets = self.assets()
-        plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]),
-                              assets=assets, real=real, on_progress=self.folder.progress("plan", len(sel)))
+        with self.folder.progress("plan", len(sel)) as p:
+            plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]),
+                                  assets=assets, real=real, on_progress=p)
         n_obj = sum(len(p.objects) for p in plans)
         self.warnings = unplaced_warnings(plans, job.inject)
         self._say("plan", f"{len(plans)} frames, {n_obj} objects")

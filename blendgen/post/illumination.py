@@ -248,15 +248,14 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     sun_dir = enu_from_az_el(az, el)
 
     condition = _condition(el if source != "default" else None, log_avg, sky_lum if sky_bgr is not None else None)
-    if condition != "day":
-        notes.append(f"{condition}: vehicle lights on, street-light key instead of the sun")
 
     # Sun visibility.
     if el <= 0:
         visible, f, cue = False, 0.0, "below_horizon"
-    elif condition == "night" or (condition == "dusk" and source == "default"):
-        # at dusk a sun known to be up is judged as by day (shadows, clear sky): golden hour,
-        # not street lamps (taken as set, its long shadows and warm key were lost)
+    elif condition == "night" or (condition == "dusk" and (source == "default" or el >= TWILIGHT_DEG[1])):
+        # a dusk that the sun's own elevation calls (0-6 deg up) is judged as by day (shadows,
+        # clear sky): golden hour, not street lamps (taken as set, its long shadows and warm key
+        # were lost); a frame darker than its high sun (a tunnel, a lamp-lit underpass) is not
         visible, f, cue = False, 0.0, condition
     elif sky_bgr is not None and _overcast_sky(sky_bgr, sky_sat):
         # A grey-white sky is cloud: a two-tone road under it is snow banks, wet or white
@@ -271,6 +270,10 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         visible, f, cue = True, clear_sky_sun_fraction(el), "clear_sky"
     else:
         visible, f, cue = False, 0.0, "overcast"
+
+    if condition != "day":
+        notes.append(f"{condition}: vehicle lights on, " + ("the low sun stays the key" if visible
+                                                            else "street-light key instead of the sun"))
 
     if visible and source == "default":
         # The sun's azimuth from the shadows of the real road users, when they show them.

@@ -52,9 +52,9 @@ def _rss_mb() -> float:
 
 
 def noise_seed(frame: str) -> int:
-    """Cycles' sampling seed for a frame: fixed per frame (reruns are identical), different
-    between frames (one seed for all gave every frame the same noise pattern, which the ego-motion
-    step locked onto on rendered drives and a detector could learn)."""
+    """Cycles' sampling seed for a frame without a job seed: fixed per frame (reruns are
+    identical), different between frames (one seed for all gave every frame the same noise
+    pattern, which the ego-motion step locked onto on rendered drives and a detector could learn)."""
     return zlib.crc32(str(frame).encode()) & 0x7FFFFFFF
 
 
@@ -618,11 +618,13 @@ class RenderSession:
             raise StageError("this RenderSession was closed or replaced by a newer one in this process")
 
     def render_frame(self, plan: FramePlan, out_exr: Path, outputs: set[str], *, compression: str = "zip",
-                     environment=None) -> dict:
+                     environment=None, seed: int | None = None) -> dict:
         """See docs/render.md. `compression`: the EXR codec (exr.COMPRESSIONS, lossless); "none"
         when the caller reads the file once and deletes it. `environment`: what glass and clear
         coat mirror (plate_env.plate_environment of the real frame), or a function that makes it
-        (called only when the frame is rendered); None: the lighting's sky."""
+        (called only when the frame is rendered); None: the lighting's sky. `seed`: Cycles'
+        sampling seed (the job's frame seed, so that frame k of two drives or two job seeds
+        does not share its noise); None: `noise_seed(plan.frame_id)`."""
         self._check_current()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
@@ -656,7 +658,7 @@ class RenderSession:
         kept = set(eff.objects.value)
         info["objects"] = self._sync_objects(plan, kept)
         self._set_camera(plan.T_world_cam)
-        self.scene.cycles.seed = noise_seed(plan.frame_id)
+        self.scene.cycles.seed = noise_seed(plan.frame_id) if seed is None else int(seed) & 0x7FFFFFFF
         if callable(environment):
             environment = environment()
         self._apply_lighting(lighting, background=False, environment=environment)

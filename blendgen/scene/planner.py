@@ -266,6 +266,8 @@ class Planner:
         d = cd + np.full(n, lat) if lat_profile is None else cd + lat_profile(tt)
         xy = rg.line.offset_point(s, d)
         m = self._limit(k0, xy)
+        if m == 0:
+            return None
         if self.real is not None:  # and a real frame's painted lines, over the frames kept
             s, tt, d = s[:m], tt[:m], d[:m] + self._real_lane_shifts(k0, rg, index, direction, s[:m], tt[:m])
             xy, n = rg.line.offset_point(s, d), m
@@ -276,35 +278,52 @@ class Planner:
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
 
-    def _real_lane_shift(self, k, rg, index, direction, s) -> float | None:
-        """Metres to add to the twin lane's centre offset at arc length s so that a vehicle
-        there runs along the matching real lane of frame k (`RealScene.lane_centre`; None
-        without one): the ground-plane twin's lanes are the job's width with the camera on a
-        lane centre, the real ones are where the paint is."""
+    def _real_lanes(self, k, rg, index, direction, s):
+        """Frame k's real lanes where a vehicle of twin lane (index, direction) is at arc length
+        s: (n, y, centres, w) = the twin lane's number from the twin's ego lane (0 the camera's,
+        +1 left), its centre's world y, the world y of each real lane's centre by number
+        (`RealScene.lane_centres`) and the lane width; None without lines. The ground-plane
+        twin's lanes are the job's width with the camera on a lane centre, the real ones are
+        where the paint is."""
         ego = self.ego.lane[k] if self.real is not None else None
         if ego is None or self.twin.roads[ego.road] is not rg:
             return None
         cd = float(rg.lane_d(index, direction, np.array([s]))[0])
         x, y = rg.line.offset_point(np.array([s]), np.array([cd]))[0]
-        n = int(round((cd - ego.center_d) / ego.width))
-        real = self.real.lane_centre(k, self.ego.T[k], n, float(x), ego.width)
-        return None if real is None else real - float(y)
+        centres = self.real.lane_centres(k, self.ego.T[k], float(x), ego.width)
+        return None if centres is None else (int(round((cd - ego.center_d) / ego.width)), float(y), centres,
+                                             ego.width)
 
     def _real_lane_shifts(self, k0, rg, index, direction, s, tt=(0.0,)) -> np.ndarray | float:
-        """`_real_lane_shift` for a track's frames k0, k0 + 1, ... (at times tt from k0): on video
-        it keeps the vehicle in its painted lane however the ego motion drifts across the road,
-        smoothed over LANE_SMOOTH_S (each frame's lines are a few cm apart from the next's); a
-        frame without lines takes its neighbours', a track without any the nearest frame's
-        with lines (video only: stills do not share a world)."""
-        if self.real is None:
+        """Metres to add to a track's twin lane centre offset in its frames k0, k0 + 1, ... (at
+        times tt from k0) so that it runs along the matching real lane. The real lane is
+        matched at the track's first frame with lines and kept: it moves only when the camera
+        itself changes real lane (its ego lane's centre steps by a lane width), not when the
+        camera crosses a boundary of the twin's lanes, which lie elsewhere (a vehicle jumped a
+        lane there). On video the shifts keep the vehicle in its painted lane however the ego
+        motion drifts across the road, smoothed over LANE_SMOOTH_S (each frame's lines are a
+        few cm apart from the next's); a frame without lines takes its neighbours', a track
+        without any the nearest frame's with lines (video only: stills do not share a world)."""
+        if self.real is None or len(s) == 0:
             return 0.0
-        shifts = np.array([np.nan if v is None else v for v in (
-            self._real_lane_shift(k0 + i, rg, index, direction, float(si)) for i, si in enumerate(s))])
+        rows = [self._real_lanes(k0 + i, rg, index, direction, float(si)) for i, si in enumerate(s)]
+        ref = next((r for r in rows if r is not None), None)
+        if ref is None:
+            near = np.argsort(np.abs(self.times - self.times[k0]))[:LANE_BORROW_FRAMES] if self.inject.sequences else []
+            for k in near:
+                r = self._real_lanes(int(k), rg, index, direction, float(s[0]))
+                if r is not None and r[0] in r[2]:
+                    return r[2][r[0]] - r[1]
+            return 0.0
+        n_ref, ego_ref = ref[0], ref[2][0]
+        shifts = np.full(len(rows), np.nan)
+        for i, r in enumerate(rows):
+            if r is not None:
+                n = n_ref - int(round((r[2][0] - ego_ref) / r[3]))
+                shifts[i] = r[2][n] - r[1] if n in r[2] else np.nan
         ok = np.isfinite(shifts)
         if not ok.any():
-            near = np.argsort(np.abs(self.times - self.times[k0]))[:LANE_BORROW_FRAMES] if self.inject.sequences else []
-            borrowed = (self._real_lane_shift(int(k), rg, index, direction, float(s[0])) for k in near)
-            return next((v for v in borrowed if v is not None), 0.0)
+            return 0.0
         t = np.asarray(tt, float)[:len(shifts)]
         t_ok, v_ok = t[ok], shifts[ok]
         # Gaussian weights within 4 sigma (a track can last a whole video: no n x n matrix); a

@@ -8,7 +8,7 @@ vehicle's wheel off the estimated road, or its footprint across the frame's soli
 line (a freeway's shoulder; not for bicycles and parked motorcycles, which keep to the edge); a
 pedestrian outside the bands beside the road or in the oncoming lane beyond a centre line
 (unless crossing); a traffic light's pole on the road. A virtual object in front of a real one
-is allowed: it covers it. `lane_centre` puts vehicles in the real lanes between the frame's
+is allowed: it covers it. `lane_centres` puts vehicles in the real lanes between the frame's
 painted lines.
 """
 
@@ -111,16 +111,15 @@ class RealScene:
         # the ground-plane twin's road runs along +x: lateral offset = world y from the camera
         return cl is not None and float(xy[1]) - float(np.asarray(T, float)[1, 3]) > cl
 
-    def lane_centre(self, k: int, T, n: int, x_world: float, lane_width_m: float) -> float | None:
-        """World y of the centre of frame k's real lane n (0 the camera's, +1 the next on its
-        left, -1 on its right) at world x_world, from the painted lines the analysis found
-        (`analysis.lanes`), or None where they bound no ego lane."""
+    def lane_centres(self, k: int, T, x_world: float, lane_width_m: float) -> dict[int, float] | None:
+        """World y of the centres of frame k's real lanes at world x_world, by lane (0 the
+        camera's, +1 the next on its left, -1 on its right), from the painted lines the
+        analysis found (`analysis.lanes`), or None where they bound no ego lane."""
         rf = self.frames[k] if k < len(self.frames) else None
         T = np.asarray(T, float)
         centres = None if rf is None else lane_centres(rf.fa.lane_lines, x_world - float(T[0, 3]), lane_width_m)
-        if centres is None or n not in centres:
-            return None
-        return float(T[1, 3]) + centres[n]  # the ground-plane twin's road runs along +x
+        # the ground-plane twin's road runs along +x
+        return None if centres is None else {n: float(T[1, 3]) + c for n, c in centres.items()}
 
     def centre_line(self, k: int) -> float | None:
         rf = self.frames[k] if k < len(self.frames) else None

@@ -35,8 +35,12 @@ def _errors(res, rec):
 
 def test_full_fusion_with_frames(tmp_path, drive):
     rec, traj, _ = drive
-    res = run_sync(rec, Sync(), tmp_path, georef=GEOREF, progress=False)
+    calls = []
+    res = run_sync(rec, Sync(), tmp_path, georef=GEOREF, progress=False,
+                   on_progress=lambda done, phase, total: calls.append((phase, done, total)))
     assert [p[0] for p in res.poses] == [rec.frame_id(i) for i in range(rec.n_frames)]
+    # `blendgen status` hears of VO and each filter pass, to their last frame
+    assert ("VO", rec.n_frames, rec.n_frames) in calls and ("sync", rec.n_frames, rec.n_frames) in calls
     assert np.allclose(res.times, rec.frames_t)
     err = _errors(res, rec)
     assert err["ate_rmse_m"] < 0.8 and err["rot_median_deg"] < 1.0 and err["rpe_rmse_m"] < 0.1

@@ -156,13 +156,16 @@ class StageProgress:
         self._last = 0.0
         self(0)
 
-    def __call__(self, done: int, phase: str = "") -> None:
+    def __call__(self, done: int, phase: str = "", total: int | None = None) -> None:
+        """`total`: the phase's own count when it is not the stage's (sync's filter: poses)."""
         now = time.time()
         new_phase = phase != self.doc["phase"] or "started" not in self.doc
         if not new_phase and now - self._last < self.EVERY_S and done < self.doc["total"]:
             return
         if new_phase:  # the rate is per phase
             self.doc.update(phase=phase, started=now, done_at_start=int(done))
+        if total is not None:
+            self.doc["total"] = int(total)
         self._last = now
         self.doc.update(done=int(done), updated=now)
         atomic.write_json(self.path, self.doc)

@@ -100,8 +100,9 @@ class Runner:
         lut = job.path(job.sync.lut) if job.sync.lut else self._default_lut()
         self._say("sync", f"{rec.n_frames} frames, {len(rec.imu)} IMU, {len(rec.gnss)} GNSS samples"
                              f"{', LUT ' + str(lut) if lut else ''}")
-        result = run_sync(rec, job.sync, self.folder.root, lut_path=lut, georef=self.twin.georef,
-                          progress=self.progress, road_surface=self.twin.ground_heights)
+        with self.folder.progress("sync", rec.n_frames) as p:
+            result = run_sync(rec, job.sync, self.folder.root, lut_path=lut, georef=self.twin.georef,
+                              progress=self.progress, road_surface=self.twin.ground_heights, on_progress=p)
         self.folder.mark_stage("sync", {"frames": len(result.poses)})
         return result.poses
 

@@ -11,6 +11,7 @@ IMU clock (t_imu = t_cam + timeshift_cam_imu).
 
 from __future__ import annotations
 
+import contextvars
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -154,13 +155,22 @@ def _stationary_imu(imu: np.ndarray, cfg: EkfConfig, window_s: float = 0.5) -> n
 
 # ----------------------------------------------------------------------------- main
 
+_REPORT: contextvars.ContextVar = contextvars.ContextVar("sync_on_progress", default=None)
+
+
 def run_sync(rec: Recording, settings, out_dir: Path, *, lut_path: Path | None = None,
              georef: tuple[float, float, float] | None = None, progress: bool = True,
-             road_surface=None) -> SyncResult:
+             road_surface=None, on_progress=None) -> SyncResult:
     """Estimate T_world_cam for every frame (or at settings.pose_rate_hz without frames).
-    road_surface: the twin's road height, (N, 2) xy -> (N,) z (`Twin.ground_heights`)."""
-    with single_thread_blas():
-        return _run_sync(rec, settings, Path(out_dir), lut_path, georef, progress, road_surface)
+    road_surface: the twin's road height, (N, 2) xy -> (N,) z (`Twin.ground_heights`).
+    on_progress(done, phase, total): called as VO and the filter passes go
+    (pipeline.outputs.StageProgress)."""
+    token = _REPORT.set(on_progress)
+    try:
+        with single_thread_blas():
+            return _run_sync(rec, settings, Path(out_dir), lut_path, georef, progress, road_surface)
+    finally:
+        _REPORT.reset(token)
 
 
 def _run_sync(rec, settings, out_dir, lut_path, georef, progress, road_surface=None) -> SyncResult:
@@ -624,7 +634,7 @@ def _vo_step(vo, img, spin=None) -> VoResult | None:
 def _vo_all(rec, settings, n: int, cache: dict, progress: bool, spins=None, keep_matches: bool = False) -> None:
     vo = make_vo(rec.camera, _vo_config(settings, rec, keep_matches))
     frames = _frames(rec)
-    bar = _bar(progress, n, "VO")
+    bar = _Bar(progress, n, "VO")
     for i in range(n):
         cache[i] = _vo_step(vo, next(frames)[1], spins[i] if spins is not None else None)
         bar.update(1)
@@ -749,7 +759,7 @@ def _filter_pass(rec, settings, cfg, x0, P0, t_start, use_imu, use_gnss, use_vo,
         else:
             ekf.propagate_to(t)
 
-    bar = _bar(progress, len(out_t), "sync")
+    bar = _Bar(progress, len(out_t), "sync")
     for j in order:
         t, kind, i = float(T[j]), int(K[j]), int(I[j])
         if kind == 0:
@@ -906,7 +916,7 @@ def _vo_only(rec, settings, ids, out_t_cam, R_bc, progress) -> SyncResult:
     last_step, last_dir = None, None
     t_last = float(out_t_cam[0]) if len(out_t_cam) else 0.0
     poses, covs, quality = [], [], []
-    bar = _bar(progress, len(out_t_cam), "sync (VO only)")
+    bar = _Bar(progress, len(out_t_cam), "sync (VO only)")
     var_p, var_r = 0.0, 0.0
     for (i, img), t in zip(_frames(rec), out_t_cam):
         flags = ["scale_unknown"]
@@ -960,10 +970,25 @@ def _count(items) -> dict:
     return out
 
 
-def _bar(progress: bool, total: int, desc: str):
-    from tqdm import tqdm
+class _Bar:
+    """A console bar (tqdm) that also tells run_sync's `on_progress`."""
 
-    return tqdm(total=total, desc=desc, unit="pose", disable=not progress or total < 50, leave=False)
+    def __init__(self, progress: bool, total: int, desc: str):
+        from tqdm import tqdm
+
+        self.tq = tqdm(total=total, desc=desc, unit="pose", disable=not progress or total < 50, leave=False)
+        self.report, self.desc, self.total, self.n = _REPORT.get(), desc, total, 0
+        if self.report is not None:
+            self.report(0, desc, total)
+
+    def update(self, k: int) -> None:
+        self.tq.update(k)
+        self.n += k
+        if self.report is not None:
+            self.report(self.n, self.desc, self.total)
+
+    def close(self) -> None:
+        self.tq.close()
 
 
 def _check_finite(result: SyncResult) -> None:

@@ -49,6 +49,22 @@ def test_outfit_and_shape_follow_the_variant_and_are_reproducible():
     assert body.shape({"seed": 0, "build": "slim"}) == {"female": 1.0, "female_minweight": -body.WEIGHT["slim"]}
 
 
+def test_no_one_wears_skin_tones_head_to_toe_and_motorcyclists_wear_jackets():
+    """Tan or brown top and trousers together read as a bare mannequin on real photos."""
+    from blendgen.scene.catalog import SKIN_LIKE
+
+    def tan(c):
+        return any(np.allclose(c, s, rtol=0.1) for s in SKIN_LIKE)
+
+    rng = np.random.default_rng(0)
+    people = [sample_variant("person", rng)[0] for _ in range(400)]
+    riders = [v["rider"] for v in (sample_variant("motorcycle", rng)[0] for _ in range(300)) if "rider" in v]
+    assert not any(tan(p["shirt"]) and tan(p["pants"]) for p in people + riders)
+    assert sum(tan(p["shirt"]) for p in people) > 20  # tan tops stay, with other trousers
+    black = np.mean([max(r["shirt"]) < 0.02 for r in riders])
+    assert 0.35 < black < 0.55  # riding jackets, mostly black
+
+
 def test_shapes_change_the_body_where_expected():
     """A man is broader at the shoulders than a woman, a heavier body deeper at the waist."""
     d = body.human()

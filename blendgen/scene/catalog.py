@@ -51,6 +51,13 @@ TOPS = {(0.012, 0.012, 0.014): 0.26, (0.70, 0.70, 0.68): 0.12, (0.18, 0.18, 0.19
         (0.45, 0.05, 0.04): 0.04, (0.55, 0.30, 0.02): 0.02, (0.45, 0.15, 0.25): 0.02}
 PANTS = {(0.012, 0.012, 0.014): 0.34, (0.05, 0.08, 0.16): 0.30, (0.10, 0.10, 0.11): 0.12,
          (0.33, 0.27, 0.17): 0.10, (0.018, 0.025, 0.06): 0.08, (0.08, 0.055, 0.035): 0.06}
+# Tan and brown clothes near a skin tone: a top and trousers both from here read as a bare
+# mannequin on real photos (a rider in brown on the BDD snow street, in khaki on the freeway)
+SKIN_LIKE = {(0.40, 0.33, 0.22), (0.10, 0.07, 0.045), (0.33, 0.27, 0.17), (0.08, 0.055, 0.035)}
+# What motorcyclists wear over it: riding jackets, mostly black (linear albedo, weight)
+RIDER_JACKETS = {(0.012, 0.012, 0.014): 0.45, (0.10, 0.10, 0.11): 0.15, (0.020, 0.030, 0.080): 0.10,
+                 (0.10, 0.07, 0.045): 0.08, (0.70, 0.70, 0.68): 0.06, (0.45, 0.05, 0.04): 0.06,
+                 (0.55, 0.60, 0.02): 0.05, (0.03, 0.07, 0.035): 0.05}
 SHOES = {(0.012, 0.012, 0.014): 0.5, (0.65, 0.65, 0.63): 0.25, (0.10, 0.07, 0.045): 0.15, (0.18, 0.18, 0.19): 0.1}
 SKIN = [(0.75, 0.55, 0.42), (0.62, 0.42, 0.30), (0.45, 0.28, 0.18), (0.28, 0.16, 0.10), (0.82, 0.64, 0.52)]
 HAIR = [(0.02, 0.015, 0.01), (0.12, 0.06, 0.03), (0.35, 0.22, 0.10), (0.55, 0.45, 0.30), (0.4, 0.4, 0.4)]
@@ -79,7 +86,7 @@ def _weighted(rng, table: dict):
     return keys[int(rng.choice(len(keys), p=w / w.sum()))]
 
 
-def _person(rng, *, height=None, pose=None) -> tuple[dict, tuple]:
+def _person(rng, *, height=None, pose=None, tops=TOPS) -> tuple[dict, tuple]:
     h = float(height if height is not None else np.clip(rng.normal(1.71, 0.09), 1.50, 1.95))
     build = _pick(rng, ["slim", "medium", "broad"])
     shoulder = {"slim": 0.23, "medium": 0.25, "broad": 0.28}[build] * h  # shoulder breadth
@@ -88,9 +95,11 @@ def _person(rng, *, height=None, pose=None) -> tuple[dict, tuple]:
     leg = 0.47 * h
     depth = max(0.28 * h / 1.75, 2 * leg * np.sin(stride) + 0.26)
     width = shoulder + 0.12 * h / 1.75
+    top = _weighted(rng, tops)
+    pants = {c: w for c, w in PANTS.items() if top not in SKIN_LIKE or c not in SKIN_LIKE}
     v = {"kind": pose, "build": build, "stride_rad": stride, "skin": _pick(rng, SKIN),
-         "hair": _pick(rng, HAIR), "shirt": _jitter(rng, _weighted(rng, TOPS)),
-         "pants": _jitter(rng, _weighted(rng, PANTS)), "shoes": _jitter(rng, _weighted(rng, SHOES)),
+         "hair": _pick(rng, HAIR), "shirt": _jitter(rng, top),
+         "pants": _jitter(rng, _weighted(rng, pants)), "shoes": _jitter(rng, _weighted(rng, SHOES)),
          "long_sleeves": bool(rng.random() < 0.6), "skirt": bool(rng.random() < 0.12),
          "bag": bool(rng.random() < 0.3), "height_m": h}
     return v, (float(depth), float(width), h)
@@ -134,7 +143,7 @@ def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[floa
             rider_p = 0.8
         v = {"kind": kind, "paint": _jitter(rng, _pick(rng, list(CAR_PAINTS.values()))), "wheel_radius": wheel}
         if rng.random() < rider_p:
-            rv, _ = _person(rng, pose="riding")
+            rv, _ = _person(rng, pose="riding", tops=RIDER_JACKETS if cls == "motorcycle" else TOPS)
             rv["helmet"] = bool(cls == "motorcycle" or rng.random() < 0.5)
             if cls == "motorcycle":  # sport riders wear full-face helmets, others half helmets
                 rv["helmet_kind"] = "full_face" if kind == "sport" else "half"

@@ -528,6 +528,24 @@ def test_local_ray_listens_on_loopback_only(tmp_path):
     assert tmpdirs and [d for d in tmpdirs if Path(d).exists()] == []
 
 
+@pytest.mark.ray
+@pytest.mark.timeout(300)
+def test_ray_worker_that_hangs_ends_itself_and_the_task_is_retried(tmp_path):
+    """farm.item_timeout_s on Ray: the worker process ends itself (SIGALRM) when an item runs
+    past the limit, and Ray retries the task."""
+    pytest.importorskip("ray")
+    out = tmp_path / "job"
+    ids = items(4)
+    t0 = time.monotonic()
+    s = run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out), "hang_once": "000002"},
+                  engine="ray", workers=1, chunk=2, item_timeout_s=3, progress=False)
+    assert s.ok and s.done == 4, s.text()
+    assert time.monotonic() - t0 < 100  # not the 120 s the hang sleeps
+    assert_outputs_complete(out, ids)
+    logs = "".join(p.read_text() for p in (out / ".blendgen" / "logs").rglob("*.log"))
+    assert "farm.item_timeout_s 3: this process ends (SIGALRM)" in logs
+
+
 def test_ray_cluster_run_needs_a_token(tmp_path, monkeypatch):
     pytest.importorskip("ray")
     for k in ("RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):

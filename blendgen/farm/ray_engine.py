@@ -17,11 +17,12 @@ import contextlib
 import json
 import math
 import os
+import signal
 import socket
 
 from ..errors import StageError, UserError
 from .books import Books
-from .local import worker_env
+from .local import AUTO_TIMEOUT_FACTOR, AUTO_TIMEOUT_FLOOR_S, worker_env
 from .processor import close_processor, load_processor, redirect_output, rss_mb, run_items
 
 NODE_MAX_FAILURES_IN_ROW = 3
@@ -53,7 +54,31 @@ def _loopback_only():
 _CACHE: dict[tuple[str, str], object] = {}  # per Ray worker process: the warm processor
 
 
-def ray_task(processor: str, processor_args: dict, items: list[str], log_path: str) -> dict:
+@contextlib.contextmanager
+def _item_alarm(item_timeout_s):
+    """`arm(slowest_item_s)`: the process ends unless another item finishes within the limit
+    (farm.item_timeout_s; "auto": 30 min or 10x this task's slowest item). SIGALRM at its
+    default action ends the process in the kernel, whatever Python or C code hangs; Ray then
+    retries the task elsewhere. Signals need the main thread, where Ray runs tasks."""
+    if item_timeout_s is None:
+        yield lambda slowest: None
+        return
+
+    def arm(slowest: float) -> None:
+        limit = item_timeout_s if item_timeout_s != "auto" else max(AUTO_TIMEOUT_FLOOR_S,
+                                                                     AUTO_TIMEOUT_FACTOR * slowest)
+        signal.alarm(max(1, math.ceil(limit)))
+
+    old = signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    try:
+        yield arm
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def ray_task(processor: str, processor_args: dict, items: list[str], log_path: str,
+             item_timeout_s: float | str | None = None) -> dict:
     """Body of one Ray task (runs in a Ray worker process, on its main thread)."""
     import ray
 
@@ -77,14 +102,26 @@ def ray_task(processor: str, processor_args: dict, items: list[str], log_path: s
                         **where}
             _CACHE[key] = proc
             atexit.register(close_processor, proc)  # best effort when max_calls ends us
-        ok = run_items(proc, items, events.append)
+        if item_timeout_s is not None:
+            print(f"[blendgen.farm] farm.item_timeout_s {item_timeout_s}: this process ends (SIGALRM) when "
+                  "an item runs that long", flush=True)
+        slowest = [0.0]
+        with _item_alarm(item_timeout_s) as arm:
+            def emit(ev: dict) -> None:
+                events.append(ev)
+                slowest[0] = max(slowest[0], ev.get("process_s", 0.0))
+                arm(slowest[0])
+
+            arm(0.0)
+            ok = run_items(proc, items, emit)
     return {"ok": ok, "events": events, "rss_mb": rss_mb(), **where}
 
 
 class RayEngine:
     def __init__(self, books: Books, processor: str, processor_args: dict, *, workers: int,
-                 chunk: int, recycle_after: int, address: str | None):
+                 chunk: int, recycle_after: int, address: str | None, item_timeout_s: float | str | None = "auto"):
         self.books = books
+        self.item_timeout_s = item_timeout_s
         self.processor, self.processor_args = processor, processor_args
         self.workers, self.recycle_after, self.address = workers, recycle_after, address
         self.chunk = chunk
@@ -176,7 +213,7 @@ class RayEngine:
                         self.books.on_task_done(tid)
                         continue
                     ref = fn.options(**self._options(ray, tid)).remote(
-                        self.processor, self.processor_args, items, log)
+                        self.processor, self.processor_args, items, log, self.item_timeout_s)
                     inflight[ref] = (tid, attempt)
                 self.books.flush(force=False)
                 if not inflight:

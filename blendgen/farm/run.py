@@ -24,9 +24,9 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
     are not dispatched, except those in `redo` (their outputs are gone); workers also skip
     items whose `is_done(item)` is true. Returns a
     `FarmSummary`; failed tasks (after `max_attempts`) are listed in `summary.failed` with
-    their error and log, and `summary.ok` is False. A local worker that finishes no item for
-    `item_timeout_s` ("auto": 30 min or 10x the slowest item so far; None: never) is killed and
-    its task retried. Ctrl-C kills the workers, gives their
+    their error and log, and `summary.ok` is False. A worker that finishes no item for
+    `item_timeout_s` ("auto": 30 min or 10x the slowest item so far; None: never) is killed
+    (Ray: ends itself) and its task retried. Ctrl-C kills the workers, gives their
     tasks back, and re-raises KeyboardInterrupt: running again resumes.
     """
     check_processor_spec(processor)
@@ -65,7 +65,8 @@ def run_tasks(out_dir: Path, stage: str, items: list[str], processor: str,
             from .ray_engine import RayEngine
 
             RayEngine(books, processor, processor_args, workers=workers, chunk=chunk,
-                      recycle_after=recycle_after, address=address).run(books.task_ids)
+                      recycle_after=recycle_after, address=address,
+                      item_timeout_s=item_timeout_s).run(books.task_ids)
     except BaseException as e:
         books.finish("interrupted" if isinstance(e, KeyboardInterrupt) else "failed")
         raise

@@ -34,8 +34,8 @@ NEEDED = ("diffuse_direct", "diffuse_indirect", "diffuse_color")
 def local_light_gain(real_lin_y: np.ndarray, box: tuple[int, int, int, int], illumination: Illumination,
                      exclude=None) -> float | None:
     """Night/dusk: light at the object's foot relative to the frame's road, or None (daylight,
-    a visible sun, or no road visible under the object). ``real_lin_y``: the real frame's linear luminance
-    (HxW), or the frame itself (HxWx3 uint8 BGR: only the band is converted); ``box`` =
+    a visible sun, or no road visible under the object). ``real_lin_y``: the real frame's
+    linear luminance (HxW), or the frame itself (HxWx3 uint8 BGR: only the band is converted); ``box`` =
     (x0, y0, x1, y1) of the object's pixels; ``exclude``: pixels that are not road (objects,
     shadows), an HxW bool array or a function of the band's (rows, cols) slices."""
     if illumination.condition == "day" or illumination.sun_visible or illumination.ground_luminance <= 1e-5:

@@ -17,7 +17,7 @@ import bpy
 
 from assets_procedural import materials as M
 from assets_procedural.shapes import LAMP_COLORS, build_shape, traffic_light_pole
-from blendgen.scene.catalog import sample_variant
+from blendgen.scene.catalog import helmet_colour, sample_variant
 from blendgen.scene.plan import PlacedObject
 
 # seat backs to headrests (shares of the height) where they differ from a car's: a bus's passengers
@@ -29,7 +29,7 @@ LIT_STRENGTH = 6.0  # emission of a lit signal lamp: bright, still saturated in 
 def _materials(obj: PlacedObject, slots: list[str]) -> dict:
     v = obj.variant
     rider = v.get("rider", {})
-    paint = v.get("paint") or v.get("mount", {}).get("variant", {}).get("paint", (0.5, 0.5, 0.5))  # rider: helmet
+    paint = v.get("paint") or (0.5, 0.5, 0.5)  # a rider's instance has none
     seed = int(v.get("seed", obj.id))
     # metallic flake paint on mid and dark colours (light metallic paint flared into big sun
     # highlights on real photos); solid on light colours and buses; grime in 4 levels
@@ -48,8 +48,8 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.glass(see_through=WINDOW_SEE_THROUGH, seats=SEATS.get(obj.cls, M.CABIN_SEATS))
         elif s == "visor":
             out[s] = M.glass()
-        elif s == "helmet":  # in the two-wheeler's colour
-            out[s] = M.paint(paint, metallic)
+        elif s == "helmet":  # glossy, mostly black, white or grey (catalog.HELMETS)
+            out[s] = M.paint(helmet_colour(v.get("mount", {}).get("variant", v)), 0.0)
         elif s == "rubber":
             out[s] = M.rubber()
         elif s == "chrome":

@@ -63,6 +63,14 @@ def test_no_one_wears_skin_tones_head_to_toe_and_motorcyclists_wear_jackets():
     assert sum(tan(p["shirt"]) for p in people) > 20  # tan tops stay, with other trousers
     black = np.mean([max(r["shirt"]) < 0.02 for r in riders])
     assert 0.35 < black < 0.55  # riding jackets, mostly black
+    # helmets: black, white or grey mostly, whatever the bike's paint; fixed per two-wheeler
+    from blendgen.scene.catalog import helmet_colour
+
+    bikes = [sample_variant("motorcycle", rng)[0] for _ in range(300)]
+    helmets = [helmet_colour(b) for b in bikes]
+    assert helmets == [helmet_colour(b) for b in bikes]
+    neutral = np.mean([max(h) - min(h) < 0.05 for h in helmets])
+    assert neutral > 0.75 and not any(tan(h) for h in helmets)
 
 
 def test_shapes_change_the_body_where_expected():

@@ -58,6 +58,10 @@ SKIN_LIKE = {(0.40, 0.33, 0.22), (0.10, 0.07, 0.045), (0.33, 0.27, 0.17), (0.08,
 RIDER_JACKETS = {(0.012, 0.012, 0.014): 0.45, (0.10, 0.10, 0.11): 0.15, (0.020, 0.030, 0.080): 0.10,
                  (0.10, 0.07, 0.045): 0.08, (0.70, 0.70, 0.68): 0.06, (0.45, 0.05, 0.04): 0.06,
                  (0.55, 0.60, 0.02): 0.05, (0.03, 0.07, 0.035): 0.05}
+# Helmets are mostly black, white or grey, whatever the two-wheeler's colour: one in a beige
+# scooter's paint read as a bare head on the BDD snow street
+HELMETS = {(0.012, 0.012, 0.014): 0.45, (0.75, 0.75, 0.73): 0.20, (0.25, 0.25, 0.26): 0.15,
+           (0.45, 0.03, 0.03): 0.07, (0.03, 0.08, 0.30): 0.07, (0.55, 0.55, 0.56): 0.06}
 SHOES = {(0.012, 0.012, 0.014): 0.5, (0.65, 0.65, 0.63): 0.25, (0.10, 0.07, 0.045): 0.15, (0.18, 0.18, 0.19): 0.1}
 SKIN = [(0.75, 0.55, 0.42), (0.62, 0.42, 0.30), (0.45, 0.28, 0.18), (0.28, 0.16, 0.10), (0.82, 0.64, 0.52)]
 HAIR = [(0.02, 0.015, 0.01), (0.12, 0.06, 0.03), (0.35, 0.22, 0.10), (0.55, 0.45, 0.30), (0.4, 0.4, 0.4)]
@@ -103,6 +107,12 @@ def _person(rng, *, height=None, pose=None, tops=TOPS) -> tuple[dict, tuple]:
          "long_sleeves": bool(rng.random() < 0.6), "skirt": bool(rng.random() < 0.12),
          "bag": bool(rng.random() < 0.3), "height_m": h}
     return v, (float(depth), float(width), h)
+
+
+def helmet_colour(two_wheeler: dict) -> tuple[float, float, float]:
+    """A rider's helmet colour, from the two-wheeler variant's seed (no draw from the planner's
+    stream: plans keep their draws)."""
+    return _weighted(np.random.default_rng(int(two_wheeler.get("seed", 0)) + 1), HELMETS)
 
 
 def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[float, float, float]]:

@@ -41,11 +41,17 @@ class FileProcessor:
     `raise_once`: items that raise on their first attempt; `hang_once`: an item that writes
     half its temp file, drops `hang.pid` and sleeps (the test SIGKILLs it there);
     `always_fail`: items that always raise; `bad_input`: items whose input is bad (UserError);
-    `delay`: seconds per item."""
+    `delay`: seconds per item; `hang_init_once`: the first constructor sleeps; `hang_close`:
+    close() sleeps."""
 
     def __init__(self, out: str, delay: float = 0.0, raise_once=(), hang_once=None,
-                 always_fail=(), bad_input=()):
+                 always_fail=(), bad_input=(), hang_init_once=False, hang_close=False):
         self.out = Path(out)
+        self.hang_close = hang_close
+        if hang_init_once and not (self.out / "init_hung").exists():
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "init_hung").touch()
+            time.sleep(120)
         self.dir = self.out / "items"
         self.dir.mkdir(parents=True, exist_ok=True)
         self.delay, self.raise_once, self.hang_once = delay, set(raise_once), hang_once
@@ -86,6 +92,8 @@ class FileProcessor:
 
     def close(self) -> None:
         atomic.append_line(self.closed_marker, str(os.getpid()))
+        if self.hang_close:
+            time.sleep(120)
 
 
 class BpyProcessor:
@@ -281,6 +289,27 @@ def test_hung_worker_is_killed_and_its_task_retried(tmp_path):
     assert len(errors) == 1 and "finished no item in" in errors[0] and "item 000002" in errors[0]
     with pytest.raises(UserError, match="item_timeout_s"):
         run_tasks(out, "frames", ids, "test_farm:FileProcessor", {"out": str(out)}, item_timeout_s=0)
+
+
+def test_workers_that_hang_while_starting_or_stopping_are_killed(tmp_path, monkeypatch):
+    """A constructor that never returns, a close() that never returns: neither holds the slot."""
+    import blendgen.farm.local as local
+
+    monkeypatch.setattr(local, "STOP_GRACE_S", 2.0)
+    out = tmp_path / "job"
+    t0 = time.monotonic()
+    s = run_tasks(out, "frames", items(3), "test_farm:FileProcessor", {"out": str(out), "hang_init_once": True},
+                  workers=1, chunk=1, item_timeout_s=3, progress=False)
+    assert s.ok and s.done == 3 and time.monotonic() - t0 < 60, s.text()
+    with sqlite3.connect(out / ".blendgen" / "ledger.sqlite") as db:
+        exits = [r[0] for r in db.execute("SELECT exit FROM workers WHERE exit IS NOT NULL")]
+    assert any("took over 3 s to start" in e for e in exits), exits
+    out2 = tmp_path / "job2"
+    t0 = time.monotonic()
+    s = run_tasks(out2, "frames", items(3), "test_farm:FileProcessor", {"out": str(out2), "hang_close": True},
+                  workers=1, chunk=1, recycle_after=1, progress=False)
+    assert s.ok and s.done == 3 and time.monotonic() - t0 < 60, s.text()  # not 3 x 120 s
+    assert_outputs_complete(out2, items(3))
 
 
 def test_hung_worker_that_survives_sigkill_is_left_behind(tmp_path, monkeypatch):

@@ -83,7 +83,7 @@ class _Worker:
     rss_mb: float = 0.0
     buf: bytes = b""
     eof: bool = False
-    since: float = 0.0         # monotonic time of its task's start or last finished item
+    since: float = 0.0         # monotonic time of its start, its task's start or last item, its stop
     hung: str | None = None    # why the supervisor killed it
     killed_at: float = 0.0
 
@@ -151,7 +151,7 @@ class LocalEngine:
         os.close(to_r)
         os.close(from_w)
         os.set_blocking(from_r, False)
-        w = _Worker(slot=slot, name=name, proc=proc, rfd=from_r, wfd=to_w, log=log)
+        w = _Worker(slot=slot, name=name, proc=proc, rfd=from_r, wfd=to_w, log=log, since=time.monotonic())
         self.workers[slot] = w
         self.sel.register(from_r, selectors.EVENT_READ, w)
         self.books.ledger.worker_started(self.books.run_id, name, os.uname().nodename,
@@ -212,9 +212,10 @@ class LocalEngine:
                 self._on_exit(w)
 
     def _kill_hung(self) -> None:
-        """Kill busy workers that finished no item for the limit; give up on one that SIGKILL
-        does not end within STOP_GRACE_S (stuck in the kernel, e.g. in a GPU driver): its task
-        goes back to the queue and the slot to a new worker."""
+        """Kill busy workers that finished no item for the limit, and workers that took longer
+        to start (the processor's constructor) or STOP_GRACE_S to stop (its close()); give up
+        on a busy one that SIGKILL does not end within STOP_GRACE_S (stuck in the kernel, e.g.
+        in a GPU driver): its task goes back to the queue and the slot to a new worker."""
         now = time.monotonic()
         if now - self.last_check > 60.0:  # this supervisor was stopped (Ctrl-Z): that time is no one's
             for w in self.workers.values():
@@ -222,6 +223,14 @@ class LocalEngine:
         self.last_check = now
         limit = self._item_limit_s()
         for w in list(self.workers.values()):
+            wait, verb = {"starting": (limit, "start"), "stopping": (STOP_GRACE_S, "stop")}.get(w.state, (None, ""))
+            if w.hung is None and wait is not None and now - w.since > wait:
+                w.hung = f"worker {w.name} took over {wait:.0f} s to {verb} and was killed; worker log: {w.log}"
+                if w.state == "starting":
+                    self.last_init_error = (w.hung, w.log)  # what no worker starting says
+                with contextlib.suppress(ProcessLookupError):
+                    w.proc.kill()
+                continue
             if w.state != "busy" or limit is None:
                 continue
             if w.hung is None and now - w.since > limit:
@@ -319,7 +328,7 @@ class LocalEngine:
                 self._stop(w, "retired: failed repeatedly")
 
     def _stop(self, w: _Worker, why: str) -> None:
-        w.state = "stopping"
+        w.state, w.since = "stopping", time.monotonic()
         self.books.ledger.worker_update(self.books.run_id, w.name, state="stopping", exit=why)
         self._send(w, {"op": "stop"})
 
@@ -338,7 +347,7 @@ class LocalEngine:
         how = describe_exit(rc)
         planned = w.state == "stopping" and rc == 0
         self.books.ledger.worker_update(self.books.run_id, w.name, state="exited",
-                                        exit=None if planned else how)
+                                        exit=None if planned else w.hung or how)
         if planned:
             return
         self.books.summary.worker_deaths += 1

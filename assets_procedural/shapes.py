@@ -11,6 +11,8 @@ housing, tape_red, tape_white (retroreflective tape), plate, plate_text (its cha
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 
 import numpy as np
@@ -850,12 +852,20 @@ def on_side_stand(mb: MeshBuilder, r: float) -> None:
 
 
 def part_box(cls: str, variant: dict, part: str = "all") -> tuple[np.ndarray, np.ndarray]:
-    """(min, max) corners of the unfitted geometry of a two-wheeler's `part` ("all",
-    "vehicle", "rider") in the builder's frame."""
+    """(min, max) corners of the unfitted geometry of a variant (a two-wheeler's `part`:
+    "all", "vehicle", "rider") in the builder's frame. Cached: the planner asks for a ridden
+    two-wheeler's parts in every frame of its track, and each is a whole build."""
+    lo, hi = _part_box(cls, json.dumps(variant, sort_keys=True), part)
+    return np.array(lo), np.array(hi)
+
+
+@functools.lru_cache(maxsize=4096)
+def _part_box(cls: str, variant_json: str, part: str) -> tuple[tuple, tuple]:
+    variant = json.loads(variant_json)
     mb = MeshBuilder(bounds_only=True)
     BUILDERS[cls](mb, {**variant, "part": part}, *variant["shape_dims"])
     v = mb.vertices
-    return v.min(0), v.max(0)
+    return tuple(v.min(0)), tuple(v.max(0))
 
 
 def natural_extent(mb: MeshBuilder) -> np.ndarray:

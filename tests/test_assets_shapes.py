@@ -1,5 +1,7 @@
 """Vehicle shapes without Blender (assets_procedural/shapes.py on a MeshBuilder)."""
 
+import json
+
 import cv2
 import numpy as np
 
@@ -255,3 +257,18 @@ def test_car_wheels_show_dark_gaps_between_alloy_spokes():
             assert np.count_nonzero(np.diff(np.r_[ring, ring[0]].astype(int)) == 1) == 5
         else:
             assert ring.mean() == 1.0
+
+
+def test_part_boxes_are_cached_and_not_shared():
+    """The planner asks for a ridden two-wheeler's part boxes in every frame of its track."""
+    from assets_procedural.shapes import _part_box, part_box
+
+    v, dims = sample_variant("motorcycle", np.random.default_rng(3))
+    lo, hi = part_box("motorcycle", v)
+    assert np.allclose(hi - lo, dims, atol=1e-4)  # the catalog's extent comes from the same box
+    hits = _part_box.cache_info().hits
+    lo[:] = 99.0  # the caller's copy
+    lo2, hi2 = part_box("motorcycle", v)
+    assert _part_box.cache_info().hits == hits + 1 and not np.allclose(lo2, 99.0)
+    fresh = _part_box.__wrapped__("motorcycle", json.dumps(v, sort_keys=True), "all")
+    assert np.array_equal(lo2, fresh[0]) and np.array_equal(hi2, fresh[1])

@@ -179,12 +179,10 @@ def sample_variant(cls: str, rng: np.random.Generator) -> tuple[dict, tuple[floa
 
 def shape_extent(cls: str, variant: dict) -> tuple[float, float, float]:
     """Tight box (L, W, H) of the geometry `assets_procedural.shapes` builds for a variant."""
-    from assets_procedural.meshkit import MeshBuilder
-    from assets_procedural.shapes import BUILDERS, natural_extent
+    from assets_procedural.shapes import part_box
 
-    mb = MeshBuilder(bounds_only=True)
-    BUILDERS[cls](mb, variant, *variant["shape_dims"])
-    return tuple(round(float(x), 4) for x in natural_extent(mb))
+    lo, hi = part_box(cls, variant)
+    return tuple(round(float(x), 4) for x in hi - lo)
 
 
 def _mid(ranges) -> tuple[float, float, float]:

@@ -27,10 +27,6 @@ def lock_held(path: Path) -> bool | None:
         return None
 
 
-def _supervisor_alive(out_dir: Path) -> bool | None:
-    return lock_held(Path(out_dir) / LEDGER_DIR / "supervisor.lock")
-
-
 def fmt_duration(s: float) -> str:
     s = max(0, int(round(s)))
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
@@ -45,7 +41,7 @@ def status_report(out_dir: Path) -> str:
         runs = conn.execute("SELECT * FROM runs WHERE run_id IN "
                             "(SELECT max(run_id) FROM runs GROUP BY stage) ORDER BY run_id"
                             ).fetchall()
-        alive = _supervisor_alive(out_dir)
+        alive = lock_held(out_dir / LEDGER_DIR / "supervisor.lock")
         lines = [f"{out_dir}: {len(runs)} stage(s) in the ledger"]
         now = time.time()
         for run in runs:

@@ -118,16 +118,10 @@ class JobFolder:
     def progress(self, stage: str, total: int) -> "StageProgress":
         return StageProgress(self.state / "progress.json", stage, total)
 
-    def running(self) -> bool | None:
-        """Whether a blendgen holds this folder's job lock (None: it cannot tell)."""
-        from blendgen.farm.status import lock_held
-
-        return lock_held(self.state / "job.lock")
-
     def progress_line(self) -> str | None:
         """`blendgen status`'s line for an in-process stage that is running or was cut short,
         or None (its file exists only from the stage's start to its end, in one run)."""
-        from blendgen.farm.status import fmt_duration
+        from blendgen.farm.status import fmt_duration, lock_held
 
         try:
             p = json.loads((self.state / "progress.json").read_text())
@@ -136,7 +130,7 @@ class JobFolder:
         except (OSError, ValueError, KeyError, TypeError):  # none, or not ours
             return None
         head = f"[{p['stage']}{': ' + phase if phase else ''}] {done}/{total} frames"
-        if not self.running():
+        if not lock_held(self.state / "job.lock"):  # its process is gone
             return f"{head}, stopped (pid {p['pid']} on {p['host']} is gone); run again to resume"
         eta = f", ETA {fmt_duration((total - done) / rate)}" if rate > 0 and done < total else ""
         return (f"{head}, running (pid {p['pid']} on {p['host']}), {rate:.2f} frames/s, last update "

@@ -304,7 +304,7 @@ class Planner:
         motion drifts across the road, smoothed over LANE_SMOOTH_S (each frame's lines are a
         few cm apart from the next's); a frame without lines takes its neighbours', a track
         without any the nearest frame's with lines (video only: stills do not share a world)."""
-        if self.real is None or len(s) == 0:
+        if self.real is None:
             return 0.0
         rows = [self._real_lanes(k0 + i, rg, index, direction, float(si)) for i, si in enumerate(s)]
         ref = next((r for r in rows if r is not None), None)

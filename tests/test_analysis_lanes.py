@@ -151,9 +151,7 @@ def test_a_video_track_follows_its_lane_through_frames_without_lines():
 
 def test_lane_shifts_over_a_long_video_stay_finite_smooth_and_cheap():
     """A track as long as a 10-minute video at 25 fps, lines in 70 % of its frames with 5 cm of
-    noise: the shifts are finite, smoothed, and cost no n x n matrix (that took 1.8 GB)."""
-    import time
-
+    noise: the shifts are finite and smoothed (the cost of the smoothing is in benchmarks/bench_lanes.py)."""
     from blendgen.scene.planner import Planner
 
     rng = np.random.default_rng(0)
@@ -161,9 +159,7 @@ def test_lane_shifts_over_a_long_video_stay_finite_smooth_and_cheap():
     vals = np.where(rng.random(n) < 0.7, rng.normal(0.3, 0.05, n), np.nan)
     stub = type("Stub", (), {"real": object(), "inject": Inject(sequences=True), "_real_lanes": lambda self, k, *a:
                              None if np.isnan(vals[k]) else (0, 0.0, {0: float(vals[k])}, 3.5)})()
-    t0 = time.process_time()
     out = Planner._real_lane_shifts(stub, 0, None, 0, 1, np.zeros(n), np.arange(n) / 25.0)
-    assert time.process_time() - t0 < 5.0
     assert np.isfinite(out).all() and abs(out.mean() - 0.3) < 0.01 and out.std() < 0.015
 
 

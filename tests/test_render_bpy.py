@@ -1,7 +1,6 @@
 """Render driver with Blender: small Cycles renders (160x90 .. 320x180, few samples)."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -169,16 +168,12 @@ def test_frame_without_visible_objects_costs_almost_nothing(tmp_path):
     s = session(cam, samples=8)
     try:
         behind = PlacedObject(1, "car", (-12.0, 0.0, 0.0), 0.0, (4.4, 1.8, 1.5))
-        t0 = time.perf_counter()
         made = []  # nor is the environment map made (render_frame takes a function for it)
         info = s.render_frame(FramePlan("f4", 0.0, T.tolist(), [behind], SUN), tmp_path / "e.exr",
                               {"rgba", "index", "shadow_catcher"}, environment=lambda: made.append(1))
         assert not made
-        dt = time.perf_counter() - t0
-        # Blender is not called (no "render" timing); writing the empty EXR takes milliseconds
-        # (the bound leaves room for the shared machine's load).
+        # Blender is not called (no "render" timing): only the empty EXR is written
         assert info["skipped"] and "render" not in info["timings"] and info["amodal_px"] == {}
-        assert dt < 0.5, dt
         p = read_passes(tmp_path / "e.exr")
         assert p["rgba"].max() == 0 and p["index"].max() == 0 and p["shadow_catcher"].min() == 1
         assert p["index"].shape == (180, 320)

@@ -95,3 +95,87 @@ def import_rig(rig: Rig, *, calibrated: bool = True, root: Path | None = None) -
         calib.write_text(yaml.safe_dump({"camera": rig.camera}))
     import_images(src, dst, calib=calib, force=True, show_progress=False)
     return dst
+
+
+# ----------------------------------------------------------------------------- the zoo benchmark
+
+GRID = {"size_scale": (1.0, 1.05, 1.1, 1.15, 1.2), "vp_sys_deg": (0.3, 0.5, 1.0, 2.0), "frame_dev_deg": (0.25, 0.5, 1.0)}
+CROSS_GRID = (5, 4, 6, 3)   # ties go to the first (the deployed value)
+
+
+def per_frame(rig: Rig, rec, detector, cross_px: int | None = None) -> dict:
+    """The analysis' per-frame part on every frame of the rig, as the stage runs it: hood
+    candidates (and their consensus), the detector's road users, the camera cues; with CPU s."""
+    import time
+
+    from blendgen.analysis import hood as hood_mod
+    from blendgen.analysis import objects
+    from blendgen.analysis.camera import frame_cues, read_frames
+    from blendgen.analysis.stage import hood_mask, not_ego
+
+    ids = [rec.frame_id(i) for i in range(rec.n_frames)]
+    old = hood_mod.CROSS_PX
+    if cross_px is not None:
+        hood_mod.CROSS_PX = cross_px
+    try:
+        t0 = time.process_time()
+        hoods = hood_mod.find_hood(rec, ids)
+        t_hood = time.process_time() - t0
+    finally:
+        hood_mod.CROSS_PX = old
+    cues, cpu = {}, {}
+    for fid, im in read_frames(rec, ids):
+        t0 = time.process_time()
+        users = not_ego(objects.road_users(im, detector), hood_mask(hoods[fid], im.shape[1], im.shape[0]),
+                        im.shape[1], im.shape[0])[0]
+        cues[fid] = frame_cues(im, rec.camera, hood=hoods[fid], users=[(o.cls, o.box) for o in users])
+        cpu[fid] = time.process_time() - t0 + t_hood / len(ids)
+    return {"ids": ids, "hoods": hoods, "cues": cues, "cpu": cpu}
+
+
+def hood_only(rig: Rig, rec, cross_px: int) -> dict:
+    from blendgen.analysis import hood as hood_mod
+
+    old = hood_mod.CROSS_PX
+    hood_mod.CROSS_PX = cross_px
+    try:
+        return hood_mod.find_hood(rec, [rec.frame_id(i) for i in range(rec.n_frames)])
+    finally:
+        hood_mod.CROSS_PX = old
+
+
+def camera_metrics(rig: Rig, m) -> dict:
+    """Errors of a mount against the rig's reference: height (relative), pitch and roll per
+    frame against the calibration, or against the rig's own median where it is approximate."""
+    import numpy as np
+
+    p = np.array(list(m.frame_pitch.values()))
+    r = np.array(list(m.frame_roll.values()))
+    out = {"height_m": m.height_m, "height_std": m.height_std_log, "pitch_med": float(np.median(p)),
+           "roll_med": float(np.median(r)), "cues": dict(m.cues)}
+    out["height_err"] = (m.height_m / rig.height_m - 1) if rig.height_m else None
+    for name, v, ref, exact in (("pitch", p, rig.pitch_deg, rig.pitch_exact), ("roll", r, rig.roll_deg, rig.roll_exact)):
+        base = ref if (exact and ref is not None) else float(np.median(v))
+        e = np.abs(v - base)
+        out[f"{name}_ref"] = "calibration" if (exact and ref is not None) else "rig median"
+        out[f"{name}_p90"] = float(np.percentile(e, 90))
+        out[f"{name}_med_err"] = float(np.median(e))
+        out[f"{name}_spread"] = float(np.percentile(np.abs(v - np.median(v)), 90))
+    return out
+
+
+def objective(met: dict) -> float:
+    """What a constant is tuned to (lower is better): each Done-when limit as one unit."""
+    j = (met["pitch_p90"] / 1.0) ** 2 + (met["roll_p90"] / 1.0) ** 2
+    if met["height_err"] is not None:
+        j += (abs(met["height_err"]) / 0.05) ** 2
+    return j
+
+
+def leave_one_rig_out(scores: dict[str, dict], keys: list) -> dict[str, object]:
+    """For each rig: the key minimising the summed score of the other rigs."""
+    out = {}
+    for held in scores:
+        others = [r for r in scores if r != held]
+        out[held] = min(keys, key=lambda k: sum(scores[r][k] for r in others)) if others else keys[0]
+    return out

@@ -60,6 +60,7 @@ MIN_BOX_PX = 14          # smaller boxes are mostly detector slack
 REAR_VIEW_ASPECT = 1.45  # w/h of a car box seen from behind or ahead (side views: ~2.5-3)
 REAR_VIEW_BEARING = 0.3  # tan of the bearing: cars near the optical axis run along the road
 # fusion constants (tuned leave-one-rig-out on the camera zoo: benchmarks/bench_camera.py --zoo)
+SIZE_SCALE = 1.0         # the cue models' sizes (cars, people, lanes) as the detector and the paint finder see them
 VP_SYS_DEG = 0.5         # floor on a vanishing point's pitch/roll error against the road users' plane
 FRAME_DEV_DEG = 0.5      # how far a still's pitch or roll may wander from the mount (prior sigma)
 
@@ -197,13 +198,16 @@ class _Cues:
 
 
 def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: bool = False,
-                   fixed: dict[str, float | None] | None = None, vp_sys_deg: float = VP_SYS_DEG,
-                   frame_dev_deg: float = FRAME_DEV_DEG) -> Mount:
+                   fixed: dict[str, float | None] | None = None, vp_sys_deg: float | None = None,
+                   frame_dev_deg: float | None = None, size_scale: float | None = None) -> Mount:
     """The camera's height, pitch and roll from all frames' cues (module doc). `fixed`: the
     user's values (camera_height_m, pitch_deg, roll_deg; None or absent: estimate). Video
     (`sequence`): each frame's `pitch` and `roll` are taken as given (smoothed by the caller;
     a frame without one must have been filled) and only the height is fitted."""
     fixed = {k: v for k, v in (fixed or {}).items() if v is not None}
+    vp_sys_deg = VP_SYS_DEG if vp_sys_deg is None else vp_sys_deg
+    frame_dev_deg = FRAME_DEV_DEG if frame_dev_deg is None else frame_dev_deg
+    log_scale = math.log(SIZE_SCALE if size_scale is None else size_scale)
     ids = list(frames)
     fc = [frames[f] for f in ids]
     n = len(ids)
@@ -256,6 +260,7 @@ def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: boo
         x0[i] = {"p": p0, "r": r0, "h": h0}[nm]
     pa, ra, _ = angles(x0)
     lh_cue, valid = cues.log_heights(_axes(pa, ra))
+    lh_cue = lh_cue + log_scale
     if free_h and valid.any():  # start from the cues' median, not the prior
         x0[names.index("h")] = float(np.median(lh_cue[valid]))
     sig = cues.sigma[valid]
@@ -274,7 +279,7 @@ def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: boo
             out.append(np.array([(lh - math.log(HEIGHT_PRIOR_M)) / HEIGHT_PRIOR_LOG]))
         if valid.any():
             lc, _ = cues.log_heights(_axes(pf, rf))
-            out.append((lh - lc[valid]) / sig)
+            out.append((lh - lc[valid] - log_scale) / sig)
         return np.concatenate(out) if out else np.zeros(1)
 
     # rows of the priors in the residual vector (the rest are measurements)

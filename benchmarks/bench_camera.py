@@ -363,7 +363,7 @@ def zoo(args) -> None:
           "floor `VP_SYS_DEG` and a still's deviation from the mount `FRAME_DEV_DEG` of `analysis/mount.py`; the hood's "
           "crossing-line margin `hood.CROSS_PX`) are chosen for each rig on the other rigs only (grid "
           + ", ".join(f"{k} {list(v)}" for k, v in GRID.items()) + f", CROSS_PX {list(CROSS_GRID)}; objective: "
-          "(height error / 5 %)^2 + (pitch p90 / 1 deg)^2 + (roll p90 / 1 deg)^2 summed over the other rigs), then "
+          "|height error| / 5 % + pitch p90 / 1 deg + roll p90 / 1 deg summed over the other rigs), then "
           "reported on the held-out rig. Pitch and roll errors are per frame, against the calibration or, where it is "
           "approximate or missing, against the rig's own median (the spread of one rigid mount).", "",
           "| rig | frames | mount | height (m, +-1 sigma of the fit) | reference (m) | height error | pitch err p90 (deg) "

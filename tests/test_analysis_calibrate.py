@@ -14,8 +14,8 @@ from test_analysis_lane_direction import road_frame
 
 
 def test_calibrate_stills_writes_the_estimate(tmp_path, capsys):
-    rec = write_images_recording(tmp_path / "rec", [line_scene(3, -2), line_scene(2, -1, seed=1)])
-    assert main(["calibrate", str(rec.root), "--quiet"]) == 0
+    rec = write_images_recording(tmp_path / "rec", [line_scene(3, -2), line_scene(3, -2, seed=1)])
+    assert main(["calibrate", str(rec.root), "--quiet", "--lane-width", "3.3"]) == 0
     out = capsys.readouterr().out
     assert "2 frames (stills)" in out and "ground_plane.yaml" in out
     doc = yaml.safe_load((rec.root / "ground_plane.yaml").read_text())

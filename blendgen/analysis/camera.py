@@ -682,6 +682,8 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, users=None, p
         users.setdefault(f, [("car", b) for b in boxes])
     fixed = {k: _user_value(user, k) for k in ("camera_height_m", "pitch_deg", "roll_deg")}
     lane_w = _user_value(user, "lane_width_m") or DEFAULT_LANE_WIDTH_M
+    # a lane width the user gave is this road's: the height scales with it, not with the prior
+    lane_known = lane_w if "lane_width_m" in (getattr(user, "model_fields_set", None) or ()) else None
     fit_focal = focal_was_guessed(rec)
     frame_ids = list(frame_ids)
     seq = is_sequence(rec)
@@ -720,7 +722,7 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, users=None, p
             hood = next((h for h in hoods.values() if h is not None), None)  # the hood does not move
             cues.update(_cues_elsewhere(rec, frame_ids, hood, cfg, fit_focal, fixed["roll_deg"] or 0.0, lane_w,
                                         progress))
-    mount = estimate_mount(cues, cam.K, sequence=seq or imu, fixed=fixed)
+    mount = estimate_mount(cues, cam.K, sequence=seq or imu, fixed=fixed, lane_width_m=lane_known)
     out = {}
     for fid in frame_ids:
         fc, a = per[fid], angles[fid]

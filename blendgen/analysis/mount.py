@@ -52,7 +52,7 @@ MIRROR_AHEAD_M = 2.0     # ... which stand this far ahead of the rear face: beyo
 CAR_OVERHANG_M = 0.9     # rear face to rear wheels' ground contact: the box's bottom row is there
 CAR_HEIGHT_M = 1.65      # sedans 1.45, SUVs, pickups and vans (most of the US fleet) 1.7-1.9
 PERSON_HEIGHT_M = 1.70
-SIGMA_LOG = {"car_width": 0.08, "car_height": 0.13, "person": 0.08, "lane": 0.10}
+SIGMA_LOG = {"car_width": 0.08, "car_height": 0.13, "person": 0.08, "lane": 0.10, "lane_known": 0.04}
 LANE_WIDTH_M = 3.4       # US 10-12 ft, European 2.75-3.75 m: centre of the range
 HEIGHT_PRIOR_M, HEIGHT_PRIOR_LOG = 1.5, 0.25    # dashcams 1.1-1.4 m, roof rigs 1.5-1.9 m (1.5: the job default)
 MIN_DEPRESSION = 0.008   # tan: a contact point less than ~0.5 deg below the horizon says little
@@ -60,9 +60,9 @@ MIN_BOX_PX = 14          # smaller boxes are mostly detector slack
 REAR_VIEW_ASPECT = 1.45  # w/h of a car box seen from behind or ahead (side views: ~2.5-3)
 REAR_VIEW_BEARING = 0.3  # tan of the bearing: cars near the optical axis run along the road
 # fusion constants (tuned leave-one-rig-out on the camera zoo: benchmarks/bench_camera.py --zoo)
-SIZE_SCALE = 1.0         # the cue models' sizes (cars, people, lanes) as the detector and the paint finder see them
-VP_SYS_DEG = 0.5         # floor on a vanishing point's pitch/roll error against the road users' plane
-FRAME_DEV_DEG = 0.5      # how far a still's pitch or roll may wander from the mount (prior sigma)
+SIZE_SCALE = 1.0         # the car and prior-lane sizes as the detector and the paint finder see them (grid 1.0-1.2)
+VP_SYS_DEG = 2.0         # floor on a vanishing point's pitch/roll error against the road users' plane (0.3-2)
+FRAME_DEV_DEG = 0.25     # how far a still's pitch or roll may wander from the mount, prior sigma (0.25-1)
 
 
 @dataclass
@@ -199,11 +199,15 @@ class _Cues:
 
 def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: bool = False,
                    fixed: dict[str, float | None] | None = None, vp_sys_deg: float | None = None,
-                   frame_dev_deg: float | None = None, size_scale: float | None = None) -> Mount:
+                   frame_dev_deg: float | None = None, size_scale: float | None = None,
+                   lane_width_m: float | None = None) -> Mount:
     """The camera's height, pitch and roll from all frames' cues (module doc). `fixed`: the
     user's values (camera_height_m, pitch_deg, roll_deg; None or absent: estimate). Video
     (`sequence`): each frame's `pitch` and `roll` are taken as given (smoothed by the caller;
-    a frame without one must have been filled) and only the height is fitted."""
+    a frame without one must have been filled) and only the height is fitted. `lane_width_m`:
+    the road's lane width when the user knows it (the lanes then scale the height exactly,
+    SIGMA_LOG["lane_known"]); otherwise the prior LANE_WIDTH_M. `size_scale` (default
+    SIZE_SCALE) multiplies the sizes of the cars and the prior lane, not people's."""
     fixed = {k: v for k, v in (fixed or {}).items() if v is not None}
     vp_sys_deg = VP_SYS_DEG if vp_sys_deg is None else vp_sys_deg
     frame_dev_deg = FRAME_DEV_DEG if frame_dev_deg is None else frame_dev_deg
@@ -259,11 +263,19 @@ def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: boo
     for i, nm in enumerate(names):
         x0[i] = {"p": p0, "r": r0, "h": h0}[nm]
     pa, ra, _ = angles(x0)
+    # the cue models' sizes: cars and the prior lane scaled (SIZE_SCALE), people not, a lane
+    # width the user gave exactly
+    lane = cues.kind == "lane"
+    shift = np.where(cues.kind == "person", 0.0, log_scale)
+    if lane_width_m is not None:
+        shift = np.where(lane, math.log(lane_width_m / LANE_WIDTH_M), shift)
+        cues.sigma = np.where(lane, SIGMA_LOG["lane_known"], cues.sigma)
     lh_cue, valid = cues.log_heights(_axes(pa, ra))
-    lh_cue = lh_cue + log_scale
+    lh_cue = lh_cue + shift
     if free_h and valid.any():  # start from the cues' median, not the prior
         x0[names.index("h")] = float(np.median(lh_cue[valid]))
     sig = cues.sigma[valid]
+    shift = shift[valid]
     cue_frame = cues.frame[valid]
 
     def residuals(x):
@@ -279,7 +291,7 @@ def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: boo
             out.append(np.array([(lh - math.log(HEIGHT_PRIOR_M)) / HEIGHT_PRIOR_LOG]))
         if valid.any():
             lc, _ = cues.log_heights(_axes(pf, rf))
-            out.append((lh - lc[valid] - log_scale) / sig)
+            out.append((lh - lc[valid] - shift) / sig)
         return np.concatenate(out) if out else np.zeros(1)
 
     # rows of the priors in the residual vector (the rest are measurements)
@@ -340,7 +352,7 @@ def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: boo
             std_p[f] = 0.0 if not free_p else math.sqrt(max(var_sum(ip, len(names) + i), 0.0))
             std_r[f] = 0.0 if not free_r else math.sqrt(max(var_sum(ir, len(names) + ndev_p + i), 0.0))
     h_std = math.sqrt(max(float(cov[names.index("h"), names.index("h")]), 0.0)) if free_h else 0.0
-    used = {k: int(np.count_nonzero(valid & (cues.kind == k))) for k in SIGMA_LOG}
+    used = {k: int(np.count_nonzero(valid & (cues.kind == k))) for k in ("car_width", "car_height", "person", "lane")}
     used["vanishing_points"] = int(has_p.sum())
     if free_h and not valid.any():
         reasons.append(f"height: no lane lines, cars or people to scale with in {n} frame(s): the prior "

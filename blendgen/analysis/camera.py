@@ -39,7 +39,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from blendgen.analysis.model import CameraEstimate
-from blendgen.analysis.mount import FrameCues
+from blendgen.analysis.mount import FrameCues, focal_consensus
 from blendgen.geometry import Camera, R_world_cam_from_ypr
 
 log = logging.getLogger(__name__)
@@ -84,6 +84,8 @@ class FrameCamera:
     roll_std: float = float("inf")
     confidence: float = 0.0
     support: dict[str, int] = field(default_factory=dict)   # axis -> inlier segments
+    fx_fit: float | None = None           # the focal length this frame's lines fit (any precision) ...
+    fx_log_std: float = float("inf")      # ... and its standard deviation (of log fx)
     height_lanes: float | None = None     # height from the lane-width prior, m
     height_cars: float | None = None      # from real cars' widths, m
     reasons: list[str] = field(default_factory=list)
@@ -307,6 +309,8 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
         return p, r, y, f, labels, sd
 
     p, r, y, f, labels, sd = fit(*best[1], labels, fit_focal)
+    if fit_focal and 0.5 < f < 2.0 and math.isfinite(sd[-1]):
+        out.fx_fit, out.fx_log_std = float(camera.fx * f), float(sd[-1])   # for the recording's joint focal length
     if fit_focal and not (0.5 < f < 2.0 and sd[-1] < 0.03):
         # the focal length is not known to 3 %: keep the calibration's, and angles that agree with it
         fit_focal = False
@@ -590,7 +594,8 @@ def frame_cues(bgr: np.ndarray, camera: Camera, *, t: float = 0.0, hood=None, us
                 objs.append((cls, pts))
     ok = fc.pitch is not None and math.isfinite(fc.pitch_std)
     return FrameCues(t=t, pitch=fc.pitch if ok else None, roll=fc.roll, pitch_std=fc.pitch_std if ok else float("inf"),
-                     roll_std=fc.roll_std if ok else float("inf"), yaw=fc.yaw, fx=fc.fx, confidence=fc.confidence,
+                     roll_std=fc.roll_std if ok else float("inf"), yaw=fc.yaw, fx=fc.fx, fx_fit=fc.fx_fit,
+                     fx_log_std=fc.fx_log_std, confidence=fc.confidence,
                      reasons=list(fc.reasons), objects=objs,
                      lane=_lane_cue(bgr, camera, fc, hood, [b for _, b in users], lane_width_m) if ok else None)
 
@@ -696,8 +701,9 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, users=None, p
                     frame_cues(im, camera, t=t_of[fid], hood=hoods.get(fid), users=users.get(fid), cfg=cfg,
                                lane_width_m=lane_w, roll_prior_deg=fixed["roll_deg"] or 0.0, fit_focal=fit_focal))
     # the recording's focal length
-    fxs = [f.fx for f in per.values() if f.fx is not None and f.confidence > 0.3]
-    fx = float(np.median(fxs)) if fxs else None
+    fx, why_fx = focal_consensus(per) if fit_focal else (None, "")
+    if fit_focal:
+        log.info("focal length: %s", why_fx)
     cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
                                            camera.cx, camera.cy, list(camera.dist))
     angles = _smooth(per, frame_ids, t_of, seq, rec, fixed)

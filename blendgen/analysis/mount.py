@@ -77,7 +77,9 @@ class FrameCues:
     pitch_std: float = float("inf")
     roll_std: float = float("inf")      # inf: roll came from the prior
     yaw: float | None = None
-    fx: float | None = None
+    fx: float | None = None             # the focal length when this frame alone pins it (< 3 %)
+    fx_fit: float | None = None         # the focal length its lines fit at any precision ...
+    fx_log_std: float = float("inf")    # ... and the standard deviation of log fx
     confidence: float = 0.0
     reasons: list[str] = field(default_factory=list)
     # road users standing on the road: (cls, [[u, v_bottom] centre, left, right], [u, v_top]) each
@@ -125,6 +127,32 @@ def hood_consensus(polys: dict[str, list | None], width: int, height: int, *, ag
     poly = [[float(a), float(min(b, height - 1))] for a, b in zip(u, edge)]
     return poly + [[width - 1.0, height - 1.0], [0.0, height - 1.0]], \
         f"the same hood edge in {int(inl.sum())} of {n} frames (median of those)"
+
+
+# ----------------------------------------------------------------------------- focal length
+
+FX_FRAME_MAX_LOG_STD = 0.2   # a frame's focal length fit counts when known to 20 % ...
+FX_MIN_FRAMES = 5            # ... in at least this many frames ...
+FX_MAX_LOG_STD = 0.03        # ... whose median is known to 3 % (MAD / sqrt(n))
+
+
+def focal_consensus(frames: dict[str, FrameCues]) -> tuple[float | None, str]:
+    """One camera's focal length from many stills' vanishing points when the import guessed
+    the field of view: a frame whose road and vertical vanishing points both lie in reach pins
+    it (kept when known to 3 %); otherwise the median over frames each known to 20 %, when
+    enough of them agree. A nearly level camera's vertical vanishing point is far away: one
+    frame rarely pins f, many frames can."""
+    own = [c.fx for c in frames.values() if c.fx is not None and c.confidence > 0.3]
+    if own:
+        return float(np.median(own)), f"from {len(own)} frame(s) that pin it (< 3 %)"
+    lf = np.log([c.fx_fit for c in frames.values() if c.fx_fit and c.fx_log_std < FX_FRAME_MAX_LOG_STD])
+    if len(lf) < FX_MIN_FRAMES:
+        return None, f"{len(lf)} frame(s) fit the focal length to 20 % (need {FX_MIN_FRAMES}): the import's value kept"
+    med = float(np.median(lf))
+    sd = 1.4826 * float(np.median(np.abs(lf - med))) / math.sqrt(len(lf))
+    if sd > FX_MAX_LOG_STD:
+        return None, f"{len(lf)} frames disagree on the focal length (+-{sd:.0%}): the import's value kept"
+    return float(math.exp(med)), f"median of {len(lf)} frames (+-{sd:.1%})"
 
 
 # ----------------------------------------------------------------------------- mount

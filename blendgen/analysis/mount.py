@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
+from scipy.spatial.transform import Rotation
 
 from blendgen.geometry import R_world_cam_from_ypr
 
@@ -157,9 +158,15 @@ def focal_consensus(frames: dict[str, FrameCues]) -> tuple[float | None, str]:
 
 # ----------------------------------------------------------------------------- mount
 
+_R_BODY_CAM = R_world_cam_from_ypr(0.0, 0.0, 0.0)
+
+
 def _axes(pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rows F, L, U of the road frame in camera coordinates (yaw 0)."""
-    return np.stack([R_world_cam_from_ypr(0.0, math.radians(p), math.radians(r)) for p, r in zip(pitch_deg, roll_deg)])
+    """(n, 3, 3) rows F, L, U of the road frame in camera coordinates (yaw 0): the matrices of
+    `geometry.R_world_cam_from_ypr`, all frames at once."""
+    p, r = np.radians(np.atleast_1d(pitch_deg)), np.radians(np.atleast_1d(roll_deg))
+    R = Rotation.from_euler("ZYX", np.column_stack([np.zeros_like(p), -p, r])).as_matrix()
+    return R @ _R_BODY_CAM
 
 
 class _Cues:

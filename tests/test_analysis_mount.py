@@ -24,13 +24,17 @@ def test_hood_consensus_takes_the_majority_and_drops_a_minority():
     polys = {f"f{i}": hood_edge(610 + (i % 3)) for i in range(7)}
     polys["f7"] = hood_edge(480)          # a shadow edge on the road in one frame
     polys["f8"] = None                    # glare: no edge found
-    poly, why = hood_consensus(polys, 1280, 720)
-    assert poly is not None and "7 of 9" in why
-    assert abs(np.interp(640, *np.asarray(poly[:-2]).T) - 611) < 3
+    out, why = hood_consensus(polys, 1280, 720)
+    assert "7 of 9" in why and all(p == out["f0"] for p in out.values())   # f7 and f8 too
+    assert abs(np.interp(640, *np.asarray(out["f0"][:-2]).T) - 611) < 3
     # a roof camera: edges of the road in 3 of 9 frames, each somewhere else
     polys = {f"f{i}": (hood_edge(450 + 40 * i) if i < 3 else None) for i in range(9)}
-    poly, why = hood_consensus(polys, 1280, 720)
-    assert poly is None and "3 of 9" in why
+    out, why = hood_consensus(polys, 1280, 720)
+    assert all(p is None for p in out.values()) and "3 of 9" in why
+    # stills of three cars imported together (the BDD photos): each keeps its own
+    polys = {f"f{i}": hood_edge(t) for i, t in enumerate((578, 605, 640))}
+    out, why = hood_consensus(polys, 1280, 720)
+    assert out == polys and "its own" in why
 
 
 def person_cue(T, xy, cam=CAM):

@@ -13,8 +13,8 @@ objects behind it are hidden by it.
   recording (the moving road blurs away, the hood edge stays sharp) and the region below
   the edge must be static (temporal standard deviation < 6 grey levels on 80 % of it).
   One polygon for all frames.
-- Stills of one camera (>= 3): each frame's edge below, then one hood for all of them where most
-  frames found it at one place (`mount.hood_consensus`), none otherwise.
+- Stills of one camera (>= 3): each frame's edge below, then `mount.hood_consensus`: where most
+  frames found it at one place, that hood in every frame; found in a minority, none.
 - Still: a smooth curve across the whole width in the bottom band (dynamic programming
   over 4-pixel column bins on the vertical gradient, at most one row per bin: slopes up to
   14 deg), accepted when it is a strong edge along most of its length, close to a
@@ -221,7 +221,6 @@ def find_hood(rec, frame_ids, *, progress: bool = False) -> dict[str, list[list[
     if len(out) >= CONSENSUS_MIN_FRAMES:  # stills of one camera: one hood, in most frames or none
         from blendgen.analysis.mount import hood_consensus
 
-        poly, why = hood_consensus(out, rec.camera.width, rec.camera.height)
+        out, why = hood_consensus(out, rec.camera.width, rec.camera.height)
         log.info("hood: %s", why)
-        out = {f: poly for f in out}
     return out

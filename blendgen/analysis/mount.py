@@ -107,27 +107,29 @@ class Mount:
 # ----------------------------------------------------------------------------- hood
 
 def hood_consensus(polys: dict[str, list | None], width: int, height: int, *, agree: float = 0.02,
-                   share: float = 0.5) -> tuple[list[list[float]] | None, str]:
-    """One hood for stills of one camera: the per-column median of the frames' hood edges that
-    agree (median |row difference| <= agree x height), when at least `share` of all frames
-    (and 2) agree; otherwise none. A road feature taken for a hood (a shadow, a kerb) sits
-    elsewhere in every frame; the hood does not move."""
+                   share: float = 0.5) -> tuple[dict[str, list | None], str]:
+    """One hood for stills of one camera. The frames whose hood edges agree with the
+    per-column median (median |row difference| <= agree x height) make it, their median, when
+    they are at least `share` of all frames (and 2): every frame gets it. Found in no more than
+    `share` of the frames, it was the road (a shadow, a kerb sits elsewhere in every frame; a
+    hood does not move): none anywhere. Found in most frames but at different places (stills
+    of several cars imported together): each frame keeps its own."""
     n = len(polys)
     found = {f: p for f, p in polys.items() if p is not None}
-    if not found:
-        return None, f"no hood edge in any of {n} frames"
+    if len(found) < 2 or len(found) <= share * n:
+        return {f: None for f in polys}, (f"a hood edge in {len(found)} of {n} frames: a camera's hood is in most of "
+                                           "its frames, so this was the road")
     u = np.linspace(0, width - 1, 65)
     edges = np.array([np.interp(u, np.asarray(p[:-2])[:, 0], np.asarray(p[:-2])[:, 1]) for p in found.values()])
     med = np.median(edges, axis=0)
-    dev = np.median(np.abs(edges - med), axis=1)
-    inl = dev <= agree * height
+    inl = np.median(np.abs(edges - med), axis=1) <= agree * height
     if inl.sum() < max(2, math.ceil(share * n)):
-        return None, (f"a hood edge in {len(found)} of {n} frames, {int(inl.sum())} of them at one place: "
-                      f"a camera's hood is in most of its frames, so this was the road")
+        return dict(polys), (f"a hood edge in {len(found)} of {n} frames at {int(inl.sum())} or fewer agreeing "
+                             "places: each frame keeps its own (stills of several cars?)")
     edge = np.median(edges[inl], axis=0)
     poly = [[float(a), float(min(b, height - 1))] for a, b in zip(u, edge)]
-    return poly + [[width - 1.0, height - 1.0], [0.0, height - 1.0]], \
-        f"the same hood edge in {int(inl.sum())} of {n} frames (median of those)"
+    poly += [[width - 1.0, height - 1.0], [0.0, height - 1.0]]
+    return {f: poly for f in polys}, f"the same hood edge in {int(inl.sum())} of {n} frames (median of those)"
 
 
 # ----------------------------------------------------------------------------- focal length

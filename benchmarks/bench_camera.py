@@ -350,6 +350,17 @@ def zoo(args) -> None:
         abl.append(f"| {r.name} | {pct(base_h)} | {'-' if base_p is None else f'{base_p:.2f}'} | "
                    f"{f['pitch_p90']:.2f} / {f['roll_p90']:.2f} | {m['pitch_p90']:.2f} / {m['roll_p90']:.2f} | "
                    f"{pct(f['height_err'])} | {pct(m['height_err'])} |")
+    checks = []
+    for r in rigs:
+        if r.n < 3:
+            continue
+        m = met[r.name][loro[r.name]]
+        hc = hood_counts(r, hood_runs[r.name][hood_loro[r.name]])
+        ok = lambda c: "yes" if c else "NO"  # noqa: E731
+        h_txt = "height n/a" if m["height_err"] is None else f"height <= 5 %: {ok(abs(m['height_err']) <= 0.05)}"
+        hood_ok = (hc[2] == 0) if hc[1] == 0 else (hc[0] >= 0.9 * hc[1] and hc[2] == 0)
+        checks.append(f"{r.name}: {h_txt}, pitch p90 <= 1 deg: {ok(m['pitch_p90'] <= 1)}, roll p90 <= 1 deg: "
+                      f"{ok(m['roll_p90'] <= 1)}, hood: {ok(hood_ok)}")
     cues_txt = "; ".join(f"{r.name}: " + ", ".join(f"{k} {v}" for k, v in met[r.name][loro[r.name]]["cues"].items() if v)
                          for r in rigs)
     px_720 = {r.name: r.camera["resolution"][0] * r.camera["resolution"][1] / (1280 * 720) for r in rigs}
@@ -375,6 +386,7 @@ def zoo(args) -> None:
           "(height 1.5 m, pitch 0, roll 0), and each still with its own angles (no shared mount: FRAME_DEV_DEG 30).", "",
           "| rig | height error at 1.5 m | pitch error at 0 deg | per-frame angles: pitch / roll p90 | mount: pitch / roll p90 "
           "| per-frame angles: height error | mount: height error |", "|---|---|---|---|---|---|---|"] + abl + [
+          "", "Done-when check (rigs with >= 3 frames, held out): " + "; ".join(checks) + ".",
           "", f"Cues that took part (held-out constants): {cues_txt}.", "",
           "Deployed constants (tuned on all rigs): " + ", ".join(f"{k} {v:g}" for k, v in zip(GRID, deployed))
           + f"; CROSS_PX {min(CROSS_GRID, key=lambda c: sum(hood_score[r][c] for r in hood_score))}.", "",

@@ -101,8 +101,9 @@ def test_no_cue_falls_back_to_the_prior_and_says_so():
 
 def test_placement_limit():
     lim, why = placement_limit(0.5, 0.0, 0.05, 70)
-    assert lim == pytest.approx(0.25 / math.tan(math.radians(0.5)), rel=1e-6) and "pitch +-0.50" in why
+    assert lim == pytest.approx(0.3 / math.tan(math.radians(0.5)), rel=1e-6) and "pitch +-0.50" in why
     assert placement_limit(0.5, 0.5, 0.05, 70)[0] < lim        # roll tilts objects beside the road
     assert placement_limit(0.0, 0.0, 0.0, 70)[0] is None
+    assert placement_limit(3.0, 3.0, 0.05, 70)[0] < 4              # nothing known: nothing but the nearest
     lim, why = placement_limit(0.1, 0.1, 0.3, 70)
     assert lim == 0.0 and "unknown scale" in why

@@ -430,7 +430,8 @@ def _sparsity(names, n, has_p, has_r, free_p, free_r, free_h, cue_frame):
 
 # ----------------------------------------------------------------------------- placement
 
-FLOAT_MAX_M = 0.25       # an object's contact may be this far above or below the real road (1 sigma)
+FLOAT_MAX_M = 0.3        # an object's contact may be this far above or below the real road (1 sigma): a tyre's radius
+ROAD_HALF_M = 4.0        # objects stand within about this of the camera's line of travel (a roll error tilts them)
 SCALE_MAX = 0.20         # a camera height this uncertain (1 sigma, relative) draws every object at an unknown scale
 
 
@@ -438,16 +439,22 @@ def placement_limit(pitch_std_deg: float | None, roll_std_deg: float | None, hei
                     hfov_deg: float) -> tuple[float | None, str]:
     """How far from the camera an object may stand (m; None: no limit) and why. A pitch error
     e puts an object d metres away d*tan(e) above or below the real road where it stands in
-    the image, a roll error r by up to its lateral offset (<= d tan(hfov/2)) times tan(r):
-    objects stay within FLOAT_MAX_M of the road out to FLOAT_MAX_M / (tan e + tan(hfov/2) tan r).
-    A height uncertain by more than SCALE_MAX makes every object's size uncertain: none."""
+    the image, a roll error r by its lateral offset (<= ROAD_HALF_M, and within the view)
+    times tan(r): objects stay within FLOAT_MAX_M of the road out to
+    (FLOAT_MAX_M - y tan r) / tan e. A height uncertain by more than SCALE_MAX makes every
+    object's size uncertain: none."""
     if height_std_rel is not None and height_std_rel > SCALE_MAX:
         return 0.0, (f"the camera height is uncertain by +-{height_std_rel:.0%} (over {SCALE_MAX:.0%}): "
                      "objects would be drawn at an unknown scale")
     e = math.tan(math.radians(pitch_std_deg or 0.0))
-    r = math.tan(math.radians(roll_std_deg or 0.0)) * math.tan(math.radians(hfov_deg / 2))
-    if e + r <= 0:
-        return None, "camera pitch and roll known"
-    lim = FLOAT_MAX_M / (e + r)
-    return lim, (f"pitch +-{pitch_std_deg or 0:.2f} deg, roll +-{roll_std_deg or 0:.2f} deg: beyond {lim:.0f} m an "
-                 f"object could float or sink more than {FLOAT_MAX_M:g} m")
+    r = math.tan(math.radians(roll_std_deg or 0.0))
+    y = ROAD_HALF_M
+    if e <= 0:
+        if r * y < FLOAT_MAX_M:
+            return None, "camera pitch known"
+        lim = FLOAT_MAX_M / (r * math.tan(math.radians(hfov_deg / 2)))  # only the roll: the lateral offset in view
+    else:
+        lim = max(FLOAT_MAX_M - y * r, 0.0) / e
+        lim = max(lim, 0.0)
+    return lim, (f"pitch +-{pitch_std_deg or 0:.2f} deg, roll +-{roll_std_deg or 0:.2f} deg (1 sigma): beyond {lim:.0f} m "
+                 f"an object could float or sink more than {FLOAT_MAX_M:g} m")

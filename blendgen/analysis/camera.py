@@ -2,30 +2,30 @@
 
 Entry point (called by the analysis stage):
 
-    estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress=False)
+    estimate_cameras(rec, frame_ids, *, user=None, users=None, car_boxes=None, progress=False, hoods=None)
         -> {frame_id: (CameraEstimate, horizon)}
 
 `user` is the job's `ground_plane` section (numbers are fixed, "auto" is estimated; None:
-all estimated), `car_boxes` maps frame_id -> [[x, y, w, h], ...] of real cars, `horizon` is
-[[0, v0], [width - 1, v1]] (model.py) or None when it leaves the frame's rows far behind.
+all estimated), `users` maps frame_id -> [(cls, [x, y, w, h]), ...] of the detector's road
+users (`car_boxes`: frame_id -> boxes of cars only), `horizon` is [[0, v0], [width - 1, v1]]
+(model.py) or None when it leaves the frame's rows far behind.
 
-Per frame (`estimate_frame`):
+Per frame (`frame_cues`, independent of the other frames):
   1. line segments (OpenCV LSD or FLD on a <= 640 px wide grey image), undistorted;
-  2. a Manhattan frame by RANSAC: the road direction F (lane markings, road edges, kerbs,
-     building lines along the street), the vertical U (building edges, poles) and the
-     crosswise L, hypothesised from two segments for one vanishing point and one segment
-     for the other (orthogonality), scored by the length of the segments that point at
-     one of the three vanishing points; priors |pitch|, |roll| < 25 deg, |yaw| < 50 deg;
+  2. a Manhattan frame by RANSAC (`estimate_frame`): the road direction F (lane markings, road
+     edges, kerbs, building lines along the street), the vertical U (building edges, poles)
+     and the crosswise L, hypothesised from two segments for one vanishing point and one
+     segment for the other (orthogonality), scored by the length of the segments that point
+     at one of the three vanishing points; priors |pitch|, |roll| < 25 deg, the road's
+     vanishing point near the view; near-level segments never point along the road;
   3. least squares (soft L1) on pitch, roll, yaw over the inliers; roll is only estimated
      when vertical or crosswise segments support it, otherwise it is the prior (reason
-     logged); the focal length too when the calibration was a guessed field of view and
-     two orthogonal vanishing points are seen;
-  4. confidence from the inlier counts and the fitted angles' standard deviation.
-Over a recording: video frames are smoothed by a confidence-weighted median over +-0.5 s
-(frames that fell back take it); gravity from the IMU, when there is one, is averaged in
-with its own weight; the height is one robust median per recording (lane-width prior:
-spacing of the ego lane's markings on the ground at the estimated pitch, or the widths of
-real cars) unless the user fixed it.
+     logged); the focal length too when the calibration was a guessed field of view;
+  4. the road users standing whole on the road and the ego lane's two painted lines.
+Over the recording, one reduction (`mount.estimate_mount`): stills share one mount (pitch,
+roll, height) with small per-frame deviations; a video's pitch and roll are smoothed over
++-0.5 s here (gravity from the IMU averaged in where there is one) and the reduction fits
+its one height.
 """
 
 from __future__ import annotations

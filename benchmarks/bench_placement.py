@@ -335,7 +335,7 @@ def main() -> None:
     free = [r for r in rows if r[0] not in nc]
     if free:
         atomic.write_image(ROOT / "docs" / "images" / "placement_before_after.jpg", gallery(free),
-                           [cv2.IMWRITE_JPEG_QUALITY, 85])
+                           [cv2.IMWRITE_JPEG_QUALITY, 65])
     if len(free) < len(rows):
         atomic.write_image(TMP / "placement_zoo_nc.jpg", gallery([r for r in rows if r not in free]),
                            [cv2.IMWRITE_JPEG_QUALITY, 85])

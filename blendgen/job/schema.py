@@ -77,6 +77,20 @@ class Sync(Section):
     road_vehicle: bool = True  # vehicle-frame constraints + mount/latency/lever-arm estimation; false for drones, handheld
 
 
+class AssetSource(BaseModel):
+    """An `inject.assets` entry with sidecar fields given in the job (checked when the assets
+    are discovered, blendgen.scene.assets.Sidecar): they apply to every asset under `path`
+    and override the sidecars beside the files, key by key."""
+
+    model_config = ConfigDict(extra="allow")
+
+    path: Path
+
+    @property
+    def fields(self) -> dict[str, Any]:
+        return dict(self.model_extra or {})
+
+
 class Inject(Section):
     objects_per_frame: tuple[Annotated[int, Field(ge=0, le=MAX_OBJECTS)],
                              Annotated[int, Field(ge=0, le=MAX_OBJECTS)]] = (2, 6)
@@ -88,7 +102,9 @@ class Inject(Section):
     sequences: bool = True  # objects keep identity and move along their path across frames
     # User asset libraries (docs/assets.md): folders or files of glTF/GLB, .blend, OBJ, FBX, USD
     # with sidecars; for a class the library has, `asset_share` of its objects come from it.
-    assets: list[Path] = Field(default_factory=list)
+    # An entry is a path, or {path: ..., <sidecar fields>} (class, front, unit_m, ...) for
+    # assets as they come, without sidecars beside them.
+    assets: list[Path | AssetSource] = Field(default_factory=list)
     asset_share: Annotated[float, Field(ge=0, le=1)] = 1.0
 
     @field_validator("classes")
@@ -286,14 +302,16 @@ class Job(Section):
             d["twin"] = str(self.twin_path)
         if self.sync.lut is not None:
             d["sync"]["lut"] = str(self.path(self.sync.lut))
-        d["inject"]["assets"] = [str(p) for p in self.asset_paths]
+        d["inject"]["assets"] = [str(p) if not f else {"path": str(p), **f} for p, f in self.asset_sources]
         if self.ground_plane is not None and self.ground_plane.detector is not None:
             d["ground_plane"]["detector"] = str(self.path(self.ground_plane.detector))
         return d
 
     @property
-    def asset_paths(self) -> list[Path]:
-        return [self.path(p) for p in self.inject.assets]
+    def asset_sources(self) -> list[tuple[Path, dict[str, Any]]]:
+        """`inject.assets` as (absolute path, sidecar fields given in the job)."""
+        return [(self.path(a.path), a.fields) if isinstance(a, AssetSource) else (self.path(a), {})
+                for a in self.inject.assets]
 
     def content_hash(self) -> str:
         """Hash of everything that changes results; `farm` (how work is spread) is left out
@@ -339,7 +357,7 @@ def _check_files(job: Job, source: str) -> None:
     if job.inject.assets:  # sidecars and file headers, without Blender (docs/assets.md)
         from blendgen.scene.assets import discover
 
-        discover(job.asset_paths)
+        discover(job.asset_sources)
 
 
 def _check_output(out: Path, source: str) -> None:

@@ -147,7 +147,9 @@ class RealScene:
         with `keep`, one of the points (N, 2) for which keep(points) is True)."""
         from blendgen.analysis.ground import to_ground
 
-        rf = self.frames[k]
+        rf = self.frames[k] if k < len(self.frames) else None
+        if rf is None or rf.road is None:  # nothing estimated to stand on (RealScene.closed says why)
+            return None
         if value == ROAD_EDGE:
             road = rf.road == ROAD
             off = cv2.dilate((~road).astype(np.uint8), np.ones((1, 2 * EDGE_PX + 1), np.uint8)) > 0

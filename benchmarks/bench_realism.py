@@ -272,10 +272,70 @@ def render_set(name: str, recs: dict, args) -> dict[str, Path]:
         out_dir.parent.mkdir(parents=True, exist_ok=True)
         jp = TMP / name / f"{rec}.yaml"
         jp.write_text(yaml.safe_dump(job, sort_keys=False))
+        if args.set == "thirdparty":
+            same_plans(TMP / "procedural" / rec, out_dir, library_catalog(assets, env))
         print(f"[{name}] rendering {rec} ({len(r['names'])} frames) ...", flush=True)
         sh(blendgen_cmd("run", jp), env=env)
         outs[rec] = out_dir
     return outs
+
+
+def library_catalog(assets: list[dict], env) -> list[dict]:
+    """The library's catalog entries (what the pipeline's assets step writes to OUT/assets.json),
+    measured in a Blender process of its own."""
+    cache = TMP / "thirdparty_catalog.json"
+    if cache.is_file() and json.loads(cache.read_text())["sources"] == assets:
+        return json.loads(cache.read_text())["assets"]
+    code = ("import json, sys; from pathlib import Path; from blendgen.scene.assets import discover; "
+            "from blendgen.render.assets import inspect; import bpy\n"
+            "out = []\n"
+            "for r in discover([(Path(a.pop('path')), a) for a in json.loads(sys.argv[1])]):\n"
+            "    bpy.ops.wm.read_factory_settings(use_empty=True); out.append(inspect(r))\n"
+            "print('CATALOG' + json.dumps(out))")
+    r = subprocess.run([sys.executable, "-c", code, json.dumps(assets)], cwd=ROOT, env=env, capture_output=True, text=True)
+    line = next((ln for ln in r.stdout.splitlines() if ln.startswith("CATALOG")), None)
+    if r.returncode != 0 or line is None:
+        raise RuntimeError(f"measuring the library failed:\n{r.stdout[-2000:]}\n{r.stderr[-3000:]}")
+    catalog = json.loads(line[len("CATALOG"):])
+    atomic.write_json(cache, {"sources": assets, "assets": catalog}, indent=1)
+    return catalog
+
+
+def same_plans(proc_dir: Path, out_dir: Path, catalog: list[dict]) -> None:
+    """The library set on the procedural set's plans: its output folder starts with the
+    procedural run's sync, analysis and plan, where every object of a class the library has
+    (pedestrians, not riders) becomes a library asset (drawn uniformly per object, seeded by
+    frame and id) at the same place, heading and time; `blendgen run` then renders it."""
+    from blendgen.scene.assets import asset_variant
+
+    if (out_dir / ".blendgen" / "plan.done").is_file():
+        return
+    if not (proc_dir / ".blendgen" / "plan.done").is_file():
+        raise SystemExit(f"the thirdparty set renders on the procedural set's plans: run --set procedural first "
+                         f"(no {proc_dir}/plan.jsonl)")
+    by_cls: dict[str, list] = {}
+    for e in catalog:
+        by_cls.setdefault(e["cls"], []).append(e)
+    (out_dir / ".blendgen").mkdir(parents=True, exist_ok=True)
+    shutil.copytree(proc_dir / "analysis", out_dir / "analysis", dirs_exist_ok=True)
+    for f in ("poses.csv", "poses.tum"):
+        shutil.copy2(proc_dir / f, out_dir / f)
+    for stage in ("sync", "analysis"):
+        shutil.copy2(proc_dir / ".blendgen" / f"{stage}.done", out_dir / ".blendgen" / f"{stage}.done")
+    lines, swapped = [], 0
+    for line in (proc_dir / "plan.jsonl").read_text().splitlines():
+        p = json.loads(line)
+        for o in p["objects"]:
+            entries = by_cls.get(o["cls"])
+            if not entries or o.get("scenario") or o["variant"].get("kind") == "riding" or "rider" in o["variant"]:
+                continue
+            e = entries[int(np.random.default_rng([13, int(p["frame_id"].lstrip("f")), o["id"]]).integers(len(entries)))]
+            o["variant"], o["dims"] = asset_variant(e), list(e["dims"])
+            swapped += 1
+        lines.append(json.dumps(p) + "\n")
+    atomic.write_text(out_dir / "plan.jsonl", "".join(lines))
+    info = json.loads((proc_dir / ".blendgen" / "plan.done").read_text())
+    atomic.write_json(out_dir / ".blendgen" / "plan.done", {**info, "library_swapped": swapped})
 
 
 def make_assets(folder: Path) -> Path:

@@ -168,7 +168,7 @@ def make_recordings(args) -> dict[str, dict]:
             (TMP / f"rec_{rec}.key").write_text(key)
         out[rec] = {"dir": dst, "names": json.loads((TMP / f"rec_{rec}.names.json").read_text())}
     if not args.no_zoo:
-        out.update(make_zoo_recordings(1 if args.quick else None))
+        out.update(make_zoo_recordings(1 if args.quick else None, args.zoo_every))
     return out
 
 
@@ -182,7 +182,7 @@ def _zoo_calib(calib_txt: Path) -> dict:
     return vals
 
 
-def make_zoo_recordings(per_rig: int | None = None) -> dict[str, dict]:
+def make_zoo_recordings(per_rig: int | None = None, every: int = 1) -> dict[str, dict]:
     """One recording per camera_zoo rig: its frames scaled to ZOO_WIDTH px wide, its calib.txt's
     intrinsics (and distortion) as the recording's camera (blendgen import images --calib)."""
     import yaml
@@ -190,7 +190,7 @@ def make_zoo_recordings(per_rig: int | None = None) -> dict[str, dict]:
     out = {}
     for rec, (folder, _, _) in ZOO_RIGS.items():
         rig = ZOO / folder
-        stills = sorted(p for p in rig.glob("*.jpg"))[:per_rig]
+        stills = sorted(p for p in rig.glob("*.jpg"))[::every if len(list(rig.glob("*.jpg"))) > 20 else 1][:per_rig]
         if not stills or not (rig / "calib.txt").is_file():
             raise SystemExit(f"needs {rig}/ (*.jpg and calib.txt); or run with --no-zoo")
         src, dst = TMP / f"src_{rec}", TMP / f"rec_{rec}"
@@ -687,6 +687,8 @@ def main() -> None:
                     f"{PLOT.relative_to(ROOT)}; another doc gets its plot beside it)")
     ap.add_argument("--quick", action="store_true", help="1 copy of each still, 2 video frames (smoke run)")
     ap.add_argument("--no-zoo", action="store_true", help="without the camera_zoo backgrounds")
+    ap.add_argument("--zoo-every", type=int, default=1, metavar="N",
+                    help="every N-th frame of a camera_zoo rig with more than 20 (nuScenes' 100)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from cached sets")
     ap.add_argument("--rescore", action="store_true", help="score the set's existing renders again (no rendering)")
     args = ap.parse_args()

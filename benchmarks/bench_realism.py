@@ -62,6 +62,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -273,7 +274,7 @@ def render_set(name: str, recs: dict, args) -> dict[str, Path]:
         jp = TMP / name / f"{rec}.yaml"
         jp.write_text(yaml.safe_dump(job, sort_keys=False))
         if args.set == "thirdparty":
-            same_plans(TMP / "procedural" / rec, out_dir, library_catalog(assets, env))
+            same_plans(TMP / "procedural" / rec, out_dir, library_catalog(assets, env), wait_s=args.wait_plans)
         print(f"[{name}] rendering {rec} ({len(r['names'])} frames) ...", flush=True)
         sh(blendgen_cmd("run", jp), env=env)
         outs[rec] = out_dir
@@ -301,7 +302,7 @@ def library_catalog(assets: list[dict], env) -> list[dict]:
     return catalog
 
 
-def same_plans(proc_dir: Path, out_dir: Path, catalog: list[dict]) -> None:
+def same_plans(proc_dir: Path, out_dir: Path, catalog: list[dict], wait_s: float = 0.0) -> None:
     """The library set on the procedural set's plans: its output folder starts with the
     procedural run's sync, analysis and plan, where every object of a class the library has
     (pedestrians, not riders) becomes a library asset (drawn uniformly per object, seeded by
@@ -310,6 +311,10 @@ def same_plans(proc_dir: Path, out_dir: Path, catalog: list[dict]) -> None:
 
     if (out_dir / ".blendgen" / "plan.done").is_file():
         return
+    for _ in range(int(wait_s // 30)):  # a procedural run of the same cache may be planning it now
+        if (proc_dir / ".blendgen" / "plan.done").is_file():
+            break
+        time.sleep(30)
     if not (proc_dir / ".blendgen" / "plan.done").is_file():
         raise SystemExit(f"the thirdparty set renders on the procedural set's plans: run --set procedural first "
                          f"(no {proc_dir}/plan.jsonl)")
@@ -687,6 +692,9 @@ def main() -> None:
                     f"{PLOT.relative_to(ROOT)}; another doc gets its plot beside it)")
     ap.add_argument("--quick", action="store_true", help="1 copy of each still, 2 video frames (smoke run)")
     ap.add_argument("--no-zoo", action="store_true", help="without the camera_zoo backgrounds")
+    ap.add_argument("--wait-plans", type=float, default=0.0, metavar="S",
+                    help="thirdparty: wait up to S seconds for each procedural plan (a procedural run of the "
+                         "same cache running beside it)")
     ap.add_argument("--zoo-every", type=int, default=1, metavar="N",
                     help="every N-th frame of a camera_zoo rig with more than 20 (nuScenes' 100)")
     ap.add_argument("--table-only", action="store_true", help="rebuild the table from cached sets")

@@ -103,6 +103,13 @@ def test_planner_mixes_library_assets_by_share():
     lib_plans = plan_sequence(gp, CAM, poses, inj, 3, assets=AssetSampler([entry], 1.0))
     assert first(lib_plans).position == first(base).position and first(lib_plans).cls == first(base).cls
     half = [o for p in plan_sequence(gp, CAM, poses, inj, 3, assets=AssetSampler([entry], 0.5)) for o in p.objects]
+    # per class: cars from the library, persons (none in the library) procedural, buses never
+    per = [o for p in plan_sequence(gp, CAM, poses, inj, 3, assets=AssetSampler([entry], {"car": 1.0, "bus": 0.0}))
+           for o in p.objects]
+    assert all("asset" in o.variant for o in per if o.cls == "car")
+    assert plan_sequence(gp, CAM, poses, inj, 3, assets=AssetSampler([entry], {"car": 0.0})) == base
+    with pytest.raises(Exception, match="unknown class 'lorry'"):
+        Inject(asset_share={"lorry": 1.0})
     lib = {o.id for o in half if "asset" in o.variant}
     proc = {o.id for o in half if o.cls == "car" and "asset" not in o.variant}
     assert lib and proc

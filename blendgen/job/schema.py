@@ -105,7 +105,8 @@ class Inject(Section):
     # An entry is a path, or {path: ..., <sidecar fields>} (class, front, unit_m, ...) for
     # assets as they come, without sidecars beside them.
     assets: list[Path | AssetSource] = Field(default_factory=list)
-    asset_share: Annotated[float, Field(ge=0, le=1)] = 1.0
+    # one share for every class, or one per class ({car: 1, bus: 0}: classes not named take 1)
+    asset_share: Annotated[float, Field(ge=0, le=1)] | dict[str, Annotated[float, Field(ge=0, le=1)]] = 1.0
 
     @field_validator("classes")
     @classmethod
@@ -116,6 +117,15 @@ class Inject(Section):
         if sum(v.values()) <= 0:
             raise ValueError(f"expected at least one class with a positive weight, e.g. {{car: 1}}; "
                              f"classes: {sorted(CLASSES)}")
+        return v
+
+    @field_validator("asset_share")
+    @classmethod
+    def _share_classes(cls, v):
+        if isinstance(v, dict):
+            unknown = [k for k in v if k not in CLASSES]
+            if unknown:
+                raise ValueError(f"unknown class {unknown[0]!r}; expected one of {sorted(CLASSES)}")
         return v
 
     @field_validator("scenarios")

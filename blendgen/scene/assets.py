@@ -584,17 +584,20 @@ def asset_variant(entry: dict) -> dict:
 
 class AssetSampler:
     """Draws library assets for the planner: for a class the library has, a share
-    `asset_share` of the objects come from the library (uniformly over its assets)."""
+    `asset_share` (one for all classes, or per class) of the objects come from the library
+    (uniformly over its assets)."""
 
-    def __init__(self, catalog: list[dict], share: float):
-        self.share = float(share)
+    def __init__(self, catalog: list[dict], share: float | dict[str, float]):
+        # per class ({car: 1, bus: 0}; a class not named takes 1), or one share for all
+        self.share = {c: float(share.get(c, 1.0)) for c in CLASSES} if isinstance(share, dict) else \
+            dict.fromkeys(CLASSES, float(share))
         self.by_cls: dict[str, list[dict]] = {}
         for e in catalog:
             self.by_cls.setdefault(e["cls"], []).append(e)
 
     def draw(self, cls: str, rng: np.random.Generator) -> tuple[dict, tuple] | None:
         entries = self.by_cls.get(cls)
-        if not entries or self.share <= 0 or rng.random() >= self.share:
+        if not entries or self.share[cls] <= 0 or rng.random() >= self.share[cls]:
             return None
         e = entries[int(rng.integers(len(entries)))]
         return asset_variant(e), tuple(float(x) for x in e["dims"])

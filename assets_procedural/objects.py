@@ -58,6 +58,8 @@ def _materials(obj: PlacedObject, slots: list[str]) -> dict:
             out[s] = M.alloy()
         elif s in ("metal", "spoke"):  # brushed steel (a silencer, a bicycle's spokes)
             out[s] = M.metal((0.42, 0.42, 0.43), 0.35)
+        elif s == "engine":  # a motorcycle's crankcase and cylinders: dark cast metal
+            out[s] = M.metal((0.05, 0.05, 0.055), 0.45)
         elif s == "wheel":  # black-painted metal: two-wheelers' wheels, hugger, stalks
             out[s] = M.metal((0.03, 0.03, 0.032), 0.4)
         elif s in ("plastic", "saddle"):

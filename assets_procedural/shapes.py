@@ -654,6 +654,190 @@ def _silencer(mb, start, end, radius, material):
     mb.add(vv, f, "well")
 
 
+def _arc_shell(mb, centre, radius, a0, a1, half_w, material, n=10, y0=0.0):
+    """A mudguard: a strip of the cylinder (axis y) of `radius` about `centre` (x, z) from angle
+    a0 to a1 (radians from +x toward +z), `half_w` either side of y0."""
+    cx, cz = centre
+    P = np.array([[[cx + radius * math.cos(t), y0 + s * half_w, cz + radius * math.sin(t)] for s in (-1, 1)]
+                  for t in np.linspace(a0, a1, n)])
+    vv, f = grid(P)
+    mb.add(vv, f, material, smooth=True)
+
+
+def _fork(mb, axle, top, half_gap, r_low, r_up, material):
+    """Telescopic fork: two legs from the front axle (x, z) up to the steering head (x, z),
+    thick sliders below, thinner stanchions above, a top clamp."""
+    axle, top = np.asarray(axle, float), np.asarray(top, float)
+    mid = axle + 0.45 * (top - axle)
+    for s in (1, -1):
+        a, m, t = ([p[0], s * half_gap, p[1]] for p in (axle, mid, top))
+        mb.add(*tube(a, m, r_low, 8), "chrome" if material == "chrome" else "wheel", smooth=True)
+        mb.add(*tube(m, t, r_up, 8), material, smooth=True)
+    mb.add(*box((0.08, 2 * half_gap + 0.06, 0.04), [top[0], 0, top[1]]), "alloy")
+
+
+def _road_bike(veh, kind, r, xr, xf_):
+    """A sport bike (faired, an inline four, alloy twin spars) or a cruiser (a raked chrome
+    fork, a teardrop tank, a V-twin, deep mudguards): what a motorcycle shows from the side and
+    three quarters, where a box on two wheels read as a cart. Returns (seat_x, seat_z, bar,
+    peg_x, peg_z) for the rider."""
+    low = kind == "cruiser"
+    rake = math.radians(32 if low else 24)
+    fork_len = 0.8 if low else 0.66
+    head = np.array([xf_ - fork_len * math.sin(rake), r + fork_len * math.cos(rake)])
+    _fork(veh, (xf_, r), head, 0.1 if low else 0.09, 0.034, 0.026, "chrome" if low else "alloy")
+    # mudguards: a cruiser's deep and painted, a sport bike's short
+    if low:
+        _arc_shell(veh, (xf_, r), r + 0.035, math.radians(15), math.radians(150), 0.075, "paint")
+        _arc_shell(veh, (xr, r), r + 0.045, math.radians(25), math.radians(175), 0.12, "paint")
+    else:
+        _arc_shell(veh, (xf_, r), r + 0.03, math.radians(40), math.radians(125), 0.065, "paint")
+    # engine: a dark crankcase low between the wheels, its cylinders up under the tank
+    cx0, cx1 = xr + r + 0.12, xf_ - r - 0.1
+    cmid = (cx0 + cx1) / 2
+    veh.add(*loft([(cx0, rounded_section(0.13, r * 0.45, r + 0.12, 0.06)),
+                   (cmid, rounded_section(0.16, r * 0.4, r + 0.2, 0.07)),
+                   (cx1, rounded_section(0.14, r * 0.5, r + 0.16, 0.06))]), "engine", smooth=True)
+    for s in (1, -1):  # round alloy covers on the crankcase's sides (clutch, alternator)
+        veh.add(*cylinder(0.075, 0.02, 14, "y", (cmid + 0.05 * s, s * 0.165, r * 0.62)), "alloy")
+    if low:  # a V-twin: two finned cylinders at +-30 deg, chrome heads, a round air cleaner
+        base = np.array([cmid, 0, r + 0.12])
+        for ang in (-0.55, 0.55):
+            d = np.array([math.sin(ang), 0, math.cos(ang)])
+            veh.add(*tube(base, base + 0.3 * d, 0.075, 12), "engine", smooth=True)
+            for k in range(4):  # cooling fins
+                veh.add(*tube(base + (0.08 + 0.05 * k) * d, base + (0.095 + 0.05 * k) * d, 0.09, 12), "alloy")
+            veh.add(*tube(base + 0.3 * d, base + 0.36 * d, 0.07, 12), "chrome", smooth=True)
+        veh.add(*cylinder(0.1, 0.04, 16, "y", (cmid, -0.19, r + 0.3)), "chrome")
+    else:  # an inline four leaning forward, its headers sweeping down under it
+        top_x = cx1 - 0.02
+        veh.add(*loft([(cmid, rounded_section(0.17, r + 0.1, r + 0.3, 0.05)),
+                       (top_x, rounded_section(0.15, r + 0.2, r + 0.42, 0.05))]), "engine", smooth=True)
+        for y in (-0.09, -0.03, 0.03, 0.09):
+            pts = [np.array([top_x + 0.04, y, r + 0.28]), np.array([cx1 + 0.06, y * 0.8, r * 0.5]),
+                   np.array([cmid, y * 0.5, r * 0.28]), np.array([cx0 + 0.05, -0.05, r * 0.3])]
+            for p0, p1 in zip(pts, pts[1:]):
+                veh.add(*tube(p0, p1, 0.022, 6), "metal", smooth=True)
+    # frame: a sport bike's alloy twin spars from the steering head to the swingarm pivot, a
+    # cruiser's black backbone and down tube
+    pivot = np.array([cx0 + 0.02, r + 0.12])
+    if low:
+        veh.add(*tube([head[0], 0, head[1] - 0.05], [cx0 + 0.1, 0, r + 0.35], 0.03, 8), "wheel")
+        veh.add(*tube([head[0] + 0.02, 0, head[1] - 0.1], [cx1 + 0.05, 0, r * 0.4], 0.03, 8), "wheel")
+    else:
+        for s in (1, -1):
+            veh.add(*tube([head[0], s * 0.1, head[1] - 0.04], [pivot[0], s * 0.15, pivot[1]], 0.035, 8), "alloy")
+    for s in (1, -1):  # the swingarm
+        veh.add(*tube([pivot[0], s * 0.13, pivot[1]], [xr, s * 0.13, r], 0.028, 8), "chrome" if low else "alloy")
+    # the tank
+    if low:
+        veh.add(*ellipsoid((0.3, 0.15, 0.12), (head[0] - 0.32, 0, r + 0.5), 14, 8), "paint", smooth=True)
+        veh.add(*cylinder(0.03, 0.02, 10, "z", (head[0] - 0.25, 0, r + 0.62)), "chrome")
+        tank_rear = head[0] - 0.6
+    else:
+        tank_rear = head[0] - 0.55
+        veh.add(*loft([(head[0] - 0.02, rounded_section(0.11, r + 0.5, r + 0.7, 0.06)),
+                       (head[0] - 0.25, rounded_section(0.17, r + 0.42, r + 0.76, 0.09)),
+                       (tank_rear, rounded_section(0.13, r + 0.44, r + 0.66, 0.07))]), "paint", smooth=True)
+    # the seat and tail
+    seat_x, seat_z = tank_rear - (0.18 if low else 0.05), r + (0.38 if low else 0.56)
+    if low:
+        veh.add(*loft([(tank_rear + 0.02, rounded_section(0.12, seat_z - 0.08, seat_z + 0.04, 0.05)),
+                       (seat_x, rounded_section(0.19, seat_z - 0.1, seat_z + 0.02, 0.07)),
+                       (xr + 0.15, rounded_section(0.13, seat_z - 0.06, seat_z + 0.06, 0.05))]), "saddle",
+                smooth=True)
+    else:
+        veh.add(*loft([(tank_rear + 0.02, rounded_section(0.12, seat_z - 0.1, seat_z, 0.05)),
+                       (seat_x - 0.12, rounded_section(0.14, seat_z - 0.1, seat_z + 0.01, 0.05)),
+                       (xr + 0.2, rounded_section(0.1, seat_z - 0.05, seat_z + 0.09, 0.04))]), "saddle",
+                smooth=True)
+        # the tail cowl rising over the rear wheel, the side panels under the seat
+        veh.add(*loft([(seat_x + 0.05, rounded_section(0.14, r + 0.3, seat_z - 0.06, 0.06)),
+                       (xr + 0.25, rounded_section(0.12, r + 0.38, seat_z + 0.02, 0.05)),
+                       (xr - r + 0.1, rounded_section(0.06, r + 0.42, r + 0.52, 0.03))]), "paint", smooth=True)
+        # the fairing: a nose round the headlight, its sides down past the engine's top, a screen
+        veh.add(*loft([(xf_ - 0.12, rounded_section(0.08, r + 0.4, r + 0.56, 0.05)),
+                       (head[0] + 0.05, rounded_section(0.19, r + 0.12, r + 0.68, 0.1)),
+                       (head[0] - 0.2, rounded_section(0.2, r * 0.55, r + 0.5, 0.1, top_half_w=0.17))]),
+                "paint", smooth=True)
+        g0 = np.array([head[0] + 0.02, 0, r + 0.74])
+        vv, f = box((0.03, 0.2, 0.16))
+        veh.add(xf(vv, rot_y(-0.55), g0), f, "glass")
+    # grips ~0.6 m ahead of the hips: a sport bike's clip-ons just behind the steering head, a
+    # cruiser's bar pulled back to the rider (0.84 m ahead he held it at arm's length)
+    bar = np.array([head[0] - (0.18 if low else 0.02), 0, r + (0.66 if low else 0.65)])
+    peg_x, peg_z = seat_x + (0.35 if low else 0.05), r * (0.7 if low else 0.95)
+    # the silencer: chrome on a cruiser (a long pipe along the right), brushed steel otherwise
+    if low:
+        _silencer(veh, [cx1, -0.17, r * 0.55], [xr - 0.25, -0.2, r * 0.75], 0.045, "chrome")
+    else:
+        _silencer(veh, [xr + 0.35, -0.16, r * 0.8], [xr - 0.08, -0.18, r + 0.15], 0.05, "metal")
+    # the headlight: a cruiser's in a chrome bucket on the fork, a sport bike's in its nose
+    lx, lz = (xf_ - 0.3, r + 0.55) if low else (xf_ - 0.1, r + 0.48)
+    veh.add(*cylinder(0.1 if low else 0.065, 0.1, 14, "x", (lx - 0.02, 0, lz)), "chrome" if low else "paint")
+    veh.add(*cylinder(0.085 if low else 0.055, 0.02, 14, "x", (lx + 0.04, 0, lz)), "lamp_head")
+    return seat_x, seat_z, bar, peg_x, peg_z
+
+
+def _scooter(veh, v, r, xr, xf_):
+    """A step-through scooter: a leg shield and nose round the steering column, a low floor,
+    the body cowl under a long seat half over the rear wheel, the engine and belt case on the
+    left of the rear wheel. Returns (seat_x, seat_z, bar, peg_x, peg_z) for the rider."""
+    floor_z = r * 0.85
+    veh.add(*box((xf_ - xr - 0.85, 0.32, 0.06), ((xf_ - 0.36 + xr + 0.55) / 2, 0, floor_z + 0.03)), "plastic")
+    # the leg shield: a shell leaning back 18 deg from over the front mudguard to the bar,
+    # rounded in front, widest at the rider's knees (a slab with a flat top read as a fridge)
+    lean = math.tan(math.radians(18))
+    z0, z1 = r + 0.1, r + 0.74
+    stations = []
+    for z in np.linspace(z0, z1, 7):
+        t = (z - z0) / (z1 - z0)
+        front = xf_ - 0.2 - lean * (z - z0)
+        hw = 0.13 + 0.08 * math.sin(math.pi * min(1.0, 0.2 + t))  # widest a little above the middle
+        depth = 0.16 - 0.06 * t
+        # the section in (y, x): a rounded front (a half ellipse) and a flat back face
+        sec = [(hw * math.cos(a), front - depth + depth * math.sin(a)) for a in np.linspace(0, math.pi, 9)]
+        stations.append((z, sec))
+    vv, f = loft(stations)
+    veh.add(vv[:, [2, 1, 0]], [q[::-1] for q in f], "paint", smooth=True)  # stations along z
+    veh.add(*loft([(xf_ - 0.42, rounded_section(0.16, floor_z, r + 0.16, 0.05)),
+                   (xf_ - 0.2, rounded_section(0.12, r * 0.95, r + 0.16, 0.05))]), "paint", smooth=True)
+    _arc_shell(veh, (xf_, r), r + 0.03, math.radians(25), math.radians(125), 0.07, "paint")
+    for s in (1, -1):  # the short fork under the front mudguard
+        veh.add(*tube([xf_, s * 0.07, r], [xf_ - 0.1, s * 0.07, r + 0.28], 0.022, 6), "wheel")
+    # the body cowl under the seat: rounded, widest over the engine, over the top of the wheel
+    veh.add(*loft([(xr + 0.6, rounded_section(0.16, floor_z, r + 0.48, 0.08)),
+                   (xr + 0.32, rounded_section(0.21, r + 0.02, r + 0.52, 0.13)),
+                   (xr - 0.02, rounded_section(0.18, r + 0.2, r + 0.5, 0.12)),
+                   (xr - 0.2, rounded_section(0.1, r + 0.3, r + 0.46, 0.06))]), "paint", smooth=True)
+    seat_x, seat_z = xr + 0.4, r + 0.55
+    veh.add(*loft([(xr + 0.68, rounded_section(0.13, r + 0.47, seat_z + 0.02, 0.05)),
+                   (xr + 0.3, rounded_section(0.16, r + 0.48, seat_z + 0.05, 0.06)),
+                   (xr - 0.08, rounded_section(0.12, r + 0.46, seat_z + 0.04, 0.05))]), "saddle", smooth=True)
+    # a step-through scooter: seat 0.79 m, grips ~1.04 m high and ~0.6 m ahead of the hips
+    # (at 1.19 m and 0.84 m ahead the rider reached up and out, and read as waving)
+    bar = np.array([xf_ - 0.25, 0, r + 0.8])
+    veh.add(*loft([(bar[0] - 0.08, rounded_section(0.12, bar[2] - 0.05, bar[2] + 0.06, 0.04)),
+                   (bar[0] + 0.1, rounded_section(0.09, bar[2] - 0.06, bar[2] + 0.03, 0.04))]), "paint",
+            smooth=True)
+    # what a scooter shows from behind besides its smooth body: the engine and belt case on
+    # the left of the rear wheel, the silencer on the right, a grab rail behind the seat and,
+    # on every other one, a top box on its rack with a red reflector
+    veh.add(*box((0.5, 0.09, 0.2), (xr + 0.2, 0.15, r * 0.95)), "metal")
+    _silencer(veh, [xr + 0.25, -0.14, r * 0.6], [xr - 0.12, -0.17, r * 0.85], 0.04, "metal")
+    rail = [(xr + 0.3, 0.14, r + 0.5), (xr - 0.08, 0.14, r + 0.52), (xr - 0.08, -0.14, r + 0.52),
+            (xr + 0.3, -0.14, r + 0.5)]
+    for a, b in zip(rail, rail[1:]):
+        veh.add(*tube(a, b, 0.012, 6), "plastic")
+    if int(v.get("seed", 0)) % 2 == 0:
+        z0 = r + 0.56
+        veh.add(*loft([(x, rounded_section(0.2 * k, z0, z0 + 0.3 * k, 0.07)) for x, k in
+                       ((xr - 0.22, 0.9), (xr - 0.19, 1.0), (xr + 0.1, 1.0), (xr + 0.14, 0.9))]), "plastic",
+                smooth=True)
+        veh.add(*box((0.01, 0.22, 0.045), (xr - 0.222, 0, z0 + 0.13)), "tape_red")
+    return seat_x, seat_z, bar, 0.0, floor_z + 0.06
+
+
 def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
     veh, rid = _parts(mb, v.get("part", "all"))
     kind = v.get("kind", "sport")
@@ -680,77 +864,22 @@ def motorcycle(mb: MeshBuilder, v: dict, L: float, W: float, H: float):
             c = np.array([x, 0, r]) + (r - 2 * t + 0.06) / 2 * np.array([np.cos(a), 0, np.sin(a)])
             veh.add(xf(spoke, rot_y(-a), c), f, spokes)
     if kind == "scooter":
-        vv, f = box((wb * 0.5, 0.34, 0.08), (0.0, 0, r * 0.9))
-        veh.add(vv, f, "plastic")
-        body = [(xr - 0.15, rounded_section(0.17, r * 0.8, r + 0.45, 0.12)),
-                (xr + 0.45, rounded_section(0.2, r * 0.8, r + 0.5, 0.14)),
-                (xr + 0.6, rounded_section(0.15, r * 0.9, r + 0.3, 0.1))]
-        vv, f = loft(body)
-        veh.add(vv, f, "paint", smooth=True)
-        apron = [(xf_ - 0.35, rounded_section(0.22, r * 0.9, r + 0.75, 0.1)),
-                 (xf_ - 0.15, rounded_section(0.2, r + 0.1, r + 0.85, 0.1))]
-        vv, f = loft(apron)
-        veh.add(vv, f, "paint", smooth=True)
-        # a step-through scooter: seat 0.79 m, grips ~1.04 m high and ~0.6 m ahead of the hips
-        # (at 1.19 m and 0.84 m ahead the rider reached up and out, and read as waving)
-        seat_z, seat_x = r + 0.55, xr + 0.4
-        bar = np.array([xf_ - 0.25, 0, r + 0.8])
-        peg_x, peg_z = 0.0, r * 0.9 + 0.06
-        # what a scooter shows from behind besides its smooth body: the engine and belt case on
-        # the left of the rear wheel, the silencer on the right, a grab rail behind the seat and,
-        # on every other one, a top box on its rack with a red reflector
-        vv, f = box((0.5, 0.09, 0.2), (xr + 0.2, 0.15, r * 0.95))
-        veh.add(vv, f, "metal")
-        _silencer(veh, [xr + 0.25, -0.14, r * 0.6], [xr - 0.12, -0.17, r * 0.85], 0.04, "metal")
-        rail = [(xr + 0.3, 0.14, r + 0.5), (xr - 0.08, 0.14, r + 0.52), (xr - 0.08, -0.14, r + 0.52),
-                (xr + 0.3, -0.14, r + 0.5)]
-        for a, b in zip(rail, rail[1:]):
-            vv, f = tube(a, b, 0.012, 6)
-            veh.add(vv, f, "plastic")
-        if int(v.get("seed", 0)) % 2 == 0:
-            z0 = r + 0.56
-            vv, f = loft([(x, rounded_section(0.2 * k, z0, z0 + 0.3 * k, 0.07)) for x, k in
-                          ((xr - 0.22, 0.9), (xr - 0.19, 1.0), (xr + 0.1, 1.0), (xr + 0.14, 0.9))])
-            veh.add(vv, f, "plastic", smooth=True)
-            vv, f = box((0.01, 0.22, 0.045), (xr - 0.222, 0, z0 + 0.13))
-            veh.add(vv, f, "tape_red")
+        seat_x, seat_z, bar, peg_x, peg_z = _scooter(veh, v, r, xr, xf_)
     else:
-        low = kind == "cruiser"
-        vv, f = box((wb * 0.35, 0.3, 0.32), (0.0, 0, r + 0.05))
-        veh.add(vv, f, "chrome" if low else "alloy")
-        tank = ellipsoid((0.28, 0.17, 0.13), (xf_ - 0.55 * wb + 0.1, 0, r + 0.42 - (0.05 if low else 0)), 12, 8)
-        veh.add(*tank, "paint", smooth=True)
-        seat_x, seat_z = xr + 0.35 * wb, r + (0.38 if low else 0.5)
-        vv, f = loft([(xr - 0.05, rounded_section(0.1, seat_z - 0.12, seat_z + (0.02 if low else 0.06), 0.05)),
-                      (seat_x + 0.25, rounded_section(0.16, seat_z - 0.12, seat_z, 0.06))])
-        veh.add(vv, f, "saddle", smooth=True)
-        vv, f = loft([(xr - 0.15, rounded_section(0.1, r + 0.25, r + 0.4, 0.05)),
-                      (xr + 0.3, rounded_section(0.14, r + 0.1, r + 0.45, 0.06))])
-        veh.add(vv, f, "paint", smooth=True)
-        if kind == "sport":
-            fair = [(xf_ - 0.55, rounded_section(0.2, r - 0.05, r + 0.55, 0.12)),
-                    (xf_ - 0.1, rounded_section(0.13, r + 0.15, r + 0.62, 0.08))]
-            vv, f = loft(fair)
-            veh.add(vv, f, "paint", smooth=True)
-            vv, f = box((0.04, 0.22, 0.16), (xf_ - 0.16, 0, r + 0.72))
-            veh.add(xf(vv - [xf_ - 0.16, 0, r + 0.72], rot_y(-0.5), [xf_ - 0.16, 0, r + 0.72]), f, "glass")
-        # a cruiser's bar comes back to the rider (0.84 m ahead of the hips he held it at arm's
-        # length, at shoulder height)
-        bar = np.array([xf_ - (0.42 if low else 0.25), 0, r + (0.66 if low else 0.65)])
-        peg_x, peg_z = seat_x + (0.35 if low else 0.05), r * (0.7 if low else 0.95)
-        # the silencer: chrome on a cruiser, brushed steel otherwise
-        _silencer(veh, [xr + 0.2, -0.16, r * 0.7], [xr - 0.2, -0.18, r * 0.9], 0.045, "chrome" if low else "metal")
-    for s in (1, -1):
-        vv, f = tube([xf_, s * 0.09, r], bar + [0.05, s * 0.09, -0.1], 0.025, 8)
-        veh.add(vv, f, "chrome" if kind == "cruiser" else "alloy")
+        seat_x, seat_z, bar, peg_x, peg_z = _road_bike(veh, kind, r, xr, xf_)
+    if kind != "scooter":
+        for s in (1, -1):  # risers from the top clamp to the bar
+            vv, f = tube(bar + [0.1, s * 0.09, -0.1], bar + [0.0, s * 0.09, -0.01], 0.018, 6)
+            veh.add(vv, f, "chrome" if kind == "cruiser" else "alloy")
     # grips ~0.6 m apart on sport bikes and scooters, ~0.7 m on a cruiser (the box's width
     # is the mirrors'): at the box's 0.9 m a rider seen from behind-left held one arm out
     # sideways
     bar_w = min(W / 2 - 0.02, 0.41 if kind == "cruiser" else 0.36)
     vv, f = tube(bar + [0, -bar_w, 0], bar + [0, bar_w, 0], 0.014, 6)
     veh.add(vv, f, "chrome")
-    vv, f = cylinder(0.08, 0.06, 12, "x", bar + [0.17, 0, -0.15])
-    veh.add(vv, f, "lamp_head")
+    if kind == "scooter":  # the headlight in the bar's cover; a road bike's is in its nose or bucket
+        vv, f = cylinder(0.06, 0.04, 12, "x", bar + [0.12, 0, -0.02])
+        veh.add(vv, f, "lamp_head")
     vv, f = box((0.04, 0.14, 0.06), (xr - r + 0.05, 0, r + 0.42))
     veh.add(vv, f, "lamp_tail")
     # what every road-legal two-wheeler shows from behind: a hugger over the rear tyre, the

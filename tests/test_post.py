@@ -359,6 +359,40 @@ def test_soft_contact_shadow_keeps_its_depth_and_its_patch_leaves_no_outline():
     assert np.array_equal(out[301:], real[301:])
 
 
+def test_sun_shadow_is_the_roads_own_colour_darkened():
+    """The catcher under a clear blue sky is bluish (the render's sky light fills the shade):
+    the composite darkens the road by its grey level, keeping the road's own colour, unless the
+    frame's real shadows have a tint of their own, which then colours the deep shadow."""
+    h, w = 200, 200
+    real = np.full((h, w, 3), (96, 112, 128), np.uint8)  # a warm grey road (BGR)
+    p = _passes(h, w, box=(20, 20, 60, 60), alpha_edge=False)
+    sc = np.ones((h, w, 3), np.float32)
+    sc[120:160, 40:160] = (0.20, 0.27, 0.33)  # RGB: sky-blue shade, as Cycles gives it
+    p["shadow_catcher"] = sc
+    s = Post(color_transfer="none", sensor_match=False, relight=False)
+    out, _ = composite_frame(real, p, settings=s, illumination=None, seed=0)
+    lin = lambda a: (a.astype(float) / 255) ** 2.2  # noqa: E731
+    inner = (slice(125, 155), slice(50, 150))
+    ratio = lin(out[inner]).reshape(-1, 3).mean(0) / lin(real[inner]).reshape(-1, 3).mean(0)
+    assert ratio.max() < 0.4 and ratio.max() / ratio.min() < 1.05  # darker, same colour
+    ill = estimate_illumination(_scene())
+    ill.shadow_tint_rgb = (0.9, 1.0, 1.1)  # this frame's real shadows are a little blue
+    out2, _ = composite_frame(real, p, settings=s, illumination=ill, seed=0)
+    r2 = lin(out2[inner]).reshape(-1, 3).mean(0) / lin(real[inner]).reshape(-1, 3).mean(0)
+    assert r2[0] / r2[2] == pytest.approx(1.1 / 0.9, rel=0.05)  # BGR: blue over red
+
+
+def test_illumination_measures_the_tint_of_real_sun_shadows():
+    img = _scene(240, 320)
+    img[: 120] = (255, 255, 255)
+    img[150:200, 40:200] = (40, 36, 34)  # a cast shadow, a little bluer than the road (BGR)
+    est = estimate_illumination(img)
+    assert est.sun_visible and est.shadow_tint_rgb is not None
+    r, g, b = est.shadow_tint_rgb
+    assert b > 1.02 and r < 0.98
+    assert estimate_illumination(_scene()).shadow_tint_rgb is None  # no shadow: neutral
+
+
 def test_composite_paste_touches_only_object_and_shadow():
     real = _scene()
     h, w = real.shape[:2]

@@ -631,3 +631,34 @@ def test_patches_lie_over_the_twins_layered_roads(tmp_path):
     assert len(shadow[False]) > 50 and len(shadow[True]) > 50
     single, layered = np.median(shadow[False]), np.median(shadow[True])
     assert single > 0.1 and abs(layered - single) < 0.1, (single, layered)
+
+
+def test_night_objects_fall_off_with_distance_from_the_lamps(tmp_path):
+    """Night: the camera car's low beams and the street lamps light the objects, so a grey box
+    8 m ahead shows a brighter rear than the same box 30 m ahead; by day the sun lights both
+    alike. The lamps leave the shadow catcher to the street key (its contact shadow stays)."""
+    from blendgen.render.session import RenderSession
+
+    night = {"sun_direction": [0.0, 0.0, 1.0], "sun_strength": 0.0, "sun_color": [1, 1, 1], "sun_angle_deg": 2.0,
+             "sky_color": [0.9, 0.95, 1.0], "sky_strength": 0.05, "sun_visible": False, "condition": "night",
+             "lights_on": True, "street_light": {"direction": [0.2, 0.2, 0.95], "strength": 0.5,
+                                                 "color": [1.0, 0.9, 0.7], "angle_deg": 30.0, "share": 0.7}}
+    cam = Camera.from_hfov(160, 90, 40)
+    near, far = (PlacedObject(1, "car", (8.0, -1.0, 0.0), 0.0, (4.4, 1.8, 1.5)),
+                 PlacedObject(2, "car", (30.0, 1.5, 0.0), 0.0, (4.4, 1.8, 1.5)))
+    s = session(cam, samples=16, denoise=False)
+    try:
+        mean = {}
+        for name, light in (("day", SUN), ("night", night)):
+            s.render_frame(FramePlan("f1", 0.0, T.tolist(), [near, far], light), tmp_path / "r.exr",
+                           {"rgba", "index", "shadow_catcher"})
+            p = read_passes(tmp_path / "r.exr")
+            mean[name] = [float(p["rgba"][..., :3][p["index"] == i].mean()) for i in (1, 2)]
+            if name == "night":
+                assert not any(ob.hide_render for ob in s.beams) and sum(not ob.hide_render for ob in s.lamps) >= 1
+                under = (p["index"] == 0) & (p["shadow_catcher"].mean(axis=2) < 0.9)
+                assert under.sum() > 20  # the soft contact shadow under the boxes
+        assert mean["night"][0] > 2.0 * mean["night"][1], mean
+        assert mean["day"][0] == pytest.approx(mean["day"][1], rel=0.25), mean
+    finally:
+        s.close()

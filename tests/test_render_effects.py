@@ -362,3 +362,40 @@ def test_openexr_compresses_with_a_thread_pool(tmp_path):
 
     write_passes(tmp_path / "a.exr", empty_passes(64, 32, ["rgba"]), window=(0, 0, 64, 32))
     assert OpenEXR.global_thread_count() == len(os.sched_getaffinity(0))
+
+
+NIGHT = {**OVERCAST, "condition": "night", "lights_on": True,
+         "street_light": {"direction": [0.3, 0.1, 0.94], "strength": 0.5, "color": [1.0, 0.8, 0.6], "angle_deg": 30.0}}
+
+
+def test_street_lamps_stand_beside_each_object_at_night_only():
+    """Night: one lamp on a pole near each object (ahead of or behind it, out to its side of
+    the road), its power putting the street key's horizontal irradiance on the object's top;
+    none by day. Lamps closer than LAMP_MERGE_M are one."""
+    right, left, near_right = car(1, 20, -4), car(2, 30, 4), car(3, 22, -4.5)
+    assert fx.street_lamps([right, left], T, SUN.get("street_light")) == []
+    lamps = fx.street_lamps([right, left, near_right], T, NIGHT["street_light"])
+    assert 1 <= len(lamps) <= 3 and lamps == fx.street_lamps([right, left, near_right], T, NIGHT["street_light"])
+    by = {lp["object"]: lp for lp in lamps}
+    assert by[1]["position"][1] < -4 - 0.9 and by[2]["position"][1] > 4 + 0.9  # out on each object's side
+    for lp in lamps:
+        assert lp["position"][2] == pytest.approx(fx.LAMP_HEIGHT_M) and lp["color"] == [1.0, 0.8, 0.6]
+        o = {1: right, 2: left, 3: near_right}[lp["object"]]
+        v = np.asarray(lp["position"]) - (np.asarray(o.position) + [0, 0, 1.0])
+        E = lp["power_w"] / (4 * np.pi * (v @ v)) * v[2] / np.linalg.norm(v)
+        assert E == pytest.approx(0.5 * 0.94 / np.linalg.norm([0.3, 0.1, 0.94]), rel=1e-6)
+    positions = np.array([lp["position"] for lp in lamps])
+    gaps = np.linalg.norm(positions[:, None, :2] - positions[None, :, :2], axis=2)
+    assert (gaps[~np.eye(len(lamps), dtype=bool)] >= fx.LAMP_MERGE_M).all()
+
+
+def test_ego_headlights_at_night_aim_ahead_low():
+    assert fx.ego_headlights(T, None) == []
+    beams = fx.ego_headlights(T, NIGHT["street_light"])
+    assert len(beams) == 2
+    ys = sorted(b["position"][1] for b in beams)
+    assert ys == pytest.approx([-fx.HEADLIGHT_HALF_TRACK_M, fx.HEADLIGHT_HALF_TRACK_M])
+    for b in beams:
+        assert b["position"][0] == pytest.approx(fx.HEADLIGHT_AHEAD_M) and b["position"][2] == pytest.approx(0.7)
+        d = np.asarray(b["direction"])
+        assert d[0] > 0.99 and -0.05 < d[2] < 0  # along the heading, a little down

@@ -77,6 +77,20 @@ class Sync(Section):
     road_vehicle: bool = True  # vehicle-frame constraints + mount/latency/lever-arm estimation; false for drones, handheld
 
 
+class AssetSource(BaseModel):
+    """An `inject.assets` entry with sidecar fields given in the job (checked when the assets
+    are discovered, blendgen.scene.assets.Sidecar): they apply to every asset under `path`
+    and override the sidecars beside the files, key by key."""
+
+    model_config = ConfigDict(extra="allow")
+
+    path: Path
+
+    @property
+    def fields(self) -> dict[str, Any]:
+        return dict(self.model_extra or {})
+
+
 class Inject(Section):
     objects_per_frame: tuple[Annotated[int, Field(ge=0, le=MAX_OBJECTS)],
                              Annotated[int, Field(ge=0, le=MAX_OBJECTS)]] = (2, 6)
@@ -88,8 +102,11 @@ class Inject(Section):
     sequences: bool = True  # objects keep identity and move along their path across frames
     # User asset libraries (docs/assets.md): folders or files of glTF/GLB, .blend, OBJ, FBX, USD
     # with sidecars; for a class the library has, `asset_share` of its objects come from it.
-    assets: list[Path] = Field(default_factory=list)
-    asset_share: Annotated[float, Field(ge=0, le=1)] = 1.0
+    # An entry is a path, or {path: ..., <sidecar fields>} (class, front, unit_m, ...) for
+    # assets as they come, without sidecars beside them.
+    assets: list[Path | AssetSource] = Field(default_factory=list)
+    # one share for every class, or one per class ({car: 1, bus: 0}: classes not named take 1)
+    asset_share: Annotated[float, Field(ge=0, le=1)] | dict[str, Annotated[float, Field(ge=0, le=1)]] = 1.0
 
     @field_validator("classes")
     @classmethod
@@ -100,6 +117,15 @@ class Inject(Section):
         if sum(v.values()) <= 0:
             raise ValueError(f"expected at least one class with a positive weight, e.g. {{car: 1}}; "
                              f"classes: {sorted(CLASSES)}")
+        return v
+
+    @field_validator("asset_share")
+    @classmethod
+    def _share_classes(cls, v):
+        if isinstance(v, dict):
+            unknown = [k for k in v if k not in CLASSES]
+            if unknown:
+                raise ValueError(f"unknown class {unknown[0]!r}; expected one of {sorted(CLASSES)}")
         return v
 
     @field_validator("scenarios")
@@ -286,14 +312,16 @@ class Job(Section):
             d["twin"] = str(self.twin_path)
         if self.sync.lut is not None:
             d["sync"]["lut"] = str(self.path(self.sync.lut))
-        d["inject"]["assets"] = [str(p) for p in self.asset_paths]
+        d["inject"]["assets"] = [str(p) if not f else {"path": str(p), **f} for p, f in self.asset_sources]
         if self.ground_plane is not None and self.ground_plane.detector is not None:
             d["ground_plane"]["detector"] = str(self.path(self.ground_plane.detector))
         return d
 
     @property
-    def asset_paths(self) -> list[Path]:
-        return [self.path(p) for p in self.inject.assets]
+    def asset_sources(self) -> list[tuple[Path, dict[str, Any]]]:
+        """`inject.assets` as (absolute path, sidecar fields given in the job)."""
+        return [(self.path(a.path), a.fields) if isinstance(a, AssetSource) else (self.path(a), {})
+                for a in self.inject.assets]
 
     def content_hash(self) -> str:
         """Hash of everything that changes results; `farm` (how work is spread) is left out
@@ -339,7 +367,7 @@ def _check_files(job: Job, source: str) -> None:
     if job.inject.assets:  # sidecars and file headers, without Blender (docs/assets.md)
         from blendgen.scene.assets import discover
 
-        discover(job.asset_paths)
+        discover(job.asset_sources)
 
 
 def _check_output(out: Path, source: str) -> None:

@@ -94,7 +94,7 @@ def cmd_validate(args) -> int:
 
         from blendgen.scene.assets import discover
 
-        n = Counter(r.sidecar["class"] for r in discover(job.asset_paths))
+        n = Counter(r.sidecar["class"] for r in discover(job.asset_sources))
         print(f"  assets: {sum(n.values())} ({', '.join(f'{c} {k}' for c, k in sorted(n.items()))}); "
               f"headers and sidecars checked, Blender measures them when the job runs")
     if findings:

@@ -220,7 +220,7 @@ class Runner:
 
         if not self.job.inject.assets:
             return None
-        refs = {result_path(self.folder.state, r).stem: r for r in discover(self.job.asset_paths)}
+        refs = {result_path(self.folder.state, r).stem: r for r in discover(self.job.asset_sources)}
         self._say("plan", f"inspecting {len(refs)} library asset(s) in Blender")
         summary = self._farm("assets", list(refs), "blendgen.render.assets:AssetInspector",
                              {"refs": [r.to_dict() for r in refs.values()], "out_dir": str(self.folder.state)})

@@ -93,9 +93,15 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
     if has_shadow:
         sb = _bbox(shadowed, 2, wy1 - wy0, wx1 - wx0)  # within the window
         m = shadowed[sb]
-        sc = cv2.blur(shadow[sb], (3, 3)).reshape(m.shape + (-1,))
+        sc = cv2.blur(grey[sb], (3, 3))
+        # A shadow is the road's own colour darkened: the catcher's grey level (its colour is
+        # the render's sky light, bluish under a clear sky, where a real photo's shadows are
+        # greyer), in the tint of the frame's own sun shadows when the estimate measured one.
         # Shadows only darken: the catcher's >1 values (bounce light, noise) are not added.
-        mult = _rows3(sc[m], cv2.COLOR_RGB2BGR)
+        mult = _rep3(sc[m])
+        tint = getattr(illumination, "shadow_tint_rgb", None) if illumination is not None else None
+        if tint is not None:
+            mult = _shade_tint(mult, np.asarray(tint, np.float32)[::-1])
         mult /= baseline
         np.clip(mult, 0.0, 1.0, out=mult)
         # the sky shadow under an object still blocks light at the catcher patch's edge:
@@ -121,6 +127,13 @@ def composite_frame(real_bgr: np.ndarray, passes: dict, *, settings: Post | None
     info["timings_ms"] = {k: round(1e3 * v, 3) for k, v in {
         "prepare": t1 - t0, "shadows": t2 - t1, **timings, "objects": t3 - t2, "total": t3 - t0}.items()}
     return out, info
+
+
+def _shade_tint(mult: np.ndarray, tint_bgr: np.ndarray) -> np.ndarray:
+    """Grey shadow factors (n, 3) in the tint of the frame's real shadows: full tint where
+    the shadow is deep (factor <= 1 / ratio of a sun shadow), none where it fades to 1."""
+    depth = np.clip((1.0 - mult) / 0.5, 0.0, 1.0)  # 0 at no shadow, 1 from a factor of 0.5 down
+    return mult * (1.0 + depth * (tint_bgr[None, :] - 1.0))
 
 
 def _unchanged(real_bgr, info, t0):

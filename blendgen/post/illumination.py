@@ -88,6 +88,10 @@ class Illumination:
     notes: list[str] = field(default_factory=list)
     light_level: float | None = None  # irradiance / pi in pixel units (None: scene meter alone)
     exposure_source: str = "scene"  # "scene" | "road_albedo_max" | "road_albedo_min": what metered it
+    # the real road's sun shadows against its lit road, per channel at equal luminance (linear
+    # RGB, luminance 1): a composited shadow darkens the road by the render's ratio in this
+    # tint; None (no sun shadow measured): neutral, the road's own colour darkened
+    shadow_tint_rgb: tuple[float, float, float] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -213,7 +217,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         notes.append("no grey road region: ground statistics over the lower frame")
     ground_lum = float(np.median(Y[ground])) if ground.any() else exposure
 
-    ratio, shadow_share = _shadow_ratio(small, Y, ground)
+    ratio, shadow_share, tint_bgr = _shadow_ratio(small, Y, ground, lin)
     # The light: metered on the whole scene, then held to what the road can be. A road that the
     # scene meter makes brighter than light concrete (a dark, shaded or foliage-framed scene
     # around a lit road) or darker than fresh asphalt (snow, white walls) means the scene's
@@ -250,6 +254,7 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
     condition = _condition(el if source != "default" else None, log_avg, sky_lum if sky_bgr is not None else None)
 
     # Sun visibility.
+    shadow_tint = None
     if el <= 0:
         visible, f, cue = False, 0.0, "below_horizon"
     elif condition == "night" or (condition == "dusk" and (source == "default" or el >= TWILIGHT_DEG[1])):
@@ -266,6 +271,8 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
                          "light surfaces, not sun shadows")
     elif ratio >= MIN_SHADOW_RATIO:
         visible, f, cue = True, float(np.clip(1.0 - 1.0 / ratio, 0.0, 0.95)), "shadows"
+        if tint_bgr is not None:
+            shadow_tint = tuple(float(v) for v in tint_bgr[::-1])
     elif sky_bgr is not None and _clear_blue(sky_bgr, sky_lum, ground_lum):
         visible, f, cue = True, clear_sky_sun_fraction(el), "clear_sky"
     else:
@@ -296,7 +303,8 @@ def estimate_illumination(real_bgr: np.ndarray, *, T_world_cam=None, when_utc: d
         sun_direction=tuple(float(v) for v in sun_dir), sun_elevation_deg=float(el), sun_azimuth_deg=float(az),
         sun_direction_source=source, sun_visible=visible, sun_fraction=f, shadow_ratio=float(ratio),
         visibility_cue=cue, horizon_row=float(horizon / scale if scale < 1 else horizon), notes=notes,
-        condition=condition, road_albedo=road_albedo, light_level=float(light), exposure_source=exposure_source)
+        condition=condition, road_albedo=road_albedo, light_level=float(light), exposure_source=exposure_source,
+        shadow_tint_rgb=shadow_tint)
 
 
 def _condition(sun_el: float | None, log_avg: float, sky_lum: float | None) -> str:
@@ -377,8 +385,13 @@ def _sky_mask(small: np.ndarray) -> np.ndarray:
     return np.isin(labels, top)
 
 
-def _shadow_ratio(small: np.ndarray, Y: np.ndarray, ground: np.ndarray) -> tuple[float, float]:
-    """Lit/shadow luminance ratio of the road, 1.0 when the road is not bimodal."""
+SHADOW_TINT_RANGE = (0.8, 1.25)  # per channel: a shade's tint, never a colour of its own
+
+
+def _shadow_ratio(small: np.ndarray, Y: np.ndarray, ground: np.ndarray, lin: np.ndarray | None = None):
+    """(lit/shadow luminance ratio of the road, 1.0 when the road is not bimodal; the shadow
+    class's share; the shadows' tint: per-channel median ratio shadow/lit (linear BGR) divided by
+    the luminance ratio, or None)."""
     gray = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
     # Lane markings are thin bright lines, not sunlit road: remove them with a white top-hat.
     k = max(3, (small.shape[1] // 40) | 1)
@@ -386,22 +399,30 @@ def _shadow_ratio(small: np.ndarray, Y: np.ndarray, ground: np.ndarray) -> tuple
     road = ground & (tophat < 25)
     y = Y[road]
     if y.size < 64:
-        return 1.0, 0.0
+        return 1.0, 0.0, None
     ly = np.log(y + 1e-4)
     lo, hi = np.percentile(ly, [1, 99])
     if hi - lo < 1e-3:
-        return 1.0, 0.0
+        return 1.0, 0.0, None
     q = np.clip((ly - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
     t, _ = cv2.threshold(q.reshape(-1, 1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     dark, bright = y[q <= t], y[q > t]
     share = dark.size / y.size
     if dark.size < 16 or bright.size < 16 or not 0.03 <= share <= 0.85:
-        return 1.0, share
+        return 1.0, share, None
     # Bimodality: the two classes must explain most of the variance (not a smooth gradient).
     between = share * (1 - share) * (ly[q > t].mean() - ly[q <= t].mean()) ** 2
     if between / max(ly.var(), 1e-12) < 0.6:
-        return 1.0, share
-    return float(np.median(bright) / max(np.median(dark), 1e-4)), share
+        return 1.0, share, None
+    ratio = float(np.median(bright) / max(np.median(dark), 1e-4))
+    tint = None
+    if lin is not None:
+        px = lin[road].astype(np.float64)
+        qd = (q <= t).ravel()
+        d_bgr, b_bgr = np.median(px[qd], axis=0), np.median(px[~qd], axis=0)
+        tint = (d_bgr / np.maximum(b_bgr, 1e-5)) * ratio
+        tint = np.clip(_unit_luma_bgr(tint), *SHADOW_TINT_RANGE)
+    return ratio, share, tint
 
 
 def clear_sky_sun_fraction(el_deg: float) -> float:

@@ -112,6 +112,98 @@ def shadow_light_direction(lighting: dict | None) -> np.ndarray | None:
     return d / n if np.isfinite(n) and n > 1e-9 and d[2] / n > MIN_SUN_ELEVATION else None
 
 
+# Night and dusk: street lamps beside the road light each object instead of a uniform key.
+LAMP_HEIGHT_M = 7.5         # street lamps stand 6-10 m high
+LAMP_ALONG_M = (5.0, 14.0)  # one lamp ahead of or behind each object, along its heading ...
+LAMP_OUT_M = (2.0, 4.5)     # ... and out to its side of the road (away from the camera's line)
+LAMP_RADIUS_M = 0.2         # a lamp head: small, sharp highlights on paint and glass
+LAMP_MERGE_M = 8.0          # a lamp this near another one is the same lamp
+MAX_LAMPS = 8
+LAMP_EGO_LANE_M = 1.2       # an object within this of the camera's line gets its lamp on a random side
+
+
+def street_lamps(objects, T_world_cam, street: dict | None) -> list[dict]:
+    """Night/dusk: point lamps on poles beside the road, one near each object (ahead of or
+    behind it, out to its side of the road), in the street key's colour. A lamp's power puts
+    the street key's horizontal irradiance (what the overhead key gave every object alike) on
+    the top of its object (1 m above the road): objects keep their light level, which post's
+    local light matching then sets from the real road at their foot, and gain what a uniform
+    key lacks: light falling off along and down the body, a lit side and a dark one, and the
+    lamps' highlights. [{"position", "power_w", "color", "radius_m"}] ([] by day)."""
+    if not street or float(street.get("strength", 0.0)) <= 0:
+        return []
+    d = np.asarray(street.get("direction", (0, 0, 1)), dtype=float)
+    d = d / max(np.linalg.norm(d), 1e-9)
+    E_h = float(street["strength"]) * max(float(d[2]), 0.1)  # the key's horizontal irradiance
+    cam = np.asarray(T_world_cam, dtype=float)[:3, 3]
+    lamps: list[dict] = []
+    for o in sorted(objects, key=lambda o: int(o.id)):
+        if o.cls == "person" and (o.variant or {}).get("rides") is not None:
+            continue  # a rider is lit by the lamp of what it rides
+        rng = np.random.default_rng([int(o.id), 0x1A3B])
+        p = np.asarray(o.position, dtype=float)
+        h = np.array([np.cos(o.yaw), np.sin(o.yaw), 0.0])
+        n = np.array([-h[1], h[0], 0.0])
+        lateral = float((p - cam) @ n)
+        side = np.sign(lateral) if abs(lateral) > LAMP_EGO_LANE_M else rng.choice((-1.0, 1.0))
+        along = rng.uniform(*LAMP_ALONG_M) * rng.choice((-1.0, 1.0))
+        out = rng.uniform(*LAMP_OUT_M) + 0.5 * float(o.dims[1])
+        pos = p + along * h + side * out * n
+        pos[2] = p[2] + LAMP_HEIGHT_M
+        if any(np.linalg.norm(pos[:2] - np.asarray(q["position"])[:2]) < LAMP_MERGE_M for q in lamps):
+            continue
+        top = p + np.array([0.0, 0.0, 1.0])
+        v = pos - top
+        dist = float(np.linalg.norm(v))
+        cos_t = max(float(v[2]) / dist, 0.2)
+        lamps.append({"position": [float(x) for x in pos], "power_w": float(E_h * 4 * np.pi * dist ** 2 / cos_t),
+                      "color": [float(c) for c in street.get("color", (1, 1, 1))][:3], "radius_m": LAMP_RADIUS_M,
+                      "object": int(o.id)})
+        if len(lamps) >= MAX_LAMPS:
+            break
+    return lamps
+
+
+# The camera car's own low beams: what lights the rears of the vehicles ahead at night.
+HEADLIGHT_AHEAD_M = 1.8     # lamps this far ahead of the camera (the hood's front) ...
+HEADLIGHT_HEIGHT_M = 0.7    # ... this high above the road ...
+HEADLIGHT_HALF_TRACK_M = 0.7  # ... and this far either side of its axis
+HEADLIGHT_DOWN_DEG = 1.5    # low beams aim a little down
+HEADLIGHT_SPOT_DEG = 60.0
+HEADLIGHT_BLEND = 0.4
+HEADLIGHT_REF_M = 8.0       # at this distance the beams give a surface facing them the street key's irradiance
+HEADLIGHT_FLAT = 0.3        # the beam's height over its width: a low beam's flat top
+HEADLIGHT_COLOR = (1.0, 0.95, 0.86)  # warm white
+
+
+def ego_headlights(T_world_cam, street: dict | None, ground_z: float = 0.0) -> list[dict]:
+    """Night/dusk: the camera car's two low beams, spot lights at its front aimed along its
+    heading (light falling off with the square of the distance: a car close ahead is bright, one
+    far ahead dark). [{"position", "direction", "power_w", "spot_deg", "blend", "color"}]; []
+    by day."""
+    if not street or float(street.get("strength", 0.0)) <= 0:
+        return []
+    d = np.asarray(street.get("direction", (0, 0, 1)), dtype=float)
+    E_h = float(street["strength"]) * max(float(d[2] / max(np.linalg.norm(d), 1e-9)), 0.1)
+    T = np.asarray(T_world_cam, dtype=float)
+    fwd = T[:3, 2].copy()
+    fwd[2] = 0.0
+    if np.linalg.norm(fwd) < 1e-6:
+        return []
+    fwd /= np.linalg.norm(fwd)
+    left = np.array([-fwd[1], fwd[0], 0.0])
+    aim = fwd * np.cos(np.radians(HEADLIGHT_DOWN_DEG)) - np.array([0, 0, np.sin(np.radians(HEADLIGHT_DOWN_DEG))])
+    power = E_h * 4 * np.pi * HEADLIGHT_REF_M ** 2 / 2  # two lamps
+    out = []
+    for side in (-1.0, 1.0):
+        pos = T[:3, 3] + HEADLIGHT_AHEAD_M * fwd + side * HEADLIGHT_HALF_TRACK_M * left
+        pos[2] = ground_z + HEADLIGHT_HEIGHT_M
+        out.append({"position": [float(x) for x in pos], "direction": [float(x) for x in aim], "power_w": float(power),
+                    "spot_deg": HEADLIGHT_SPOT_DEG, "blend": HEADLIGHT_BLEND, "flat": HEADLIGHT_FLAT,
+                    "color": list(HEADLIGHT_COLOR)})
+    return out
+
+
 def shadow_points(corners: np.ndarray, sun_dir: np.ndarray | None, ground_z: float) -> np.ndarray:
     """Where the box corners' shadows fall on the ground plane z = ground_z (along -sun_dir)."""
     if sun_dir is None:

@@ -214,6 +214,12 @@ class RenderSession:
         for ob in (self.street, self.glint):
             sc.collection.objects.link(ob)
             ob.hide_render = True
+        # Night/dusk street lamps (effects.street_lamps): point lights that light the objects
+        # only; the overhead key then lights only the ground's catcher, for the soft contact
+        # shadow it gave before (light linking: the lamps exclude the ground, the key includes it).
+        self.lamps: list = []
+        self._ground_in = bpy.data.collections.new("blendgen_ground_include")
+        self._ground_out = bpy.data.collections.new("blendgen_ground_exclude")
         world = bpy.data.worlds.new("blendgen_world")
         sc.world = world
         # No importance map: the renders are bit-identical without it (the light the world casts
@@ -298,6 +304,70 @@ class RenderSession:
         ramp.elements[0].color = (*horizon, 1.0)
         ramp.elements[1].color = (*(sky * 0.8), 1.0)
         n["sky"].inputs["Strength"].default_value = strength if background else 0.0
+
+    def _camera_height(self, plan) -> float:
+        """The camera's height above the road under it (the ground-plane twin's road is z = 0)."""
+        return float(np.asarray(plan.T_world_cam)[2, 3]) if self._ground is not None else 1.5
+
+    def _set_street_lamps(self, lamps: list[dict], beams: list[dict] = ()):
+        """Point lamps at the given places (effects.street_lamps) and the camera car's low beams
+        (effects.ego_headlights); none by day. With lamps the overhead street key lights the
+        ground (its catcher) alone and the glint goes: the lamps light the objects and make
+        their highlights. Neither lamps nor beams light the ground: the real frame shows its light."""
+        while len(self.lamps) < len(lamps):
+            ob = bpy.data.objects.new(f"blendgen_lamp{len(self.lamps)}",
+                                      bpy.data.lights.new(f"blendgen_lamp{len(self.lamps)}", "POINT"))
+            self.scene.collection.objects.link(ob)
+            ob.light_linking.receiver_collection = self._ground_out
+            self.lamps.append(ob)
+        for ob, lamp in zip(self.lamps, lamps):
+            ob.hide_render = False
+            ob.location = tuple(lamp["position"])
+            ob.data.energy = float(lamp["power_w"])
+            ob.data.color = tuple(lamp["color"])
+            ob.data.shadow_soft_size = float(lamp["radius_m"])
+        for ob in self.lamps[len(lamps):]:
+            ob.hide_render = True
+        if not hasattr(self, "beams"):
+            self.beams = []
+            for i in range(2):
+                ob = bpy.data.objects.new(f"blendgen_headlight{i}", bpy.data.lights.new(f"blendgen_headlight{i}", "SPOT"))
+                self.scene.collection.objects.link(ob)
+                ob.light_linking.receiver_collection = self._ground_out
+                ob.data.shadow_soft_size = 0.08
+                # light, not glare: a mirror-like rear window ahead would show the beams as a
+                # hot spot the real frame's exposure does not (the camera sits behind them)
+                ob.visible_glossy = False
+                self.beams.append(ob)
+        for ob, beam in zip(self.beams, list(beams) + [None] * len(self.beams)):
+            ob.hide_render = beam is None
+            if beam is None:
+                continue
+            ob.location = tuple(beam["position"])
+            # a spot shines along its local -z
+            ob.rotation_euler = (-Vector(beam["direction"])).to_track_quat("Z", "Y").to_euler()
+            ob.scale = (1.0, float(beam.get("flat", 1.0)), 1.0)  # local y is up: a flat-topped beam
+            ob.data.energy = float(beam["power_w"])
+            ob.data.color = tuple(beam["color"])
+            ob.data.spot_size = math.radians(float(beam["spot_deg"]))
+            ob.data.spot_blend = float(beam["blend"])
+        if lamps or beams:
+            self._link_ground()
+        if lamps:
+            self.glint.hide_render = True
+        self.street.light_linking.receiver_collection = self._ground_in if lamps else None
+
+    def _link_ground(self):
+        """The ground's objects (the catcher, the ground plane, a twin's road surfaces) in the two
+        light-linking collections: included by the street key, excluded by the lamps."""
+        ground = [ob for ob in (self._catcher, self._ground) if ob is not None]
+        ground += [ob for ob in self.twin_objects if self._roles.get(ob.name) in GROUND_ROLES]
+        for coll, state in ((self._ground_in, "INCLUDE"), (self._ground_out, "EXCLUDE")):
+            for ob in ground:
+                if ob.name not in coll.objects:
+                    coll.objects.link(ob)
+            for ob, entry in zip(coll.objects, coll.collection_objects):  # the same order
+                entry.light_linking.link_state = state
 
     def _set_environment(self, environment: np.ndarray | None):
         """Glossy rays see `environment` (plate_env.plate_environment: rows from the top, linear
@@ -656,6 +726,7 @@ class RenderSession:
 
         t1 = time.perf_counter()
         kept = set(eff.objects.value)
+        by_id_all = {int(o.id): o for o in plan.objects}
         info["objects"] = self._sync_objects(plan, kept)
         self._set_camera(plan.T_world_cam)
         self.scene.cycles.seed = noise_seed(plan.frame_id) if seed is None else int(seed) & 0x7FFFFFFF
@@ -673,6 +744,15 @@ class RenderSession:
         patches = (fx.catcher_patches([by_id[i] for i in sorted(kept)], fx.shadow_light_direction(lighting), margin)
                    if eff.shadow_catcher.value and self.catch_shadows_on == "patches" else None)
         self._set_catcher(patches)
+        lamps = fx.street_lamps([by_id_all[i] for i in sorted(kept) if i in by_id_all], plan.T_world_cam,
+                                lighting.get("street_light"))
+        beams = fx.ego_headlights(plan.T_world_cam, lighting.get("street_light"),
+                                  ground_z=float(np.asarray(plan.T_world_cam)[2, 3]) - self._camera_height(plan))
+        self._set_street_lamps(lamps, beams)  # after the catcher: the lamps leave it to the street key
+        if lamps:
+            info["street_lamps"] = lamps
+        if beams:
+            info["headlights"] = beams
         if patches is not None:
             info["decisions"]["shadow_catcher"]["reason"] += (
                 f"; caught on {len(patches)} ground patches (footprint + shadow of each object)")
@@ -728,6 +808,7 @@ class RenderSession:
         self._set_camera(T_world_cam)
         sc.cycles.seed = noise_seed(out_png.stem)
         self._apply_lighting(lighting, background=True)
+        self._set_street_lamps([])  # the twin as itself: the street key lights all of it
         self._set_twin_mode("background", catcher=False)
         if self._ground is not None:
             self._ground.hide_render = False

@@ -8,6 +8,12 @@ transform that puts it in the object frame of `blendgen.scene.plan` (x forward, 
 z up, origin at the centre of the bottom face). The import and the measuring happen in a
 farm worker (`blendgen.render.assets`); its results form the catalog `OUT/assets.json`
 that the planner draws from.
+
+Assets as they come from other tools carry what a sidecar would say in their own files:
+an OpenMATERIAL 3D `.xoma` beside a glTF states its class, licence and axes (ISO 8855: x
+forward, z up); a Gazebo `model.sdf` states a mesh's scale (its unit) and that the model is
+Z-up, and names textures as `model://NAME/...`. These fill the sidecar's fields; the job
+(`inject.assets: [{path: ..., class: ...}]`) and the sidecars beside the files override them.
 """
 
 from __future__ import annotations
@@ -16,10 +22,11 @@ import hashlib
 import json
 import re
 import struct
+import xml.etree.ElementTree as ET
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 from urllib.parse import unquote
 
 import numpy as np
@@ -72,6 +79,10 @@ class Sidecar(BaseModel):
     variants: list[Annotated[str, Field(min_length=1)]] | None = None  # objects/collections, one asset each
     licence: str | None = None
     mount_height_m: Annotated[float, Field(ge=0, le=10)] = 2.6  # traffic lights: bottom above the road
+    unit_m: Annotated[float, Field(gt=0)] | None = None  # metres per model unit (cm: 0.01); None: inferred
+    # a texture the file names but that is nowhere near it: stop (error), or render those
+    # materials with their base colour (ignore)
+    missing_textures: Literal["error", "ignore"] = "error"
 
     @model_validator(mode="before")
     @classmethod
@@ -99,8 +110,8 @@ class Sidecar(BaseModel):
     def _consistent(self):
         if self.front is not None and self.front[1] == self.up[1]:
             raise ValueError(f"front {self.front} and up {self.up} are the same axis")
-        if sum(x is not None for x in (self.dims, self.height_m, self.length_m)) > 1:
-            raise ValueError("give one of dims, height_m or length_m")
+        if sum(x is not None for x in (self.dims, self.height_m, self.length_m, self.unit_m)) > 1:
+            raise ValueError("give one of dims, height_m, length_m or unit_m")
         return self
 
 
@@ -114,6 +125,7 @@ class AssetRef:
     sidecar: dict          # Sidecar fields (by alias)
     sidecar_file: str | None
     fingerprint: str       # changes when the file or its sidecar does
+    notes: list[str] = field(default_factory=list)  # where the sidecar's fields came from
 
     @property
     def key(self) -> str:
@@ -129,11 +141,14 @@ class AssetRef:
 
 # ----------------------------------------------------------------------------- discovery
 
-def discover(paths: list[Path]) -> list[AssetRef]:
+def discover(paths: list) -> list[AssetRef]:
     """Every asset under `paths` (folders are searched recursively), sidecars read and
-    headers checked; UserError naming the first bad file."""
+    headers checked; UserError naming the first bad file. An item is a path or (path, sidecar
+    fields given in the job)."""
     refs: list[AssetRef] = []
-    for p in paths:
+    for item in paths:
+        p, given = (item if isinstance(item, tuple) else (item, {}))
+        p = Path(p)
         if not p.exists():
             raise UserError("asset path does not exist", where=f"inject.assets: {p}")
         if p.is_file():
@@ -148,16 +163,20 @@ def discover(paths: list[Path]) -> list[AssetRef]:
                 raise UserError(f"no assets in this folder (expected files ending in {sorted(FORMATS)})",
                                 where=f"inject.assets: {p}")
         for f in files:
-            refs.extend(asset_refs(f.resolve()))
+            refs.extend(asset_refs(f.resolve(), given))
     dup = [k for k, n in Counter(r.key for r in refs).items() if n > 1]
     if dup:
         raise UserError("asset listed twice in inject.assets", where=dup[0])
     return refs
 
 
-def read_sidecar(file: Path) -> tuple[Sidecar, str | None]:
-    """The file's sidecar: `<stem>.yaml` over the folder's `asset.yaml` (key by key)."""
-    data: dict = {}
+def read_sidecar(file: Path, given: dict | None = None) -> tuple[Sidecar, str | None, list[str]]:
+    """The file's sidecar: what the file's own metadata says (OpenMATERIAL .xoma, Gazebo
+    model.sdf), then the folder's `asset.yaml`, the file's `<stem>.yaml` and the fields given in
+    the job, each overriding the one before key by key. Returns (sidecar, the last sidecar file
+    read, notes on where fields came from)."""
+    data, notes = metadata_fields(file)
+    user: dict = {}  # what the sidecars and the job say
     used = []
     for sc in (file.parent / FOLDER_SIDECAR, file.with_suffix(".yaml")):
         if sc.is_file() and sc != file:
@@ -165,38 +184,156 @@ def read_sidecar(file: Path) -> tuple[Sidecar, str | None]:
             if not isinstance(d, dict):
                 raise UserError(f"expected a mapping of sidecar fields (class, dims, front, up, variants, "
                                 f"licence), got {type(d).__name__}", where=str(sc))
-            data.update(d)
+            user.update(_licence_spelling(d))
             used.append(sc)
-    if not used:
+    if given:
+        user.update(_licence_spelling(given))
+        notes.append(f"from the job: {', '.join(sorted(given))}")
+    if any(k in user for k in ("dims", "height_m", "length_m")):
+        data.pop("unit_m", None)  # a size the user states wins over the metadata's unit
+    data.update(user)
+    if "class" not in data:
         raise UserError(f"no sidecar: write {file.with_suffix('.yaml').name} (or {FOLDER_SIDECAR} for the "
-                        f"folder) with at least `class:`, one of {sorted(CLASSES)}; blendgen does not guess "
+                        f"folder) with at least `class:`, one of {sorted(CLASSES)}, or give it in the job "
+                        f"(inject.assets: [{{path: {file.name}, class: car}}]); blendgen does not guess "
                         f"an asset's class", where=str(file))
     try:
         spec = Sidecar.model_validate(data)
     except ValidationError as e:
-        where = " + ".join(map(str, used))
+        where = " + ".join(map(str, used + (["inject.assets"] if given else []))) or str(file)
         raise UserError("bad asset sidecar:\n  " + "\n  ".join(error_lines(e, " (see docs/assets.md)")),
                         where=where) from None
-    check_given_size(spec, where=str(used[-1]))
-    return spec, str(used[-1])
+    check_given_size(spec, where=str(used[-1]) if used else str(file))
+    return spec, (str(used[-1]) if used else None), notes
 
 
-def asset_refs(file: Path) -> list[AssetRef]:
+def _licence_spelling(d: dict) -> dict:
+    return {("licence" if k == "license" else k): v for k, v in d.items()}
+
+
+def asset_refs(file: Path, given: dict | None = None) -> list[AssetRef]:
     fmt = FORMATS[file.suffix.lower()]
-    spec, sc_file = read_sidecar(file)
-    check_file(file, fmt)
+    spec, sc_file, notes = read_sidecar(file, given)
+    check_file(file, fmt, missing_textures=spec.missing_textures)
     sidecar = spec.model_dump(by_alias=True)
     st = file.stat()  # like make: a changed file (size or time) or sidecar is inspected again
     fp = hashlib.sha256(json.dumps([str(file), st.st_size, st.st_mtime_ns, sidecar],
                                    sort_keys=True).encode()).hexdigest()[:16]
-    return [AssetRef(str(file), fmt, v, sidecar, sc_file, fp) for v in (spec.variants or [None])]
+    return [AssetRef(str(file), fmt, v, sidecar, sc_file, fp, notes) for v in (spec.variants or [None])]
+
+
+# ----------------------------------------------------------------------------- other tools' metadata
+
+# OpenMATERIAL 3D's objectClass / vehicleCategory -> our classes (asset_schema.json v1.x)
+XOMA_CLASSES = {"human": "person", "car": "car", "van": "car", "truck": "truck", "semitrailer": "truck",
+                "trailer": "truck", "bus": "bus", "motorbike": "motorcycle", "motorcycle": "motorcycle",
+                "bicycle": "bicycle", "trafficLight": "traffic light", "traffic_light": "traffic light"}
+
+
+def metadata_fields(file: Path) -> tuple[dict, list[str]]:
+    """Sidecar fields stated by the file's own metadata, and notes saying which file said them."""
+    data, notes = {}, []
+    xoma = file.with_suffix(".xoma")
+    if file.suffix.lower() in (".gltf", ".glb") and xoma.is_file():
+        try:
+            meta = json.loads(xoma.read_text(errors="replace")).get("metadata") or {}
+        except (json.JSONDecodeError, AttributeError):
+            meta = {}
+        cat = (meta.get("vehicleClassData") or {}).get("vehicleCategory") if meta.get("objectClass") == "vehicle" \
+            else meta.get("objectClass")
+        if cat in XOMA_CLASSES:
+            data["class"] = XOMA_CLASSES[cat]
+        if meta.get("license"):
+            data["licence"] = str(meta["license"])
+        # OpenMATERIAL assets use ISO 8855 axes (x forward, y left, z up), which Blender's glTF
+        # import keeps
+        data.update(front="+x", up="+z")
+        notes.append(f"{xoma.name}: " + ", ".join(f"{k} {v}" for k, v in data.items()))
+    sdf = _gazebo_sdf(file)
+    if sdf is not None:
+        sdf_path, scale = sdf
+        if scale is not None:
+            data["unit_m"] = scale
+        if file.suffix.lower() == ".obj":
+            # Gazebo models are Z-up; Blender's OBJ import takes the file as Y-up (file z -> -y)
+            data["up"] = "-y"
+        lic = _licence_line(sdf_path.parent)
+        if lic:
+            data["licence"] = lic
+        notes.append(f"{sdf_path}: " + ", ".join(f"{k} {v}" for k, v in data.items() if k != "licence"))
+    return data, notes
+
+
+def _gazebo_sdf(file: Path) -> tuple[Path, float | None] | None:
+    """(model.sdf, the mesh's uniform scale) when `file` is a mesh a Gazebo model's SDF names."""
+    for model in list(file.parents)[:3]:
+        sdf = model / "model.sdf"
+        if not sdf.is_file():
+            continue
+        try:
+            root = ET.parse(sdf).getroot()
+        except (ET.ParseError, OSError):
+            return None
+        for mesh in root.iter("mesh"):
+            uri = (mesh.findtext("uri") or "").strip()
+            target = resolve_reference(uri, sdf.parent) if uri else None
+            if target is None or target.resolve() != file.resolve():
+                continue
+            text = (mesh.findtext("scale") or "").split()
+            try:
+                vals = [float(v) for v in text]
+            except ValueError:
+                vals = []
+            scale = vals[0] if vals and max(vals) - min(vals) < 1e-9 * max(1.0, abs(vals[0])) and vals[0] > 0 else None
+            return sdf, scale
+        return None
+    return None
+
+
+def _licence_line(folder: Path) -> str | None:
+    """The first line of the nearest LICENSE file at or above a model's folder (2 levels)."""
+    for d in [folder, *list(folder.parents)[:2]]:
+        for name in ("LICENSE", "LICENSE.txt", "LICENCE", "COPYING"):
+            f = d / name
+            if f.is_file():
+                line = next((ln.strip() for ln in f.read_text(errors="replace").splitlines() if ln.strip()), "")
+                return f"{line[:120]} ({f})" if line else str(f)
+    return None
+
+
+def resolve_reference(ref: str, base: Path) -> Path | None:
+    """The file a model names as `ref` relative to `base`: the path as written, a Gazebo
+    `model://NAME/...` URI (NAME a folder beside or above the model), else the file's name in
+    the usual texture folders (textures/, ../textures, ../materials/textures), ignoring case."""
+    ref = unquote(ref.strip().strip('"')).replace("\\", "/")
+    cands = []
+    if ref.startswith("model://"):
+        rest = ref[len("model://"):]
+        cands += [d / rest for d in [base, *list(base.parents)[:4]]]
+    elif ref:
+        cands.append(base / ref)
+    name = Path(ref).name
+    dirs = [base, base / "textures", base.parent / "textures", base.parent / "materials" / "textures",
+            base / "materials" / "textures"]
+    cands += [d / name for d in dirs] if name else []
+    for c in cands:
+        if c.is_file():
+            return c
+    low = name.lower()
+    for d in dirs:
+        if low and d.is_dir():
+            hit = next((f for f in d.iterdir() if f.name.lower() == low and f.is_file()), None)
+            if hit is not None:
+                return hit
+    return None
 
 
 # ----------------------------------------------------------------------------- headers
 
-def check_file(file: Path, fmt: str) -> None:
+def check_file(file: Path, fmt: str, missing_textures: str = "error") -> None:
     """Read the file's header (glTF and OBJ: the whole text) and the files it references,
-    without Blender."""
+    without Blender. A texture is found where the file says, or where `resolve_reference`
+    looks; one found nowhere is an error unless `missing_textures` is "ignore"."""
     try:
         with open(file, "rb") as f:
             data = f.read() if fmt in ("gltf", "obj") else f.read(8192)
@@ -204,11 +341,17 @@ def check_file(file: Path, fmt: str) -> None:
         raise UserError(f"cannot read the asset file ({e.strerror})", where=str(file)) from None
     if not data:
         raise UserError("the asset file is empty", where=str(file))
-    {"gltf": _check_gltf, "blend": _check_blend, "obj": _check_obj, "fbx": _check_fbx,
-     "usd": _check_usd}[fmt](file, data)
+    if fmt in ("gltf", "obj"):
+        {"gltf": _check_gltf, "obj": _check_obj}[fmt](file, data, missing_textures == "ignore")
+    else:
+        {"blend": _check_blend, "fbx": _check_fbx, "usd": _check_usd}[fmt](file, data)
 
 
-def _check_gltf(file: Path, data: bytes) -> None:
+MISSING_HINT = ("put it there, or write `missing_textures: ignore` in the sidecar (or the job's entry) to render "
+                "its materials with their base colour")
+
+
+def _check_gltf(file: Path, data: bytes, ignore_textures: bool = False) -> None:
     if file.suffix.lower() == ".glb":
         if data[:4] != b"glTF":
             raise UserError("not a GLB file (the first 4 bytes are not 'glTF')", where=str(file))
@@ -234,12 +377,15 @@ def _check_gltf(file: Path, data: bytes) -> None:
         raise UserError("not a glTF 2 document (no asset.version 2.x)", where=str(file))
     if not doc.get("meshes"):
         raise UserError("no geometry: the glTF has no meshes", where=str(file))
-    for kind, what in (("buffers", "buffer"), ("images", "texture")):
-        for i, item in enumerate(doc.get(kind) or []):
-            uri = item.get("uri")
-            if uri and not uri.startswith("data:") and not (file.parent / unquote(uri)).is_file():
-                raise UserError(f"missing {what} file {uri!r} ({kind}[{i}]; looked in {file.parent})",
-                                where=str(file))
+    for i, item in enumerate(doc.get("buffers") or []):
+        uri = item.get("uri")
+        if uri and not uri.startswith("data:") and not (file.parent / unquote(uri)).is_file():
+            raise UserError(f"missing buffer file {uri!r} (buffers[{i}]; looked in {file.parent})", where=str(file))
+    for i, item in enumerate(doc.get("images") or []):
+        uri = item.get("uri")
+        if uri and not uri.startswith("data:") and resolve_reference(uri, file.parent) is None and not ignore_textures:
+            raise UserError(f"missing texture file {uri!r} (images[{i}]; looked in {file.parent}, its textures/ "
+                            f"and ../materials/textures): {MISSING_HINT}", where=str(file))
 
 
 def _check_blend(file: Path, data: bytes) -> None:
@@ -253,7 +399,7 @@ def _check_blend(file: Path, data: bytes) -> None:
 _MAP = re.compile(r"^\s*(map_\w+|bump|disp|norm|refl)\s+(.+?)\s*$", re.M)
 
 
-def _check_obj(file: Path, data: bytes) -> None:
+def _check_obj(file: Path, data: bytes, ignore_textures: bool = False) -> None:
     text = data.decode("utf-8", "replace")
     if "\x00" in text[:4096]:
         raise UserError("not an OBJ file (binary data; OBJ is text)", where=str(file))
@@ -265,8 +411,9 @@ def _check_obj(file: Path, data: bytes) -> None:
             raise UserError(f"missing material library {lib!r} (looked in {file.parent})", where=str(file))
         for _, arg in _MAP.findall(mtl.read_text(errors="replace")):
             tex = arg.split()[-1]  # options (-bm 1 ...) come before the file name
-            if not (mtl.parent / tex).is_file():
-                raise UserError(f"missing texture {tex!r} (named in {mtl.name})", where=str(file))
+            if resolve_reference(tex, mtl.parent) is None and not ignore_textures:
+                raise UserError(f"missing texture {tex!r} (named in {mtl.name}; looked in {mtl.parent}, its "
+                                f"textures/ and ../materials/textures): {MISSING_HINT}", where=str(file))
 
 
 def _check_fbx(file: Path, data: bytes) -> None:
@@ -319,44 +466,40 @@ def infer_front(cls: str, raw_dims: np.ndarray, up: str) -> str:
     return ("-" if a == "y" else "+") + a
 
 
-def normalisation(spec: Sidecar, lo: np.ndarray, hi: np.ndarray, where: str) -> dict:
+def normalisation(spec: Sidecar, lo: np.ndarray, hi: np.ndarray, where: str, front: str | None = None,
+                  front_source: str | None = None) -> dict:
     """From the asset's bounds in Blender's frame after import to the object frame.
 
-    Returns {"transform": 4x4 (rotation to x forward / z up, uniform scale, bottom centre to
-    the origin), "dims": normalised (L, W, H), "scale", "raw_dims", "front", "up",
-    "front_inferred"}; UserError for no geometry or an absurd size or proportion."""
+    ``front``: the axis found from the geometry (blendgen.render.assets: the tail lamps) when
+    the sidecar does not say, ``front_source`` how. Returns {"transform": 4x4 (rotation to x
+    forward / z up, uniform scale, bottom centre to the origin), "dims": normalised (L, W, H),
+    "scale", "raw_dims", "front", "up", "front_inferred", "front_source"}; UserError for no
+    geometry or an absurd size or proportion, naming the axes and unit that would fit."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     raw = hi - lo
     if not np.all(np.isfinite(raw)) or raw.max() <= 0:
         raise UserError("no geometry: the asset's meshes have no extent", where=where)
-    front = spec.front or infer_front(spec.cls, raw, spec.up)
-    fx, uz = axis_vector(front), axis_vector(spec.up)
-    R = np.stack([fx, np.cross(uz, fx), uz])  # rows: the object axes in the import frame
-    dims0 = np.abs(R) @ raw                    # (L, W, H) before scaling
+    if spec.front is not None:
+        front, source = spec.front, "stated"
+    elif front is not None and front[1] != spec.up[1]:
+        source = front_source or "geometry"
+    else:
+        front, source = infer_front(spec.cls, raw, spec.up), "longest axis" if spec.cls not in KEY_DIM else "thinnest axis"
+    dims0 = _turned_dims(raw, front, spec.up)
     if np.any(dims0 <= 1e-9):
         raise UserError(f"no geometry: the asset is flat ({dims0[0]:.3g} x {dims0[1]:.3g} x {dims0[2]:.3g})",
                         where=where)
     cls = spec.cls
-    k = KEY_DIM.get(cls, 0)
-    lo_k, hi_k = CLASS_DIMS[cls][k]
-    if spec.dims is not None:
-        # uniform scale: the geometric mean of the three ratios; proportions are the asset's
-        scale = float(np.exp(np.mean(np.log(np.asarray(spec.dims) / dims0))))
-    elif spec.height_m is not None:
-        scale = spec.height_m / dims0[2]
-    elif spec.length_m is not None:
-        scale = spec.length_m / dims0[0]
-    else:  # no stated size: a unit that makes it real (m, cm, mm, inch, dm), else the nearest real size
-        scale = next((u for u in UNITS if lo_k <= dims0[k] * u <= hi_k), None)
-        scale = scale or float(np.clip(dims0[k], lo_k, hi_k) / dims0[k])
+    scale = _scale(spec, dims0)
     dims = dims0 * scale
     names = ("length", "width", "height")
     for i in range(3):
         a, b = CLASS_DIMS[cls][i]
         if not a / ABSURD <= dims[i] <= b * ABSURD:
             raise UserError(f"absurd size: scaled to real size it is {dims[0]:.2f} x {dims[1]:.2f} x {dims[2]:.2f} m "
-                            f"(L x W x H; front {front}, up {spec.up}); a {cls}'s {names[i]} is {_range_text(cls, i)}. "
-                            f"Check front/up and the dims in the sidecar", where=where)
+                            f"(L x W x H; front {front}, up {spec.up}, {scale:g} m per unit); a {cls}'s {names[i]} is "
+                            f"{_range_text(cls, i)}. {_what_fits(spec, raw)}", where=where)
+    R = _rotation(front, spec.up)
     # R is an axis permutation with signs, so the turned box of the bounds is exact.
     c = np.array(_corners(lo, hi)) @ (scale * R).T
     a, b = c.min(axis=0), c.max(axis=0)
@@ -365,7 +508,59 @@ def normalisation(spec: Sidecar, lo: np.ndarray, hi: np.ndarray, where: str) -> 
     T[:3, 3] = [-(a[0] + b[0]) / 2, -(a[1] + b[1]) / 2, -a[2]]
     return {"transform": T.round(9).tolist(), "dims": [round(float(x), 4) for x in dims], "scale": scale,
             "raw_dims": [round(float(x), 6) for x in raw], "front": front, "up": spec.up,
-            "front_inferred": spec.front is None}
+            "front_inferred": source not in ("stated",), "front_source": source}
+
+
+def _rotation(front: str, up: str) -> np.ndarray:
+    fx, uz = axis_vector(front), axis_vector(up)
+    return np.stack([fx, np.cross(uz, fx), uz])  # rows: the object axes in the import frame
+
+
+def _turned_dims(raw: np.ndarray, front: str, up: str) -> np.ndarray:
+    return np.abs(_rotation(front, up)) @ raw  # (L, W, H) before scaling
+
+
+def _scale(spec: Sidecar, dims0: np.ndarray) -> float:
+    cls = spec.cls
+    k = KEY_DIM.get(cls, 0)
+    lo_k, hi_k = CLASS_DIMS[cls][k]
+    if spec.dims is not None:
+        # uniform scale: the geometric mean of the three ratios; proportions are the asset's
+        return float(np.exp(np.mean(np.log(np.asarray(spec.dims) / dims0))))
+    if spec.height_m is not None:
+        return spec.height_m / dims0[2]
+    if spec.length_m is not None:
+        return spec.length_m / dims0[0]
+    if spec.unit_m is not None:
+        return spec.unit_m
+    # no stated size: a unit that makes it real (m, cm, mm, inch, dm), else the nearest real size
+    scale = next((u for u in UNITS if lo_k <= dims0[k] * u <= hi_k), None)
+    return scale or float(np.clip(dims0[k], lo_k, hi_k) / dims0[k])
+
+
+def _what_fits(spec: Sidecar, raw: np.ndarray) -> str:
+    """What to write in the sidecar for an asset whose size came out absurd: the up axis and
+    unit (of the usual ones) under which all three sizes are real for its class."""
+    fits = []
+    for up in AXES:
+        horiz = [a for a in "xyz" if a != up[1]]
+        for h in horiz:
+            front = ("-" if h == "y" else "+") + h
+            dims0 = _turned_dims(raw, front, up)
+            for u in UNITS:
+                d = dims0 * u
+                # ranges widened by a quarter: mirrors, a roof rack
+                if all(CLASS_DIMS[spec.cls][i][0] / 1.25 <= d[i] <= CLASS_DIMS[spec.cls][i][1] * 1.25 for i in range(3)):
+                    fits.append((up, front, u, d))
+    if not fits:
+        return "No axes and unit (m, cm, mm, inch, dm) make it one: check the class and the model"
+    # the stated up axis first, then the stated unit
+    fits.sort(key=lambda f: (f[0][1] != spec.up[1], spec.unit_m is not None and f[2] != spec.unit_m))
+    up, front, u, d = fits[0]
+    unit = {1.0: "m", 0.01: "cm", 0.001: "mm", 0.0254: "inch", 0.1: "dm"}[u]
+    return (f"With up along {up[1]} (`up: +{up[1]}` or `up: -{up[1]}`, whichever points to its roof), front "
+            f"along {front[1]} and `unit_m: {u:g}` ({unit}) it is {d[0]:.2f} x {d[1]:.2f} x {d[2]:.2f} m: write "
+            f"those in the sidecar (or the job's entry)")
 
 
 def _corners(lo, hi):
@@ -389,17 +584,20 @@ def asset_variant(entry: dict) -> dict:
 
 class AssetSampler:
     """Draws library assets for the planner: for a class the library has, a share
-    `asset_share` of the objects come from the library (uniformly over its assets)."""
+    `asset_share` (one for all classes, or per class) of the objects come from the library
+    (uniformly over its assets)."""
 
-    def __init__(self, catalog: list[dict], share: float):
-        self.share = float(share)
+    def __init__(self, catalog: list[dict], share: float | dict[str, float]):
+        # per class ({car: 1, bus: 0}; a class not named takes 1), or one share for all
+        self.share = {c: float(share.get(c, 1.0)) for c in CLASSES} if isinstance(share, dict) else \
+            dict.fromkeys(CLASSES, float(share))
         self.by_cls: dict[str, list[dict]] = {}
         for e in catalog:
             self.by_cls.setdefault(e["cls"], []).append(e)
 
     def draw(self, cls: str, rng: np.random.Generator) -> tuple[dict, tuple] | None:
         entries = self.by_cls.get(cls)
-        if not entries or self.share <= 0 or rng.random() >= self.share:
+        if not entries or self.share[cls] <= 0 or rng.random() >= self.share[cls]:
             return None
         e = entries[int(rng.integers(len(entries)))]
         return asset_variant(e), tuple(float(x) for x in e["dims"])

@@ -137,6 +137,9 @@ class Planner:
         self.real = real  # scene.real_scene.RealScene: the real frames' road users, road and hood
         self.reason = ""  # why the last candidate was rejected (for the manifest)
         self.rng = np.random.default_rng(seed)
+        # library draws have their own stream: a job with a library plans the procedural
+        # objects' draws as the same job without one (the realism bench pairs them)
+        self.asset_rng = np.random.default_rng([seed, 0xA55E7])
         self.poses = list(poses)
         self.ego = _Ego(self.poses, twin)
         self.times = self.ego.t
@@ -410,8 +413,9 @@ class Planner:
         return self.ego.cam[k, :2] + r * np.array([math.cos(b), math.sin(b)])
 
     def spawn(self, cls: str, k: int) -> Track | None:
-        drawn = self.assets.draw(cls, self.rng) if self.assets is not None else None
-        variant, dims = drawn or sample_variant(cls, self.rng)
+        procedural = sample_variant(cls, self.rng)
+        drawn = self.assets.draw(cls, self.asset_rng) if self.assets is not None else None
+        variant, dims = drawn or procedural
         p = self._view_point(k)
         if cls in VEHICLES + ("bicycle",) and self.real is not None and self.real.has(k, ROAD):
             edge = cls == "bicycle" or (cls == "motorcycle" and "rider" not in variant)

@@ -8,6 +8,7 @@ outputs atomically and a marker; running the same job again skips what is finish
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import time
 from collections import Counter
@@ -252,8 +253,11 @@ class Runner:
         done = [self.folder.frame_dir(i) / "labels.json" for i in ids
                 if self.folder.frame_done(i, self.job.export.save_exr)]
         ex = self.job.export
+        # a frame done again (its files deleted) changes its labels.json: the export is redone
+        stamp = hashlib.sha256("".join(f"{p.parent.name}:{p.stat().st_mtime_ns}:{p.stat().st_size};"
+                                       for p in done).encode()).hexdigest()[:16]
         key = {"frames": [p.parent.name for p in done], "formats": ex.formats, "kitti_types": ex.kitti_types,
-               "yolo_val_fraction": ex.yolo_val_fraction}
+               "yolo_val_fraction": ex.yolo_val_fraction, "labels_stamp": stamp}
         if self.folder.stage_done("export") and self.folder.stage_info("export").get("key") == key:
             self.skipped.append("export")
             self._say("export", f"labels up to date ({self.folder.labels})")

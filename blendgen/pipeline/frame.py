@@ -236,7 +236,11 @@ class FrameProcessor:
                 if self.detector is None:
                     gp = self.job.ground_plane
                     self.detector = load_detector(self.job.path(gp.detector) if gp and gp.detector else None)
-                dets = [{"cls": o.cls, "score": o.score, "box": o.box} for o in road_users(real_frame, self.detector)]
+                from blendgen.analysis.stage import not_ego
+
+                H, W = real_frame.shape[:2]  # no hood known: a very wide box at the bottom is our own car
+                users, _ = not_ego(road_users(real_frame, self.detector), None, W, H)
+                dets = [{"cls": o.cls, "score": o.score, "box": o.box} for o in users]
             boxes = detector_boxes(dets, self.job.labels.detector_score or DETECTOR_LABEL_SCORE)
         if mode == "ignore":
             for b in boxes:

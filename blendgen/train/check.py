@@ -88,11 +88,11 @@ def fine_tune(model_path: Path, samples: list[Sample], *, seed: int, epochs: flo
         out = model(torch.from_numpy(np.stack(xs)))
         loss, parts = yolox_loss(out, grid, stride, targets)
         if not torch.isfinite(loss):
-            raise FloatingPointError(f"training loss is {float(loss)} at step {step} (seed {seed})")
+            raise FloatingPointError(f"training loss is {loss.item()} at step {step} (seed {seed})")
         opt.zero_grad()
         loss.backward()
         opt.step()
-        losses.append(float(loss))
+        losses.append(loss.item())
         if progress:
             progress(step + 1, steps, float(loss))
     model.eval()

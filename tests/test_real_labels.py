@@ -210,3 +210,22 @@ def test_export_writes_real_labels_with_their_source(tmp_path):
     assert (painted[10:30, 140:148] == 114).all() and (painted[70:80, 2:12] == 114).all()
     assert (painted[40:60, 100:130] == 200).all()  # labelled: untouched
     assert (cv2.imread(str(d / "composite.png")) == 200).all()  # the composite itself is never painted
+
+
+def test_job_labels_section(tmp_path):
+    from blendgen.job.schema import parse_job
+
+    src = _stills(tmp_path / "src", 1)
+    rec = import_recording("images", src, tmp_path / "rec", show_progress=False)
+    base = {"name": "j", "recording": str(rec), "ground_plane": "auto", "output": str(tmp_path / "out")}
+    assert parse_job(base).labels.real == "auto"
+    with pytest.raises(UserError, match=r"labels.real: user, but the recording .* has no labels.json"):
+        parse_job({**base, "labels": {"real": "user"}})
+    with pytest.raises(UserError, match=r"labels.real"):
+        parse_job({**base, "labels": {"real": "maybe"}})
+    with pytest.raises(UserError, match=r"detector_score"):
+        parse_job({**base, "labels": {"detector_score": 1.5}})
+    synthetic = {"name": "j", "synthetic": {}, "twin": "demo_town", "output": str(tmp_path / "o2"),
+                 "labels": {"real": "user"}}
+    with pytest.raises(UserError, match="a synthetic recording has no real road users"):
+        parse_job(synthetic)

@@ -298,6 +298,10 @@ class Runner:
         else:
             self._rec = read_recording(job.recording_dir, require_frames=True)  # read once: _run uses it
             n = self._rec.n_frames
+            if job.labels.real in ("auto", "user", "ignore"):  # the frame workers use them: checked here, once
+                from blendgen.recording.labels import read_recording_labels
+
+                read_recording_labels(self._rec)
         if job.frames.start >= n:
             raise UserError(f"frames.start is {job.frames.start}, but the recording {job.recording_dir} has {n} "
                             f"frames (0..{n - 1}); nothing was written", where="job")

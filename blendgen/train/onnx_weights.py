@@ -73,7 +73,7 @@ def _tensor(buf: bytes) -> tuple[str, np.ndarray]:
         elif num == 2:
             dtype = v
         elif num == 4:
-            floats.append(np.frombuffer(v, "<f4") if wt == 2 else np.frombuffer(v, "<f4"))
+            floats.append(np.frombuffer(v, "<f4"))  # packed (bytes) or one fixed32 value
         elif num == 8:
             name = v.decode()
         elif num == 9:

@@ -15,6 +15,7 @@ COMMAND_MODULES = [
     "blendgen.sync.command",            # sync
     "blendgen.recording.importers.command",  # import
     "blendgen.eval.command",            # realism
+    "blendgen.train.command",           # train-check (torch, an optional extra, imported when it runs)
     "blendgen.report.command",          # report
     "blendgen.scene.map_import",        # twin import / show
     "blendgen.analysis.calibrate",      # calibrate

@@ -53,31 +53,12 @@ class YoloxDetector:
         self.category_ids = category_ids
 
     def preprocess(self, bgr: np.ndarray) -> tuple[np.ndarray, float]:
-        h, w = bgr.shape[:2]
-        r = min(self.size[0] / h, self.size[1] / w)
-        resized = cv2.resize(bgr, (int(w * r), int(h * r)), interpolation=cv2.INTER_LINEAR)
-        padded = np.full((self.size[0], self.size[1], 3), 114, np.uint8)
-        padded[:resized.shape[0], :resized.shape[1]] = resized
+        padded, r = letterbox(bgr, self.size)
         return np.ascontiguousarray(padded.transpose(2, 0, 1)[None], dtype=np.float32), r
 
     def decode(self, raw: np.ndarray, ratio: float) -> list[dict]:
         """raw: (N, 85) head output -> detections in the original image's pixels."""
-        xy = (raw[:, :2] + self.grid) * self.stride
-        wh = np.exp(np.minimum(raw[:, 2:4], 20.0)) * self.stride  # clamp: exp overflow on junk input
-        cls = np.argmax(raw[:, 5:], axis=1)
-        score = raw[:, 4] * raw[np.arange(len(raw)), 5 + cls]
-        keep = score >= self.score_min
-        if self.category_ids is not None:
-            cat = np.asarray(COCO80_TO_ID)[cls]
-            keep &= np.isin(cat, list(self.category_ids))
-        xy, wh, cls, score = xy[keep] / ratio, wh[keep] / ratio, cls[keep], score[keep]
-        boxes = np.concatenate([xy - wh / 2, wh], axis=1)  # x, y, w, h
-        if len(boxes) == 0:
-            return []
-        idx = cv2.dnn.NMSBoxesBatched(boxes.tolist(), score.tolist(), cls.tolist(), self.score_min, self.nms_iou)
-        idx = np.asarray(idx, dtype=int).ravel()
-        return [{"bbox": [float(v) for v in boxes[i]], "score": float(score[i]),
-                 "category_id": COCO80_TO_ID[int(cls[i])]} for i in idx]
+        return decode(raw, ratio, self.grid, self.stride, self.score_min, self.nms_iou, self.category_ids)
 
     def __call__(self, bgr: np.ndarray) -> list[dict]:
         """Detections on one BGR uint8 image: [{bbox [x,y,w,h], score, category_id}]."""
@@ -92,6 +73,39 @@ class YoloxDetector:
             x0, y0, x1, y1 = max(x, 0.0), max(y, 0.0), min(x + w, W), min(y + h, H)
             d["bbox"] = [x0, y0, max(x1 - x0, 0.0), max(y1 - y0, 0.0)]
         return [d for d in dets if d["bbox"][2] > 0 and d["bbox"][3] > 0]
+
+
+def letterbox(bgr: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, float]:
+    """The image scaled to fit (h, w) `size`, at the top left, padded with 114; and the scale."""
+    h, w = bgr.shape[:2]
+    r = min(size[0] / h, size[1] / w)
+    resized = cv2.resize(bgr, (int(w * r), int(h * r)), interpolation=cv2.INTER_LINEAR)
+    padded = np.full((size[0], size[1], 3), 114, np.uint8)
+    padded[:resized.shape[0], :resized.shape[1]] = resized
+    return padded, r
+
+
+def decode(raw: np.ndarray, ratio: float, grid: np.ndarray, stride: np.ndarray, score_min: float,
+           nms_iou: float, category_ids: set[int] | None = None, max_dets: int | None = None) -> list[dict]:
+    """A YOLOX head's (N, 85) output (sigmoid scores) -> detections [x, y, w, h] in the original
+    image's pixels (divided by the letterbox `ratio`), class-wise NMS, best first."""
+    xy = (raw[:, :2] + grid) * stride
+    wh = np.exp(np.minimum(raw[:, 2:4], 20.0)) * stride  # clamp: exp overflow on junk input
+    cls = np.argmax(raw[:, 5:], axis=1)
+    score = raw[:, 4] * raw[np.arange(len(raw)), 5 + cls]
+    keep = score >= score_min
+    if category_ids is not None:
+        cat = np.asarray(COCO80_TO_ID)[cls]
+        keep &= np.isin(cat, list(category_ids))
+    xy, wh, cls, score = xy[keep] / ratio, wh[keep] / ratio, cls[keep], score[keep]
+    boxes = np.concatenate([xy - wh / 2, wh], axis=1)  # x, y, w, h
+    if len(boxes) == 0:
+        return []
+    idx = cv2.dnn.NMSBoxesBatched(boxes.tolist(), score.tolist(), cls.tolist(), score_min, nms_iou)
+    idx = np.asarray(idx, dtype=int).ravel()
+    idx = idx[np.argsort(-score[idx], kind="stable")][:max_dets]
+    return [{"bbox": [float(v) for v in boxes[i]], "score": float(score[i]),
+             "category_id": COCO80_TO_ID[int(cls[i])]} for i in idx]
 
 
 def _grids(size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

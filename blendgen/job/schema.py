@@ -183,6 +183,20 @@ class Export(Section):
     yolo_val_fraction: Annotated[float, Field(ge=0, le=0.9)] = 0.0  # share of frames in YOLO's val split (seeded)
 
 
+class Labels(Section):
+    """The real road users already in the background frames (docs/labels.md).
+
+    user: the recording's own labels (labels.json, `blendgen import images --labels`), updated
+    for what injected objects cover; detector: the frame analysis' detections, labels at or
+    above `detector_score` and ignore regions below; ignore: every real road user an ignore
+    region; none: unlabelled (background to a trainer). auto: user when the recording has
+    labels, none for a synthetic recording, detector otherwise."""
+
+    real: Literal["auto", "user", "detector", "ignore", "none"] = "auto"
+    # None: labels.real_objects.DETECTOR_LABEL_SCORE, measured in docs/benchmarks/real_labels.md
+    detector_score: Annotated[float, Field(gt=0, le=1)] | None = None
+
+
 class Farm(Section):
     engine: Literal["local", "ray"] = "local"
     workers: Annotated[int, Field(ge=1, le=256)] = 1
@@ -254,6 +268,7 @@ class Job(Section):
     render: Render = Field(default_factory=Render)
     post: Post = Field(default_factory=Post)
     export: Export = Field(default_factory=Export)
+    labels: Labels = Field(default_factory=Labels)
     farm: Farm = Field(default_factory=Farm)
     output: Path
 
@@ -278,6 +293,9 @@ class Job(Section):
             raise ValueError("give exactly one of `twin` (built-in name or YAML path) or `ground_plane` (a block)")
         if self.synthetic is not None and self.twin is None:
             raise ValueError("`synthetic` renders a drive through a twin: give `twin` too")
+        if self.synthetic is not None and self.labels.real == "user":
+            raise ValueError("labels.real: user needs a real recording with labels; a synthetic recording has "
+                             "no real road users")
         if self.frames.stop is not None and self.frames.stop <= self.frames.start:
             raise ValueError(f"frames.stop ({self.frames.stop}) must be greater than frames.start")
         return self
@@ -362,6 +380,10 @@ def _check_files(job: Job, source: str) -> None:
         det = job.path(gp.detector)
         if not det.is_file() or det.suffix.lower() != ".onnx":
             raise UserError(f"ground_plane.detector: expected an existing .onnx file, got {det}", where=source)
+    if job.labels.real == "user" and job.recording is not None and not (job.recording_dir / "labels.json").is_file():
+        raise UserError(f"labels.real: user, but the recording {job.recording_dir} has no labels.json; import "
+                        "them with `blendgen import images DIR REC --labels PATH --label-format coco|yolo|kitti`, "
+                        "or use labels.real: detector", where=source)
     if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
         raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)
     if job.inject.assets:  # sidecars and file headers, without Blender (docs/assets.md)

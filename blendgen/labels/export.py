@@ -7,7 +7,7 @@ from pathlib import Path
 
 from blendgen.errors import UserError
 from blendgen.labels.coco import write_coco
-from blendgen.labels.frame_labels import read_frame_labels
+from blendgen.labels.frame_labels import all_instances, read_frame_labels
 from blendgen.labels.kitti import write_kitti
 from blendgen.labels.yolo import write_yolo
 
@@ -34,11 +34,12 @@ def export_labels(out_dir: Path, frame_label_paths: list[Path], formats: list[st
             raise UserError(f"image {fr['image']} not found (looked at {fr['image_path']})",
                             where=str(fr["path"]))
     labels = out_dir / "labels"
+    insts = [i for f in frames for i in all_instances(f)]
     summary: dict = {"frames": len(frames), "formats": list(formats),
-                     "instances": sum(len(f["instances"]) for f in frames),
-                     "ignored": sum(i["ignore"] for f in frames for i in f["instances"]),
-                     "per_class": dict(Counter(i["cls"] for f in frames for i in f["instances"]
-                                               if not i["ignore"]))}
+                     "instances": len(insts),
+                     "ignored": sum(i["ignore"] for i in insts),
+                     "per_class": dict(Counter(i["cls"] for i in insts if not i["ignore"])),
+                     **source_counts(insts)}
     if "coco" in formats:
         write_coco(labels / "coco.json", frames, out_dir)
         summary["coco"] = str(labels / "coco.json")
@@ -47,6 +48,13 @@ def export_labels(out_dir: Path, frame_label_paths: list[Path], formats: list[st
     if "kitti" in formats:
         summary["kitti"] = write_kitti(labels / "kitti", frames, kitti_types)
     return summary
+
+
+def source_counts(insts: list[dict]) -> dict:
+    """Labels and ignore regions per source (injected, user, detector)."""
+    src = lambda i: i.get("source", "injected")  # noqa: E731
+    return {"per_source": dict(sorted(Counter(src(i) for i in insts if not i["ignore"]).items())),
+            "ignored_per_source": dict(sorted(Counter(src(i) for i in insts if i["ignore"]).items()))}
 
 
 def find_frame_labels(out_dir: Path) -> list[Path]:

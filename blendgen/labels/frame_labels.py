@@ -7,12 +7,18 @@ Format (JSON object, version 1):
      "image": "composite.png",        # relative to this file's folder (or to OUT)
      "width": 1280, "height": 720,
      "camera": {"fx", "fy", "cx", "cy", ...} | null,   # intrinsics at this resolution
-     "instances": [ ...dicts from blendgen.labels.instances.extract_instances... ]}
+     "instances": [ ...dicts from blendgen.labels.instances.extract_instances... ],
+     "real": [ ...dicts from blendgen.labels.real_objects.real_instances... ]}   # optional
 
 Each instance holds: id, track_id, cls, category_id, bbox [x,y,w,h], area, visible_px,
 amodal_px, segmentation (COCO RLE, counts as str), occlusion, truncation, distance_m,
 box3d_cam {location, dimensions_hwl, rotation_y, alpha, R_cam_obj, corners}, scenario,
-state, ignore.
+state, ignore, source ("injected").
+
+`instances` are the injected objects; `real` the real road users of the background frame
+(source "user" or "detector"; no 3-D box; their mask is the visible part of their box; cls
+"ignore" with category_id 0 is an ignore region of no known class). `all_instances(doc)` is
+both, what the exporters write.
 """
 
 from __future__ import annotations
@@ -30,8 +36,9 @@ _REQUIRED_INSTANCE = {"id": int, "cls": str, "category_id": int, "bbox": list, "
 
 
 def write_frame_labels(path, frame_id: str, image_relpath: str, width: int, height: int,
-                       instances: list[dict], *, camera=None) -> None:
-    """Write one frame's labels atomically. `camera`: optional blendgen Camera (for KITTI calib)."""
+                       instances: list[dict], *, camera=None, real: list[dict] | None = None) -> None:
+    """Write one frame's labels atomically. `camera`: optional blendgen Camera (for KITTI calib);
+    `real`: labels of the real road users (labels.real_objects)."""
     doc = {
         "format": FORMAT, "version": VERSION,
         "frame_id": str(frame_id), "image": str(image_relpath),
@@ -39,6 +46,8 @@ def write_frame_labels(path, frame_id: str, image_relpath: str, width: int, heig
         "camera": camera.to_dict() if camera is not None else None,
         "instances": list(instances),
     }
+    if real is not None:
+        doc["real"] = list(real)
     _validate(doc, Path(path))
     atomic.write_json(path, doc)
 
@@ -56,6 +65,11 @@ def read_frame_labels(path) -> dict:
     doc["path"] = path
     doc["image_path"] = resolve_image(path, doc["image"])
     return doc
+
+
+def all_instances(doc: dict) -> list[dict]:
+    """Injected and real labels of a frame (read_frame_labels() dict), injected first."""
+    return list(doc["instances"]) + list(doc.get("real") or [])
 
 
 def resolve_image(labels_path: Path, image: str) -> Path:
@@ -84,14 +98,20 @@ def _validate(doc, path: Path) -> None:
             raise UserError(f"field {key!r} missing or not {typ.__name__}", where=where)
     if doc["width"] <= 0 or doc["height"] <= 0:
         raise UserError(f"width/height must be positive, got {doc['width']}x{doc['height']}", where=where)
-    for i, inst in enumerate(doc["instances"]):
-        w = f"{where}: instances[{i}]"
+    if not isinstance(doc.get("real", []), list):
+        raise UserError("field 'real' must be a list", where=where)
+    items = [("instances", i, x) for i, x in enumerate(doc["instances"])]
+    items += [("real", i, x) for i, x in enumerate(doc.get("real") or [])]
+    for part, i, inst in items:
+        w = f"{where}: {part}[{i}]"
         if not isinstance(inst, dict):
             raise UserError("expected an object", where=w)
         for key, typ in _REQUIRED_INSTANCE.items():
             if not isinstance(inst.get(key), typ):
                 raise UserError(f"field {key!r} missing or of the wrong type", where=w)
-        if inst["cls"] not in CLASSES or CLASSES[inst["cls"]] != inst["category_id"]:
+        if part == "real" and (inst["cls"], inst["category_id"]) == ("ignore", 0):
+            pass  # an ignore region of no known class (KITTI DontCare)
+        elif inst["cls"] not in CLASSES or CLASSES[inst["cls"]] != inst["category_id"]:
             raise UserError(f"class {inst['cls']!r} / category_id {inst['category_id']} is not one of "
                             f"{CLASSES}", where=w)
         if len(inst["bbox"]) != 4 or inst["bbox"][2] <= 0 or inst["bbox"][3] <= 0:

@@ -180,6 +180,7 @@ def extract_instances(index: np.ndarray, plan: FramePlan, camera: Camera, *,
             "rides": ({"id": int(obj.variant["rides"]), "cls": obj.variant["mount"]["cls"]}
                       if obj.variant.get("rides") else None),  # a rider: the two-wheeler it rides
             "ignore": bool(ignore),
+            "source": "injected",
         })
         if real_boxes is not None:
             out[-1]["covers_real"] = covered_real(mask, real_boxes)

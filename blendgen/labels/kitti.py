@@ -13,6 +13,11 @@ blendgen class (Bicycle, Motorcycle, Bus, TrafficLight), which KITTI's own tools
 Riders are separate person instances (COCO's convention): KITTI's Cyclist in both modes
 (Motorcyclist for a motorcycle's rider in "extended"); the two-wheeler itself stays its own
 line (Misc in "kitti": KITTI has no bicycle or motorcycle type).
+
+Real road users of the background (source user or detector) have a 2-D box only: their
+lines carry KITTI's "unknown" 3-D fields (dimensions -1, location -1000, rotation_y and alpha
+-10). label_2 cannot say where a label came from: source_2/<frame>.txt holds, line for line,
+injected, user or detector.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from blendgen import atomic
+from blendgen.labels.frame_labels import all_instances
 from blendgen.labels.yolo import link_image
 
 KITTI_TYPES = {  # export.kitti_types -> blendgen class -> KITTI type
@@ -39,6 +45,8 @@ def kitti_type(inst: dict, types: str = "kitti") -> str:
     rides = inst.get("rides")
     if inst["cls"] == "person" and rides:
         return "Cyclist" if types == "kitti" or rides["cls"] == "bicycle" else "Motorcyclist"
+    if inst["cls"] not in KITTI_TYPES[types]:  # an ignore region of no known class
+        return "DontCare"
     return KITTI_TYPES[types][inst["cls"]]
 
 
@@ -55,7 +63,10 @@ def label_line(inst: dict, types: str = "kitti") -> str:
     kind = kitti_type(inst, types)
     if inst["ignore"] or kind == "DontCare":
         return f"DontCare -1 -1 -10 {box} -1 -1 -1 -1000 -1000 -1000 -10"
-    b = inst["box3d_cam"]
+    b = inst.get("box3d_cam")
+    if b is None:  # a real object: its 2-D box only
+        return (f"{kind} {float(inst.get('truncation') or 0.0):.2f} {occluded_state(inst.get('occlusion'))} "
+                f"-10 {box} -1 -1 -1 -1000 -1000 -1000 -10")
     hh, ww, ll = b["dimensions_hwl"]
     lx, ly, lz = b["location"]
     return (f"{kind} {float(inst.get('truncation') or 0.0):.2f} "
@@ -84,8 +95,10 @@ def write_kitti(root: Path, frames: list[dict], types: str = "kitti") -> dict:
     n_calib = 0
     for fr in frames:
         fid = fr["frame_id"]
-        atomic.write_text(root / "label_2" / f"{fid}.txt",
-                          "".join(label_line(i, types) + "\n" for i in fr["instances"]))
+        insts = all_instances(fr)
+        atomic.write_text(root / "label_2" / f"{fid}.txt", "".join(label_line(i, types) + "\n" for i in insts))
+        atomic.write_text(root / "source_2" / f"{fid}.txt",
+                          "".join(i.get("source", "injected") + "\n" for i in insts))
         link_image(root / "image_2" / (fid + Path(fr["image_path"]).suffix), fr["image_path"])
         if fr.get("camera"):
             atomic.write_text(root / "calib" / f"{fid}.txt", calib_text(fr["camera"]))

@@ -8,7 +8,15 @@ and a file holds either boxes or polygons, so there are two datasets side by sid
 
 Box lines: `cls cx cy w h`; polygon lines: `cls x1 y1 x2 y2 ...`, all normalised to 0..1
 with pixel (u, v) covering [u, u+1) (COCO's convention). Class index = position in
-blendgen.CLASSES. YOLO has no "ignore": objects marked ignore are left out.
+blendgen.CLASSES.
+
+YOLO has no ignore region. Left out, an ignore region (an uncertain real detection, a
+tiny object, the user's own ignore box) would be background to the trainer: the very thing
+an ignore region must not be. So its visible pixels are painted grey (114, the value YOLO
+letterboxes with) in YOLO's copy of that frame's image, and no line is written: the region
+is then neither object nor background. Frames without ignore regions link the composite.
+Label files cannot say where a label came from: sources/<frame>.txt holds, line for line,
+injected, user or detector.
 """
 
 from __future__ import annotations
@@ -21,7 +29,10 @@ import cv2
 import numpy as np
 
 from blendgen import CLASSES, atomic
+from blendgen.labels.frame_labels import all_instances
 from blendgen.labels.instances import decode_mask
+
+IGNORE_GREY = 114
 
 NAMES = list(CLASSES)
 
@@ -86,9 +97,19 @@ def write_yolo(root: Path, frames: list[dict], val_fraction: float = 0.0, seed: 
         listing, val_listing = [], []
         for fr in frames:
             name = fr["frame_id"] + Path(fr["image_path"]).suffix
-            link_image(sub / "images" / name, fr["image_path"])
-            lines = [make_line(i, fr["width"], fr["height"]) for i in fr["instances"] if not i["ignore"]]
+            insts = all_instances(fr)
+            ignored = [i for i in insts if i["ignore"]]
+            if not ignored:
+                link_image(sub / "images" / name, fr["image_path"])
+            elif sub == root:
+                write_masked(sub / "images" / name, fr["image_path"], ignored)
+            else:  # the segment set shares the detect set's painted copy
+                link_image(sub / "images" / name, root / "images" / name)
+            kept = [i for i in insts if not i["ignore"]]
+            lines = [make_line(i, fr["width"], fr["height"]) for i in kept]
             atomic.write_text(sub / "labels" / f"{fr['frame_id']}.txt", "".join(l + "\n" for l in lines))
+            atomic.write_text(sub / "sources" / f"{fr['frame_id']}.txt",
+                              "".join(i.get("source", "injected") + "\n" for i in kept))
             (val_listing if fr["frame_id"] in val else listing).append(f"./images/{name}")
             files += 1
         atomic.write_text(sub / "train.txt", "".join(l + "\n" for l in listing))
@@ -99,6 +120,16 @@ def write_yolo(root: Path, frames: list[dict], val_fraction: float = 0.0, seed: 
         atomic.write_text(sub / "data.yaml", data_yaml(sub, "val.txt" if val else "train.txt"))
     return {"dir": str(root), "label_files": files, "train_frames": len(frames) - len(val),
             "val_frames": len(val)}
+
+
+def write_masked(path: Path, image: Path, ignored: list[dict]) -> None:
+    """A copy of `image` with the ignore regions' pixels grey (see the module docstring)."""
+    img = cv2.imread(str(image), cv2.IMREAD_UNCHANGED)
+    for inst in ignored:
+        img[decode_mask(inst["segmentation"]) > 0] = IGNORE_GREY
+    if path.is_symlink():
+        path.unlink()  # an earlier export's link: never write through it onto the composite
+    atomic.write_image(path, img)
 
 
 def link_image(link: Path, target: Path) -> None:

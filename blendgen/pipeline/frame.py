@@ -55,6 +55,8 @@ class FrameProcessor:
         self.camera = self.rec.camera.scaled(w, h)
         self.session = None
         self.sensor = None  # the camera's sensor profile, measured once per block of frames
+        self.real_mode, self.rec_labels = real_label_mode(self.job, self.rec)
+        self.detector = None  # twin jobs with detector labels: loaded on first use
 
     def _real(self, i: int) -> np.ndarray:
         """Recording frame i at the render resolution."""
@@ -141,17 +143,26 @@ class FrameProcessor:
         timings["post"] = time.perf_counter() - t2
 
         t3 = time.perf_counter()
+        from blendgen.labels.real_objects import real_instances
+
         index = passes["index"]
+        real_boxes_out = self._real_labels(frame_id, real, fa)
+        if real_boxes_out is not None:
+            real_boxes = [{"cls": r["cls"], "box": r["box"]} for r in real_boxes_out]
         instances = extract_instances(index, plan, self.camera, amodal_px=info.get("amodal_px"),
-                                      min_visible_px=job.export.min_visible_px,
-                                      small_objects=job.export.small_objects, real_boxes=real_boxes)
+                                      min_visible_px=job.export.min_visible_px, small_objects=job.export.small_objects,
+                                      real_boxes=real_boxes)
+        # every rendered pixel (objects, their scenery) is in front of the real frame's road users
+        real_insts = None if real_boxes_out is None else real_instances(
+            real_boxes_out, index > 0, min_visible_px=job.export.min_visible_px,
+            small_objects=job.export.small_objects)
         # the instance image holds labelled objects only (scenery such as a signal pole is not one)
         atomic.write_image(fdir / "instances.png", np.where(index >= SCENERY_ID, 0, np.clip(index, 0, None))
                            .astype(np.uint16))
         atomic.write_image(fdir / "composite.png", composite)
         # labels.json last: its presence (with the others) marks the frame finished.
         write_frame_labels(fdir / "labels.json", frame_id, f"frames/{frame_id}/composite.png",
-                           self.camera.width, self.camera.height, instances, camera=self.camera)
+                           self.camera.width, self.camera.height, instances, camera=self.camera, real=real_insts)
         if not job.export.save_exr:
             exr.unlink(missing_ok=True)
         timings["labels"] = time.perf_counter() - t3
@@ -162,6 +173,10 @@ class FrameProcessor:
             "versions": {"blendgen": __version__},
             "objects": {o.cls: sum(1 for q in plan.objects if q.cls == o.cls) for o in plan.objects},
             "labels": len([x for x in instances if not x.get("ignore")]),
+            "real_labels": None if real_insts is None else {  # labels.real's mode and what it gave
+                "mode": self.real_mode, "sources": sorted({x["source"] for x in real_insts}),
+                "labels": sum(not x["ignore"] for x in real_insts), "ignored": sum(x["ignore"] for x in real_insts),
+                "dropped": len(real_boxes_out) - len(real_insts)},  # wholly covered, or too small
             "hashes": {n: _sha(fdir / n) for n in ("composite.png", "instances.png", "labels.json")},
             "timings": {k: round(v, 4) for k, v in timings.items()},
             "render": {k: v for k, v in info.items() if k != "amodal_px"},
@@ -199,9 +214,53 @@ class FrameProcessor:
         return fa, [{"cls": o.cls, "box": [o.box[0] * sx, o.box[1] * sy, o.box[2] * sx, o.box[3] * sy]}
                     for o in fa.real_objects]
 
+    def _real_labels(self, frame_id: str, real_frame: np.ndarray, fa) -> list[dict] | None:
+        """The real road users of this frame as labels.real says (render resolution), or None."""
+        from blendgen.labels.real_objects import DETECTOR_LABEL_SCORE, detector_boxes, user_boxes
+
+        mode = self.real_mode
+        if mode == "none":
+            return None
+        if mode in ("user", "ignore") and self.rec_labels is not None and frame_id in self.rec_labels:
+            W, H = self.rec.camera.width, self.rec.camera.height
+            boxes = user_boxes(self.rec_labels[frame_id], self.camera.width / W, self.camera.height / H)
+        else:  # detector, or a frame the user's labels do not cover
+            if fa is not None:  # the analysis' detections: the ego vehicle's own hood already left out
+                sx, sy = self.camera.width / fa.width, self.camera.height / fa.height
+                dets = [{"cls": o.cls, "score": o.score, "distance_m": o.distance_m,
+                         "box": [o.box[0] * sx, o.box[1] * sy, o.box[2] * sx, o.box[3] * sy]}
+                        for o in fa.real_objects]
+            else:
+                from blendgen.analysis.objects import load_detector, road_users
+
+                if self.detector is None:
+                    gp = self.job.ground_plane
+                    self.detector = load_detector(self.job.path(gp.detector) if gp and gp.detector else None)
+                from blendgen.analysis.stage import not_ego
+
+                H, W = real_frame.shape[:2]  # no hood known: a very wide box at the bottom is our own car
+                users, _ = not_ego(road_users(real_frame, self.detector), None, W, H)
+                dets = [{"cls": o.cls, "score": o.score, "box": o.box} for o in users]
+            boxes = detector_boxes(dets, self.job.labels.detector_score or DETECTOR_LABEL_SCORE)
+        if mode == "ignore":
+            for b in boxes:
+                b["ignore"] = True
+        return boxes
+
     def close(self):
         if self.session is not None:
             self.session.close()
+
+
+def real_label_mode(job, rec) -> tuple[str, dict | None]:
+    """(labels.real with `auto` resolved, the recording's own labels or None)."""
+    from blendgen.recording.labels import read_recording_labels
+
+    labels = read_recording_labels(rec) if job.synthetic is None else None
+    mode = job.labels.real
+    if mode == "auto":
+        mode = "none" if job.synthetic is not None else "user" if labels is not None else "detector"
+    return mode, labels
 
 
 def _sha(path: Path) -> str:

@@ -8,6 +8,7 @@ outputs atomically and a marker; running the same job again skips what is finish
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import time
 from collections import Counter
@@ -252,8 +253,11 @@ class Runner:
         done = [self.folder.frame_dir(i) / "labels.json" for i in ids
                 if self.folder.frame_done(i, self.job.export.save_exr)]
         ex = self.job.export
+        # a frame done again (its files deleted) changes its labels.json: the export is redone
+        stamp = hashlib.sha256("".join(f"{p.parent.name}:{p.stat().st_mtime_ns}:{p.stat().st_size};"
+                                       for p in done).encode()).hexdigest()[:16]
         key = {"frames": [p.parent.name for p in done], "formats": ex.formats, "kitti_types": ex.kitti_types,
-               "yolo_val_fraction": ex.yolo_val_fraction}
+               "yolo_val_fraction": ex.yolo_val_fraction, "labels_stamp": stamp}
         if self.folder.stage_done("export") and self.folder.stage_info("export").get("key") == key:
             self.skipped.append("export")
             self._say("export", f"labels up to date ({self.folder.labels})")
@@ -294,6 +298,10 @@ class Runner:
         else:
             self._rec = read_recording(job.recording_dir, require_frames=True)  # read once: _run uses it
             n = self._rec.n_frames
+            if job.labels.real in ("auto", "user", "ignore"):  # the frame workers use them: checked here, once
+                from blendgen.recording.labels import read_recording_labels
+
+                read_recording_labels(self._rec)
         if job.frames.start >= n:
             raise UserError(f"frames.start is {job.frames.start}, but the recording {job.recording_dir} has {n} "
                             f"frames (0..{n - 1}); nothing was written", where="job")
@@ -328,14 +336,17 @@ class Runner:
         return summary
 
     def _summary(self, ids, farm_summary, export) -> dict:
-        from blendgen.labels.frame_labels import read_frame_labels
+        from blendgen.labels.export import source_counts
+        from blendgen.labels.frame_labels import all_instances, read_frame_labels
 
         done = [i for i in ids if self.folder.frame_done(i, self.job.export.save_exr)]
         per_class: Counter = Counter()
+        insts = []
         for i in done:
-            for inst in read_frame_labels(self.folder.frame_dir(i) / "labels.json")["instances"]:
-                if not inst.get("ignore"):
-                    per_class[inst["cls"]] += 1
+            insts += all_instances(read_frame_labels(self.folder.frame_dir(i) / "labels.json"))
+        for inst in insts:
+            if not inst.get("ignore"):
+                per_class[inst["cls"]] += 1
         # every frame not done is listed once, with the reason it failed
         reasons = {f["item"]: f["error"] for f in getattr(farm_summary, "failed_items", [])}
         for task in getattr(farm_summary, "failed", []) or []:
@@ -347,6 +358,8 @@ class Runner:
             "frames": {"total": len(ids), "done": len(done), "failed": len(failed)},
             "failed_frames": failed,
             "labels_per_class": dict(sorted(per_class.items())),
+            # labels and ignore regions by where they came from: injected, user, detector (labels.real)
+            "labels_per_source": source_counts(insts),
             "seconds_per_stage": self.times, "skipped_stages": self.skipped, "warnings": self.warnings,
             "throughput": self._throughput(farm_summary),
             "outputs": {"labels": str(self.folder.labels), "report": str(self.folder.root / "report" / "index.md"),
@@ -379,6 +392,11 @@ def print_summary(s: dict) -> None:
         print("  labels:  " + ", ".join(f"{k} {v}" for k, v in s["labels_per_class"].items()))
     else:
         print("  labels:  none")
+    src = s.get("labels_per_source") or {}
+    if src.get("per_source") or src.get("ignored_per_source"):
+        ign = src.get("ignored_per_source") or {}
+        print("  sources: " + ", ".join(f"{k} {v}" for k, v in src["per_source"].items())
+              + (f"; ignore regions: {', '.join(f'{k} {v}' for k, v in ign.items())}" if ign else ""))
     times = s["seconds_per_stage"]
     print("  time:    " + ", ".join(f"{k} {v:.1f}s" for k, v in times.items())
           + (f"  (skipped, already done: {', '.join(s['skipped_stages'])})" if s["skipped_stages"] else ""))

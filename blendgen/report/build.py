@@ -12,7 +12,7 @@ import numpy as np
 from blendgen import CLASSES, atomic
 from blendgen.errors import UserError
 from blendgen.labels.export import find_frame_labels
-from blendgen.labels.frame_labels import read_frame_labels
+from blendgen.labels.frame_labels import all_instances, read_frame_labels
 from blendgen.report.draw import CLASS_BGR, contact_sheet, draw_labels
 
 SHEET_FRAMES = 8
@@ -44,6 +44,11 @@ def _summary_section(out_dir: Path, frames: list[dict]) -> list[str]:
     n_ign = sum(i["ignore"] for i in inst)
     lines = ["## Summary", "", f"- frames with labels: {len(frames)}",
              f"- labelled objects: {len(inst) - n_ign} (+ {n_ign} marked ignore)"]
+    real = [i for f in frames for i in f.get("real") or []]
+    if real:
+        by = Counter((i["source"], i["ignore"]) for i in real)
+        lines.append("- real road users of the backgrounds (labels.real): " + ", ".join(
+            f"{src} {by[src, False]} labels + {by[src, True]} ignore regions" for src in sorted({s for s, _ in by})))
     labels = out_dir / "labels"
     for name, rel in (("COCO", "coco.json"), ("YOLO", "yolo/data.yaml"), ("KITTI", "kitti/label_2")):
         if (labels / rel).exists():
@@ -65,12 +70,14 @@ def _sheet_section(rep: Path, frames: list[dict]) -> list[str]:
         scale = TILE_W / img.shape[1]
         small = cv2.resize(img, (TILE_W, max(1, round(img.shape[0] * scale))), interpolation=cv2.INTER_AREA)
         # the clean composite (to judge how it looks) beside the same with its labels
-        tiles += [(f["frame_id"], small), (f"{f['frame_id']} labels", draw_labels(small, f["instances"], scale=scale))]
+        tiles += [(f["frame_id"], small),
+                  (f"{f['frame_id']} labels", draw_labels(small, all_instances(f), scale=scale))]
     atomic.write_image(rep / "contact_sheet.jpg", contact_sheet(tiles, cols=4, tile_w=TILE_W),
                        [cv2.IMWRITE_JPEG_QUALITY, 90])
     legend = ", ".join(f"{n} = rgb{tuple(reversed(c))}" for n, c in CLASS_BGR.items())
     return lines + [f"{len(tiles) // 2} of {len(frames)} frames: each composite as written, then with mask outlines, "
-                    f"boxes and `class #track` tags ({legend}; grey = ignore).",
+                    f"boxes and `class #track` tags ({legend}; grey = ignore; real road users of the "
+                    "background are tagged with their source, user or detector).",
                     "", "![contact sheet](contact_sheet.jpg)", ""]
 
 

@@ -27,6 +27,8 @@ def draw_labels(img: np.ndarray, instances: list[dict], scale: float = 1.0) -> n
     out = img.copy()
     thick = max(1, round(W / 500))
     for inst in instances:
+        if inst.get("source", "injected") != "injected":
+            continue  # a real object's mask is its box: the box below shows it
         colour = (160, 160, 160) if inst["ignore"] else CLASS_BGR[inst["cls"]]
         m = decode_mask(inst["segmentation"])
         if m.shape != (H, W):
@@ -40,7 +42,9 @@ def draw_labels(img: np.ndarray, instances: list[dict], scale: float = 1.0) -> n
         x, y, w, h = (v * scale for v in inst["bbox"])
         box = (int(x), int(y), max(int(x + w) - 1, int(x)), max(int(y + h) - 1, int(y)))
         cv2.rectangle(out, box[:2], box[2:], colour, 1, cv2.LINE_AA)
-        boxes.append((box, colour, f"{inst['cls']} #{inst.get('track_id', inst['id'])}"))
+        src = inst.get("source", "injected")
+        tag = f"{inst['cls']} #{inst.get('track_id', inst['id'])}" if src == "injected" else f"{inst['cls']} ({src})"
+        boxes.append((box, colour, tag))
     placed: list[tuple[int, int, int, int]] = []
     font, fs = cv2.FONT_HERSHEY_SIMPLEX, 0.45 * max(1.0, W / 800)
     for (x0, y0, x1, y1), colour, tag in sorted(boxes, key=lambda b: (b[0][1], b[0][0])):

@@ -116,6 +116,7 @@ def check_recording(root: str | Path) -> list[Finding]:
         elif "frames" in spans and "IMU" in spans and (spans["IMU"][0] > spans["frames"][0] + 0.5
                                                         or spans["IMU"][1] < spans["frames"][1] - 0.5):
             out.append(Finding("warn", f"IMU does not cover all frames: {_fmt_spans(spans)}"))
+    out.extend(_label_findings(rec))
     images_checked = rec.n_frames and not rec.video and rec.camera is not None
     for issue in rec.issues:
         if images_checked and MISSING_IMAGES in issue:
@@ -123,6 +124,28 @@ def check_recording(root: str | Path) -> list[Finding]:
         out.append(Finding("warn", issue))
     for note in meta.get("notes", []) or []:
         out.append(Finding("info", str(note)))
+    return out
+
+
+def _label_findings(rec) -> list[Finding]:
+    """The recording's own labels (labels.json): how many frames they cover, or why they do not read."""
+    from collections import Counter
+
+    from blendgen.recording.labels import read_recording_labels
+
+    try:
+        labels = read_recording_labels(rec)
+    except UserError as e:
+        return [Finding("error", str(e))]
+    if labels is None:
+        return [Finding("info", "no labels of the real road users (labels.json): jobs label them with the detector "
+                                "(labels.real)")]
+    per = Counter(b["cls"] for boxes in labels.values() for b in boxes)
+    out = [Finding("info", f"labels for {len(labels)} of {rec.n_frames} frames: "
+                           + (", ".join(f"{c} {n}" for c, n in sorted(per.items())) or "no boxes"))]
+    if len(labels) < rec.n_frames:
+        out.append(Finding("warn", f"{rec.n_frames - len(labels)} frame(s) have no labels: with labels.real user "
+                                   "their real road users come from the detector"))
     return out
 
 

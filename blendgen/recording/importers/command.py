@@ -10,7 +10,7 @@ from blendgen.errors import UserError
 # per-format options: argparse dest -> importer keyword
 _OPTIONS = {
     "video": ["imu_csv", "gnss_csv", "calib", "hfov_deg", "time_offset", "time_unit"],
-    "images": ["calib", "hfov_deg"],
+    "images": ["calib", "hfov_deg", "labels", "label_format", "class_map"],
     "euroc": ["cam"],
     "kitti": ["kitti_cam"],
     "comma2k19": ["gnss_source"],
@@ -53,6 +53,13 @@ def register(subparsers) -> None:
     g.add_argument("--time-unit", default="s", choices=["s", "ms", "us", "ns"], help="unit of the CSVs' t")
     g.add_argument("--hfov", dest="hfov_deg", type=float,
                    help="horizontal field of view (deg) when no calibration is known (video, gopro, rosbag)")
+    g = p.add_argument_group("images: your own labels")
+    g.add_argument("--labels", help="box labels of the images: a COCO JSON file, or a YOLO / KITTI label folder "
+                                    "(<image name>.txt), matched to the images by file name")
+    g.add_argument("--label-format", choices=["coco", "yolo", "kitti"], help="format of --labels")
+    g.add_argument("--class-map", action="append", metavar="NAME=CLASS",
+                   help="what a label class is: a blendgen class, `ignore` (an ignore region) or `drop`; "
+                        "repeat or comma-separate; `*=drop` for every other name")
     g = p.add_argument_group("gopro")
     g.add_argument("--lens", help="the GoPro's lens mode (wide, linear, narrow, ...; the file does not say "
                                   "it): its calibrated fisheye from Gyroflow's lens database")

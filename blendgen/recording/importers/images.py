@@ -3,6 +3,8 @@
 Frames are one second apart on the recording clock (stills have no shared timeline);
 use them with a `ground_plane` job, which needs no sync. Every image must have the same
 size; the camera is a pinhole from --calib or an assumed horizontal field of view.
+`labels` (COCO JSON, YOLO or KITTI label folder) become the recording's labels.json
+(blendgen.recording.labels), matched to the images by file name.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
 def import_images(src, dst, *, calib=None, hfov_deg: float | None = None, force: bool = False,
-                  show_progress: bool = True) -> Path:
+                  show_progress: bool = True, labels=None, label_format: str | None = None,
+                  class_map=None) -> Path:
     src = Path(src)
     if not src.is_dir():
         raise UserError("image folder not found", where=str(src))
@@ -39,6 +42,17 @@ def import_images(src, dst, *, calib=None, hfov_deg: float | None = None, force:
             raise UserError(f"is {img.shape[1]}x{img.shape[0]} but {files[0].name} is {size[1]}x{size[0]}; "
                             "all images of a recording share one camera", where=str(p))
     h, w = size
+    frame_labels = None
+    if labels is not None:  # read and checked before anything is written
+        from blendgen.recording.labels import parse_class_map, read_labels
+
+        if label_format is None:
+            raise UserError("--labels needs --label-format coco, yolo or kitti", where=str(labels))
+        cmap = parse_class_map(class_map)
+        boxes = read_labels(labels, label_format, {p.name: (w, h) for p in files}, class_map=cmap)
+        frame_labels = {f"f{i:06d}": boxes[p.name] for i, p in enumerate(files) if p.name in boxes}
+    elif label_format is not None or class_map:
+        raise UserError("--label-format and --class-map go with --labels PATH")
     dst = common.prepare_output(dst, force)
     if calib is not None:
         camera, _, _ = _load_user_calib(Path(calib), w, h)
@@ -57,4 +71,9 @@ def import_images(src, dst, *, calib=None, hfov_deg: float | None = None, force:
                               notes=["stills: frames are 1 s apart on the recording clock",
                                      *(f"{n} <- {p.name}" for n, p in zip(names, files))])
     folder.write_calib(dst, camera, None, None, extra={"import": meta})
+    if frame_labels is not None:
+        from blendgen.recording.labels import write_recording_labels
+
+        write_recording_labels(dst, frame_labels, w, h, {"path": str(Path(labels).resolve()), "format": label_format,
+                                                         "class_map": cmap})
     return dst

@@ -187,6 +187,10 @@ def job_for(set_name: str, rec_name: str, rec: dict, args, ground_plane) -> dict
 
 def fixed_ground_plane(rec_name: str) -> dict:
     """The median of the aware set's per-frame camera estimates: the pose a careful user would fix."""
+    done = TMP / "aware" / rec_name / "run_summary.json"
+    while not done.is_file():  # the aware set may still run in another process (--render-only)
+        print(f"[noanalysis] {rec_name}: waiting for the aware set's analysis ...", flush=True)
+        time.sleep(60)
     cams = [json.loads(p.read_text())["camera"] for p in sorted((TMP / "aware" / rec_name / "analysis").glob("f*.json"))]
     med = {k: float(np.median([c[src] for c in cams])) for k, src in
            (("camera_height_m", "height_m"), ("pitch_deg", "pitch_deg"), ("roll_deg", "roll_deg"))}

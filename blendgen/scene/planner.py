@@ -141,6 +141,7 @@ class Planner:
         self.ego = _Ego(self.poses, twin)
         self.times = self.ego.t
         self.K = len(self.poses)
+        self.n_plan = self.K  # frames planned (a plan window's later frames only carry its tracks on)
         self.tracks: list[Track] = []
         self.next_id = 1
         classes = {c: w for c, w in inject.classes.items() if w > 0}
@@ -231,7 +232,15 @@ class Planner:
                 if why:
                     self.reason = why
                     return True
+        why = self.extra_conflict(tr)
+        if why:
+            self.reason = why
+            return True
         return False
+
+    def extra_conflict(self, tr: Track) -> str | None:
+        """A subclass's own rule (plan windows, scene.windows): why the track may not be, or None."""
+        return None
 
     # ------------------------------------------------------------ trajectories
     def _limit(self, k0: int, xy: np.ndarray) -> int:
@@ -836,7 +845,7 @@ class Planner:
         last_staged = {s: -1e9 for s in self.inject.scenarios}
         retry_at = {s: -1e9 for s in self.inject.scenarios}
         plans = []
-        for k, (frame_id, t, T) in enumerate(self.poses):
+        for k, (frame_id, t, T) in enumerate(self.poses[:self.n_plan]):
             if on_progress is not None:
                 on_progress(k)
             if not self.inject.sequences:

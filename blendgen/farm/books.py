@@ -53,6 +53,10 @@ class FarmSummary:
     retired: list[str] = field(default_factory=list)  # workers/nodes that kept failing
     ledger: str = ""
     manifest: str = ""
+    # seconds after the run started: its first task's start, its first and last item done (None: none)
+    first_start_s: float | None = None
+    first_done_s: float | None = None
+    last_done_s: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -257,6 +261,9 @@ class Books:
         attempt = self.ledger.task(task_id)["attempts"] + 1
         log = self.log_path(task_id, attempt)
         self.ledger.claim(task_id, worker, log, LEASE_S)
+        summary = self.summaries[self.stage_of(task_id)]
+        if summary.first_start_s is None:
+            summary.first_start_s = round(time.perf_counter() - self._t0, 3)
         return attempt, items, log
 
     def on_item(self, task_id: int, attempt: int, worker: str, ev: dict) -> None:
@@ -287,6 +294,9 @@ class Books:
         self.ledger.item_done(stage, item, worker)
         self.graph.done(stage, item)
         summary.done += 1
+        summary.last_done_s = round(time.perf_counter() - self._t0, 3)
+        if summary.first_done_s is None:
+            summary.first_done_s = summary.last_done_s
         if self.bar is not None:
             self.bar.update(1)
 

@@ -303,6 +303,22 @@ class Planner:
         return None if centres is None else (int(round((cd - ego.center_d) / ego.width)), float(y), centres,
                                              ego.width)
 
+    def _real_lanes_along(self, k0, rg, index, direction, s: np.ndarray) -> list:
+        """`_real_lanes` for frames k0, k0 + 1, ... at arc lengths s (one lane-geometry pass)."""
+        cd = rg.lane_d(index, direction, s)
+        xy = rg.line.offset_point(s, cd)
+        rows = []
+        for i in range(len(s)):
+            k = k0 + i
+            ego = self.ego.lane[k]
+            if ego is None or self.twin.roads[ego.road] is not rg:
+                rows.append(None)
+                continue
+            centres = self.real.lane_centres(k, self.ego.T[k], float(xy[i, 0]), ego.width)
+            rows.append(None if centres is None else (int(round((float(cd[i]) - ego.center_d) / ego.width)),
+                                                      float(xy[i, 1]), centres, ego.width))
+        return rows
+
     def _real_lane_shifts(self, k0, rg, index, direction, s, tt=(0.0,)) -> np.ndarray | float:
         """Metres to add to a track's twin lane centre offset in its frames k0, k0 + 1, ... (at
         times tt from k0) so that it runs along the matching real lane. The real lane is
@@ -315,7 +331,7 @@ class Planner:
         without any the nearest frame's with lines (video only: stills do not share a world)."""
         if self.real is None:
             return 0.0
-        rows = [self._real_lanes(k0 + i, rg, index, direction, float(si)) for i, si in enumerate(s)]
+        rows = self._real_lanes_along(k0, rg, index, direction, np.asarray(s, float))
         ref = next((r for r in rows if r is not None), None)
         if ref is None:
             near = np.argsort(np.abs(self.times - self.times[k0]))[:LANE_BORROW_FRAMES] if self.inject.sequences else []

@@ -1,8 +1,10 @@
 """The frame analysis as farm tasks (processors of `blendgen run`'s pipeline, bpy-free).
 
 Stages (analysis.split says which part is per frame and which recording-wide):
-  calib     one item: the recording-wide values from a sample -> analysis/recording.json
-            (and the sample frames' cues)
+  hood      one item: a video's hood from 40 frames spread over it -> analysis/hood.json
+  sample    the cues (below) of the frames the recording-wide values come from, first
+  elsewhere video: frames outside the job spread over the recording, their lane-width height
+  camera    one item: the recording-wide values -> analysis/recording.json
   cues      per job frame: hood (stills), road users, vanishing-point camera -> analysis/cues/<id>.json
   analysis  per job frame, once the cues within +-0.5 s are in: camera, road, bands, lanes,
             footprints -> analysis/parts/<id>.json (video) or analysis/<id>.json (stills)
@@ -75,6 +77,11 @@ class AnalysisContext:
     def calib(self) -> dict:
         return json.loads((self.dir / "recording.json").read_text())
 
+    @cached_property
+    def hood(self):
+        """The video's hood (HoodTask), None for stills."""
+        return json.loads((self.dir / "hood.json").read_text())["hood"]
+
     def cue_path(self, fid: str) -> Path:
         return self.dir / "cues" / f"{fid}.json"
 
@@ -86,39 +93,81 @@ class AnalysisContext:
         return split.dense_ids(self.rec, self.index) if self.seq else []
 
 
-# ----------------------------------------------------------------------------- calib
+# ----------------------------------------------------------------------------- recording-wide
 
-class CalibrateTask(AnalysisContext):
-    """Item "recording": the recording-wide values (analysis.split)."""
+class HoodTask(AnalysisContext):
+    """Item "hood": a video's one hood (as hood.find_hood: 40 frames spread over the job); stills
+    find theirs frame by frame (cues)."""
 
     def is_done(self, item: str) -> bool:
-        return (self.dir / "recording.json").is_file()
+        return (self.dir / "hood.json").is_file()
 
     def process(self, item: str) -> dict:
         from blendgen.analysis.hood import N_VIDEO, hood_in_video
 
         t0 = time.process_time()
-        st = self.settings
-        hood, hood_why = None, None
-        if self.video:  # as hood.find_hood: 40 frames spread over the job
+        hood, why = None, "stills: each frame's own"
+        if self.video:
             k = np.linspace(0, len(self.ids) - 1, min(N_VIDEO, len(self.ids))).astype(int)
             pick = sorted({self.ids[i] for i in k})
             frames = [im for _, im in split.frames_at(self.rec, pick, self.reader) if im is not None]
-            hood, hood_why = hood_in_video(frames)
+            hood, why = hood_in_video(frames)
+        cpu = round(time.process_time() - t0, 3)
+        atomic.write_json(self.dir / "hood.json", {"video": self.video, "hood": hood, "reason": why, "cpu_s": cpu})
+        return {"hood": hood is not None, "cpu_s": cpu}
+
+
+class ElsewhereTask(AnalysisContext):
+    """A recording frame outside the job, spread over the video: its lane-width height
+    (camera._lane_heights_elsewhere; one camera's height must not depend on the job's frames)."""
+
+    def path(self, fid: str) -> Path:
+        return self.dir / "elsewhere" / f"{fid}.json"
+
+    def is_done(self, item: str) -> bool:
+        return self.path(item).is_file()
+
+    def process(self, item: str) -> dict:
+        from blendgen.analysis.camera import estimate_frame
+
+        t0 = time.process_time()
+        im = self.frame(item)
+        h = None if im is None else estimate_frame(im, self.rec.camera, hood=self.hood,
+                                                   **self.settings.frame_kw()).height_lanes
+        atomic.write_json(self.path(item), {"height_lanes": h})
+        return {"height_lanes": h, "cpu_s": round(time.process_time() - t0, 4)}
+
+
+def elsewhere_ids(rec, ids: list[str], settings) -> list[str]:
+    """The recording frames `ElsewhereTask` measures (none when the job's camera needs none)."""
+    from blendgen.analysis.camera import HEIGHT_SAMPLE_FRAMES
+
+    if not (settings.seq and settings.need_lines and settings.fixed["camera_height_m"] is None):
+        return []
+    chosen = set(ids)
+    idx = np.unique(np.linspace(0, rec.n_frames - 1, HEIGHT_SAMPLE_FRAMES).round().astype(int))
+    return [rec.frame_id(int(i)) for i in idx if rec.frame_id(int(i)) not in chosen]
+
+
+class CameraTask(AnalysisContext):
+    """Item "camera": the recording-wide values from the sample's cues and the heights elsewhere
+    (analysis.split) -> analysis/recording.json."""
+
+    def is_done(self, item: str) -> bool:
+        return (self.dir / "recording.json").is_file()
+
+    def process(self, item: str) -> dict:
+        t0 = time.process_time()
+        st = self.settings
         sample = split.sample_ids(self.ids)
-        per, cues = {}, {}
-        for fid, im in split.frames_at(self.rec, sample, self.reader):
-            cue = split.frame_cues(im, fid, float(self.times[self.pos[fid]]), self.rec, st, self.detector, hood,
-                                   video=self.video)
-            cues[fid] = cue
-            if cue["camera"] is not None:
-                per[fid] = split.fc_of(cue)
-        elsewhere = []
-        if st.seq and st.need_lines and st.fixed["camera_height_m"] is None:
-            elsewhere = split.lane_heights_elsewhere(self.rec, set(self.ids), hood, st)
-        values = split.recording_values(self.rec, per, st, elsewhere)
-        doc = {"version": 1, "frames": len(self.ids), "sample": sample, "video_hood": self.video, "hood": hood,
-               "hood_reason": hood_why, "values": values, "lane_heights_elsewhere": elsewhere}
+        cues = {f: json.loads(self.cue_path(f).read_text()) for f in sample}
+        per = {f: split.fc_of(c) for f, c in cues.items() if c["camera"] is not None}
+        elsewhere = [json.loads((self.dir / "elsewhere" / f"{f}.json").read_text())["height_lanes"]
+                     for f in elsewhere_ids(self.rec, self.ids, st)]
+        values = split.recording_values(self.rec, per, st, [h for h in elsewhere if h])
+        hood = json.loads((self.dir / "hood.json").read_text())
+        doc = {"version": 1, "frames": len(self.ids), "sample": sample, "video_hood": self.video, "hood": hood["hood"],
+               "hood_reason": hood["reason"], "values": values, "lane_heights_elsewhere": [h for h in elsewhere if h]}
         if self.seq:  # the camera's yaw on its mount, from the sample's cameras (all of a short job's)
             ests = {}
             ts = np.array([c["t"] for c in cues.values()])
@@ -130,8 +179,6 @@ class CalibrateTask(AnalysisContext):
                 ests[self.pos[fid]] = split.frame_camera(fid, cues[fid]["t"], fcs[fid], near, self.rec, st, values)[0]
             doc["mount_yaw"] = split.mount_yaw(self.rec, self.index, ests)
             doc["gnss"] = split.gnss_track(self.rec, float(self.times[0]), float(self.times[-1])) is not None
-        for fid, cue in cues.items():  # the cues stage skips them
-            atomic.write_json(self.cue_path(fid), cue)
         doc["cpu_s"] = round(time.process_time() - t0, 3)
         atomic.write_json(self.dir / "recording.json", doc)
         return {"sample": len(sample), "cpu_s": doc["cpu_s"], "height": values["height"], "fx": values["fx"]}
@@ -147,7 +194,7 @@ class CuesTask(AnalysisContext):
         t0 = time.process_time()
         fid, im = item, self.frame(item)
         cue = split.frame_cues(im, fid, float(self.times[self.pos[fid]]), self.rec, self.settings, self.detector,
-                               self.calib["hood"], video=self.video)
+                               self.hood, video=self.video)
         cue["cpu_s"] = round(time.process_time() - t0, 4)
         atomic.write_json(self.cue_path(fid), cue)
         return {"cpu_s": cue["cpu_s"], "users": len(cue["users"])}

@@ -1,7 +1,8 @@
 """The stages of `blendgen run`'s farm pipeline and what each task waits for (supervisor side).
 
-    calib -> cues -> analysis -> motion -> poses -> plan -> frames
-    (ground-plane jobs with analysis; a video adds motion and poses; twin jobs: plan -> frames)
+    hood -> sample, elsewhere -> camera; hood -> cues; camera, cues -> analysis -> motion -> poses
+    -> plan -> frames  (ground-plane jobs with analysis; a video adds motion and poses; twin
+    jobs: plan -> frames)
 
 Dependencies are ranges of item positions (farm.graph): a frame's analysis waits for the cues
 of the frames within +-0.5 s, the ego motion of a recording frame for the analyses of the job
@@ -22,7 +23,8 @@ from blendgen.scene import windows as W
 CUES_CHUNK = 8        # frames per task of the per-frame analysis stages (~1-2 s of work)
 MOTION_CHUNK = 16
 CHAIN_CHUNK = 64      # the pose chain: microseconds a frame
-PRIORITY = {"calib": 7, "frames": 6, "plan": 5, "poses": 4, "motion": 3, "analysis": 2, "cues": 1}
+PRIORITY = {"hood": 9, "camera": 8, "sample": 7, "frames": 6, "plan": 5, "poses": 4, "motion": 3, "analysis": 2,
+            "cues": 1}
 
 
 class PipelineSpec:
@@ -36,8 +38,8 @@ class PipelineSpec:
         self.video = self.analysed and self.seq_cam and len(ids) > 1
         self.dense = split.dense_ids(rec, self.index) if self.video else []
         self.windows = W.plan_windows(len(ids), job.inject.sequences)
-        self.analysis_stages = (("calib", "cues", "analysis") + (("motion", "poses") if self.video else ())
-                                if self.analysed else ())
+        self.analysis_stages = (("hood", "sample", "elsewhere", "camera", "cues", "analysis")
+                                + (("motion", "poses") if self.video else ()) if self.analysed else ())
 
     # -- positions -------------------------------------------------------------------------
     def _job_near(self, d: int) -> int:
@@ -49,7 +51,7 @@ class PipelineSpec:
 
     def needs_analysis(self, p: int):
         lo, hi = split.smoothing_range(self.times, p) if self.seq_cam else (p, p + 1)
-        return [("cues", lo, hi), ("calib", 0, 1)]
+        return [("cues", lo, hi), ("camera", 0, 1)]
 
     def needs_motion(self, d: int):
         a, b = self._job_near(max(d - 1, 0)), self._job_near(d)
@@ -57,7 +59,7 @@ class PipelineSpec:
 
     def needs_poses(self, d: int):
         a, b = self._job_near(max(d - 1, 0)), self._job_near(min(d + 1, len(self.dense) - 1))
-        return [("poses", d - 1, d), ("motion", d, d + 1), ("analysis", a, b + 1), ("calib", 0, 1)]
+        return [("poses", d - 1, d), ("motion", d, d + 1), ("analysis", a, b + 1), ("camera", 0, 1)]
 
     def needs_plan(self, w: int):
         win = self.windows[w]
@@ -79,12 +81,24 @@ class PipelineSpec:
         mod = "blendgen.pipeline.analysis_tasks"
         out = []
         if self.analysed:
-            out += [Stage("calib", ["recording"], f"{mod}:CalibrateTask", args, chunk=1, priority=PRIORITY["calib"],
+            from blendgen.pipeline.analysis_tasks import elsewhere_ids
+
+            sample = split.sample_ids(self.ids)
+            spos = {f: k for k, f in enumerate(sample)}
+            elsewhere = elsewhere_ids(self.rec, self.ids, split.Settings(self.rec, self.job.ground_plane))
+            out += [Stage("hood", ["hood"], f"{mod}:HoodTask", args, chunk=1, priority=PRIORITY["hood"], recycle=False),
+                    Stage("sample", sample, f"{mod}:CuesTask", args, chunk=2, priority=PRIORITY["sample"],
+                          needs=lambda k: [("hood", 0, 1)], recycle=False),
+                    Stage("camera", ["camera"], f"{mod}:CameraTask", args, chunk=1, priority=PRIORITY["camera"],
+                          needs=lambda k: [("sample", 0, len(sample)), ("elsewhere", 0, len(elsewhere))],
                           recycle=False),
                     Stage("cues", self.ids, f"{mod}:CuesTask", args, chunk=CUES_CHUNK, priority=PRIORITY["cues"],
-                          needs=lambda p: [("calib", 0, 1)], recycle=False),
+                          needs=lambda p: [("hood", 0, 1)] + ([("sample", spos[self.ids[p]], spos[self.ids[p]] + 1)]
+                                                              if self.ids[p] in spos else []), recycle=False),
                     Stage("analysis", self.ids, f"{mod}:AnalysisTask", args, chunk=CUES_CHUNK,
                           priority=PRIORITY["analysis"], needs=self.needs_analysis, recycle=False)]
+            out.insert(2, Stage("elsewhere", elsewhere, f"{mod}:ElsewhereTask", args, chunk=2,
+                                priority=PRIORITY["sample"], needs=lambda k: [("hood", 0, 1)], recycle=False))
             if self.video:
                 out += [Stage("motion", self.dense, f"{mod}:MotionTask", args, chunk=MOTION_CHUNK,
                               priority=PRIORITY["motion"], needs=self.needs_motion, recycle=False),

@@ -112,3 +112,13 @@ def test_window_layout_covers_every_frame_once(n):
     assert all(a.end == b.start for a, b in zip(wins, wins[1:]))
     assert all(w.horizon == (wins[w.index + 1].end if w.index + 1 < len(wins) else n) for w in wins)
     assert frame_plan is not None
+
+
+def test_a_drive_is_cut_by_time_whatever_the_frame_step():
+    for fps in (25.0, 5.0):
+        times = np.arange(int(40 * fps)) / fps
+        wins = plan_windows(times, True)
+        starts = [times[w.start] for w in wins]
+        assert np.allclose(starts, [0, 2, 6, 14, 30]), (fps, starts)
+        assert wins[-1].end == len(times) and [w.phase for w in wins] == [1, 2, 1, 2, 1]
+    assert [w.end - w.start for w in plan_windows(100, False)] == [48, 52]

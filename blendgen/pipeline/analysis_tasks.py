@@ -383,4 +383,4 @@ class PosesTask(MotionContext):
                                  "reason": "ego motion of this frame (its pair and the chain), on a farm worker"})
             atomic.write_json(self.dir / f"{item}.json", fa.to_dict())
         atomic.write_json(self.chain_path(item), {"state": state.to_dict(), "step": dict(step.__dict__)})
-        return {"status": step.status}
+        return {"status": step.status, "cpu_s": round(time.process_time() - t0, 4)}

@@ -71,9 +71,10 @@ class FrameProcessor:
             from blendgen.pipeline.plan_tasks import FramePlans, plan_dir
 
             if plan_dir(self.folder.root).is_dir():
-                ids = [self.rec.frame_id(i) for i in range(self.rec.n_frames)]
-                ids = ids[self.job.frames.start:self.job.frames.stop:self.job.frames.step]
-                self._plans = FramePlans(self.folder.root, len(ids), self.job.inject.sequences, ids)
+                fr = self.job.frames
+                index = np.arange(self.rec.n_frames)[fr.start:fr.stop:fr.step]
+                self._plans = FramePlans(self.folder.root, np.asarray(self.rec.frames_t, float)[index],
+                                         self.job.inject.sequences, [self.rec.frame_id(int(i)) for i in index])
             else:
                 self._plans = load_plans(self.folder.plan)
         return self._plans

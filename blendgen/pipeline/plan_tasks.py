@@ -49,7 +49,7 @@ class PlanWindowTask:
         index = np.arange(self.rec.n_frames)[self.job.frames.start:self.job.frames.stop:self.job.frames.step]
         self.ids = [self.rec.frame_id(int(i)) for i in index]
         self.times = np.asarray(self.rec.frames_t, float)[index]
-        self.windows = W.plan_windows(len(self.ids), self.job.inject.sequences)
+        self.windows = W.plan_windows(self.times, self.job.inject.sequences)
         w, h = self.job.render.resolution or (self.rec.camera.width, self.rec.camera.height)
         self.camera = self.rec.camera.scaled(w, h)
         self.dir = plan_dir(out_dir)
@@ -105,9 +105,9 @@ class PlanWindowTask:
 class FramePlans:
     """A frame's plan from the window files (the last few kept): for the renderers."""
 
-    def __init__(self, out_dir: Path, n_frames: int, sequences: bool, ids: list[str]):
+    def __init__(self, out_dir: Path, times, sequences: bool, ids: list[str]):
         self.dir = plan_dir(out_dir)
-        self.windows = W.plan_windows(n_frames, sequences)
+        self.windows = W.plan_windows(times, sequences)
         self.pos = {f: k for k, f in enumerate(ids)}
         self._cache: dict[int, dict] = {}
 
@@ -124,12 +124,12 @@ class FramePlans:
         return W.frame_plan(self._window(i), self._window(i - 1) if i > 0 else None, p)
 
 
-def write_plan_jsonl(out_dir: Path, n_frames: int, sequences: bool, ids: list[str], path: Path) -> dict:
+def write_plan_jsonl(out_dir: Path, times, sequences: bool, ids: list[str], path: Path) -> dict:
     """OUT/plan.jsonl from the window files, one window in memory at a time; returns what
     `unplaced_warnings` needs (objects per class, rejections per class and reason)."""
     from blendgen import atomic
 
-    plans = FramePlans(out_dir, n_frames, sequences, ids)
+    plans = FramePlans(out_dir, times, sequences, ids)
     placed: dict[str, int] = {}
     rejected: dict[str, dict[str, int]] = {}
     n_obj = 0

@@ -199,7 +199,7 @@ class Runner:
         if not self.folder.stage_done("plan") or not self.folder.plan.exists():
             from blendgen.pipeline.plan_tasks import unplaced_warnings, write_plan_jsonl
 
-            stats = write_plan_jsonl(self.folder.root, len(ids), job.inject.sequences, ids, self.folder.plan)
+            stats = write_plan_jsonl(self.folder.root, spec.times, job.inject.sequences, ids, self.folder.plan)
             self.warnings = unplaced_warnings(stats, job.inject, len(ids))
             self.folder.mark_stage("plan", {"frames": len(ids), "objects": stats["objects"], "warnings": self.warnings})
         else:

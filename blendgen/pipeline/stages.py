@@ -37,7 +37,7 @@ class PipelineSpec:
         self.seq_cam = split.Settings(rec, gp).seq if self.analysed else False
         self.video = self.analysed and self.seq_cam and len(ids) > 1
         self.dense = split.dense_ids(rec, self.index) if self.video else []
-        self.windows = W.plan_windows(len(ids), job.inject.sequences)
+        self.windows = W.plan_windows(self.times, job.inject.sequences)
         self.analysis_stages = (("hood", "sample", "elsewhere", "camera", "cues", "analysis")
                                 + (("motion", "poses") if self.video else ()) if self.analysed else ())
 

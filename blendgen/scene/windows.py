@@ -6,8 +6,8 @@ frames it will cross. One pass over 15,000 frames is serial (hours), and each sp
 the end of the recording. Windows cut it into independent pieces without cutting any object
 while it is in view:
 
-- The job's frames are cut into windows: short ones first (48, 96, 192 frames: the first
-  frames reach the render early), then `WINDOW` frames each. A window spawns objects in its own
+- The job's frames are cut into windows of time: short ones first (2, 4, 8 s: the first frames
+  reach the render early), then 16 s each. A window spawns objects in its own
   frames; their tracks may run on into the next window (its *spill*) but end at the first frame
   there in which they are out of view, and a candidate still in view at the end of the next
   window is rejected. So a window's tracks never reach the window after next.
@@ -39,8 +39,8 @@ from blendgen.scene.planner import Planner, Track
 from blendgen.scene.real_scene import RealFrame, RealScene
 from blendgen.scene.riders import split_rider
 
-FIRST_WINDOWS = (48, 96, 192)
-WINDOW = 384
+WINDOW_S = (2.0, 4.0, 8.0, 16.0)   # a video's windows: short ones first, then 16 s each
+STILL_WINDOWS = (48, 96, 192, 384)  # frames: stills (every frame planned afresh)
 ID_BLOCK = 2048
 N_BLOCKS = (SCENERY_ID - 1) // ID_BLOCK
 
@@ -58,11 +58,25 @@ class Window:
         return f"w{self.index:04d}"
 
 
-def plan_windows(n_frames: int, sequences: bool, sizes: tuple[int, ...] = FIRST_WINDOWS + (WINDOW,)) -> list[Window]:
-    """The windows of a job of `n_frames` frames: `sizes` in turn, the last one repeated."""
-    bounds, it = [0], iter(sizes)
-    while bounds[-1] < n_frames:
-        bounds.append(min(n_frames, bounds[-1] + next(it, sizes[-1])))
+def plan_windows(times, sequences: bool, sizes: tuple[int, ...] | None = None) -> list[Window]:
+    """The windows of a job whose frames are at `times` (s; or their number). A drive
+    (`sequences`) is cut by time, `WINDOW_S` in turn and the last one repeated, so a track's
+    room to run on does not depend on the job's frame step; stills by `STILL_WINDOWS` frames.
+    `sizes`: frame counts instead (tests)."""
+    times = np.arange(times, dtype=float) if np.isscalar(times) else np.asarray(times, float)
+    n = len(times)
+    bounds = [0]
+    if sizes is None and sequences:
+        it = iter(WINDOW_S)
+        while bounds[-1] < n:
+            size = next(it, WINDOW_S[-1])
+            bounds.append(max(bounds[-1] + 1, int(np.searchsorted(times, times[bounds[-1]] + size - 1e-9))))
+            bounds[-1] = min(bounds[-1], n)
+    else:
+        sizes = sizes or STILL_WINDOWS
+        it = iter(sizes)
+        while bounds[-1] < n:
+            bounds.append(min(n, bounds[-1] + next(it, sizes[-1])))
     out = []
     for i in range(len(bounds) - 1):
         horizon = bounds[min(i + 2, len(bounds) - 1)] if sequences else bounds[i + 1]
@@ -195,11 +209,11 @@ def plan_window(twin, camera, poses, inject, seed: int, *, window: Window, n_tot
 
 
 def plan_in_windows(twin, camera, poses, inject, seed_of, *, assets=None, real_of=None,
-                    sizes: tuple[int, ...] = FIRST_WINDOWS + (WINDOW,)) -> tuple[list[FramePlan], list[dict]]:
+                    sizes: tuple[int, ...] | None = None) -> tuple[list[FramePlan], list[dict]]:
     """Every window in this process, phase 1 then phase 2 (what the farm does in parallel):
     the frame plans and the windows' records. `seed_of(frame_id)`: a window's seed from its first
     frame; `real_of(lo, hi)`: the RealScene of frames [lo, hi) or None."""
-    wins = plan_windows(len(poses), inject.sequences, sizes)
+    wins = plan_windows([t for _, t, _ in poses], inject.sequences, sizes)
     recs: dict[int, dict] = {}
     for phase in (1, 2):
         for w in wins:

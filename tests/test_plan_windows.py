@@ -51,9 +51,14 @@ def test_a_job_shorter_than_the_first_window_is_planned_as_plan_sequence():
     assert [p.to_dict() for p in plans] == [p.to_dict() for p in ref]
 
 
-def test_windows_give_one_plan_whatever_the_order_and_keep_objects_apart():
+@pytest.fixture(scope="module")
+def long_drive():
     poses = drive(150)
-    plans, recs = plan_in_windows(TWIN, CAM, poses, inject(), seed_of, sizes=SIZES)
+    return (poses, *plan_in_windows(TWIN, CAM, poses, inject(), seed_of, sizes=SIZES))
+
+
+def test_windows_give_one_plan_whatever_the_order_and_keep_objects_apart(long_drive):
+    poses, plans, recs = long_drive
     wins = plan_windows(len(poses), True, SIZES)
     assert [w.phase for w in wins] == [1, 2, 1, 2, 1] and len(plans) == 150
     # any order the farm may run them in: phase 2 needs its neighbours only
@@ -79,9 +84,8 @@ def test_windows_give_one_plan_whatever_the_order_and_keep_objects_apart():
                     assert not convex_overlap(fps[a][1], fps[b][1], 0.0), (p.frame_id, fps[a][0], fps[b][0])
 
 
-def test_no_object_is_cut_while_in_view_at_a_window_boundary():
-    poses = drive(150)
-    plans, recs = plan_in_windows(TWIN, CAM, poses, inject(), seed_of, sizes=SIZES)
+def test_no_object_is_cut_while_in_view_at_a_window_boundary(long_drive):
+    poses, plans, recs = long_drive
     whole = Planner(TWIN, CAM, poses, inject(), 0)  # visibility over the whole drive
     ids = [{o.id for o in p.objects} for p in plans]
     checked = 0

@@ -123,6 +123,6 @@ def test_a_drive_is_cut_by_time_whatever_the_frame_step():
         times = np.arange(int(40 * fps)) / fps
         wins = plan_windows(times, True)
         starts = [times[w.start] for w in wins]
-        assert np.allclose(starts, [0, 2, 6, 14, 30]), (fps, starts)
-        assert wins[-1].end == len(times) and [w.phase for w in wins] == [1, 2, 1, 2, 1]
+        assert np.allclose(starts, [0, 1, 3, 7, 15, 31]), (fps, starts)
+        assert wins[-1].end == len(times) and [w.phase for w in wins] == [1, 2, 1, 2, 1, 2]
     assert [w.end - w.start for w in plan_windows(100, False)] == [48, 52]

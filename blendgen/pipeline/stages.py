@@ -38,6 +38,8 @@ class PipelineSpec:
         self.video = self.analysed and self.seq_cam and len(ids) > 1
         self.dense = split.dense_ids(rec, self.index) if self.video else []
         self.windows = W.plan_windows(self.times, job.inject.sequences)
+        self.pos = {f: k for k, f in enumerate(ids)}           # shared by the stages over the job's frames
+        self.dpos = {f: k for k, f in enumerate(self.dense)}
         self.analysis_stages = (("hood", "sample", "elsewhere", "camera", "cues", "analysis")
                                 + (("motion", "poses") if self.video else ()) if self.analysed else ())
 
@@ -94,20 +96,21 @@ class PipelineSpec:
                           recycle=False),
                     Stage("cues", self.ids, f"{mod}:CuesTask", args, chunk=CUES_CHUNK, priority=PRIORITY["cues"],
                           needs=lambda p: [("hood", 0, 1)] + ([("sample", spos[self.ids[p]], spos[self.ids[p]] + 1)]
-                                                              if self.ids[p] in spos else []), recycle=False),
+                                                              if self.ids[p] in spos else []), recycle=False,
+                          index=self.pos),
                     Stage("analysis", self.ids, f"{mod}:AnalysisTask", args, chunk=CUES_CHUNK,
-                          priority=PRIORITY["analysis"], needs=self.needs_analysis, recycle=False)]
+                          priority=PRIORITY["analysis"], needs=self.needs_analysis, recycle=False, index=self.pos)]
             out.insert(2, Stage("elsewhere", elsewhere, f"{mod}:ElsewhereTask", args, chunk=2,
                                 priority=PRIORITY["sample"], needs=lambda k: [("hood", 0, 1)], recycle=False))
             if self.video:
                 out += [Stage("motion", self.dense, f"{mod}:MotionTask", args, chunk=MOTION_CHUNK,
-                              priority=PRIORITY["motion"], needs=self.needs_motion, recycle=False),
+                              priority=PRIORITY["motion"], needs=self.needs_motion, recycle=False, index=self.dpos),
                         Stage("poses", self.dense, f"{mod}:PosesTask", args, chunk=CHAIN_CHUNK,
-                              priority=PRIORITY["poses"], needs=self.needs_poses, recycle=False)]
+                              priority=PRIORITY["poses"], needs=self.needs_poses, recycle=False, index=self.dpos)]
         out.append(Stage("plan", [w.name for w in self.windows], "blendgen.pipeline.plan_tasks:PlanWindowTask", args,
                          chunk=1, priority=PRIORITY["plan"], needs=self.needs_plan, recycle=False))
         if with_frames:
             out.append(Stage("frames", self.ids, "blendgen.pipeline.frame:FrameProcessor", args,
                              chunk=chunk or self.job.farm.chunk, priority=PRIORITY["frames"], needs=self.needs_frame,
-                             redo=redo))
+                             redo=redo, index=self.pos))
         return out

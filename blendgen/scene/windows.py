@@ -6,7 +6,7 @@ frames it will cross. One pass over 15,000 frames is serial (hours), and each sp
 the end of the recording. Windows cut it into independent pieces without cutting any object
 while it is in view:
 
-- The job's frames are cut into windows of time: short ones first (2, 4, 8 s: the first frames
+- The job's frames are cut into windows of time: short ones first (1, 2, 4, 8 s: the first frames
   reach the render early), then 16 s each. A window spawns objects in its own
   frames; their tracks may run on into the next window (its *spill*) but end at the first frame
   there in which they are out of view, and a candidate still in view at the end of the next
@@ -39,7 +39,7 @@ from blendgen.scene.planner import Planner, Track
 from blendgen.scene.real_scene import RealFrame, RealScene
 from blendgen.scene.riders import split_rider
 
-WINDOW_S = (2.0, 4.0, 8.0, 16.0)   # a video's windows: short ones first, then 16 s each
+WINDOW_S = (1.0, 2.0, 4.0, 8.0, 16.0)   # a video's windows: short ones first, then 16 s each
 STILL_WINDOWS = (48, 96, 192, 384)  # frames: stills (every frame planned afresh)
 ID_BLOCK = 2048
 N_BLOCKS = (SCENERY_ID - 1) // ID_BLOCK

@@ -384,3 +384,31 @@ class PosesTask(MotionContext):
             atomic.write_json(self.dir / f"{item}.json", fa.to_dict())
         atomic.write_json(self.chain_path(item), {"state": state.to_dict(), "step": dict(step.__dict__)})
         return {"status": step.status, "cpu_s": round(time.process_time() - t0, 4)}
+
+
+class PosesFileTask(AnalysisContext):
+    """Item "poses.csv": OUT/poses.csv/.tum hold what plans and renders use: the job frames'
+    analysed camera over the ground plane (ego motion for video), the fixed pose for the others."""
+
+    def is_done(self, item: str) -> bool:
+        return (self.dir / "poses.done").is_file()
+
+    def process(self, item: str) -> dict:
+        from blendgen.pipeline.plan_tasks import job_twin
+        from blendgen.sync.pipeline import SyncResult, write_poses
+
+        t0 = time.process_time()
+        T0 = job_twin(self.job).camera_pose(0.0)
+        out, quality = [], []
+        for i in range(self.rec.n_frames):
+            fid = self.rec.frame_id(i)
+            T = T0
+            if fid in self.pos:
+                T = np.asarray(json.loads((self.dir / f"{fid}.json").read_text())["T_world_cam"], float)
+            out.append((fid, float(self.rec.frames_t[i]), T))
+            quality.append({"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0,
+                            "flags": ["ground_plane"] + (["analysis"] if fid in self.pos else [])})
+        write_poses(self.folder.root, SyncResult(out, np.zeros((len(out), 6)), quality))
+        cpu = round(time.process_time() - t0, 3)
+        atomic.write_json(self.dir / "poses.done", {"frames": len(out), "cpu_s": cpu})
+        return {"frames": len(out), "cpu_s": cpu}

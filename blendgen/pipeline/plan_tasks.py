@@ -147,6 +147,23 @@ def write_plan_jsonl(out_dir: Path, times, sequences: bool, ids: list[str], path
     return {"objects": n_obj, "placed": placed, "rejected": rejected}
 
 
+class PlanFileTask(PlanWindowTask):
+    """Item "plan.jsonl": OUT/plan.jsonl from the windows, and OUT/plan/stats.json (what the
+    supervisor warns about), once every window is planned."""
+
+    def is_done(self, item: str) -> bool:
+        return (self.dir / "stats.json").is_file() and self.folder.plan.is_file()
+
+    def process(self, item: str) -> dict:
+        from blendgen import atomic
+
+        t0 = time.process_time()
+        stats = write_plan_jsonl(self.folder.root, self.times, self.job.inject.sequences, self.ids, self.folder.plan)
+        stats["cpu_s"] = round(time.process_time() - t0, 3)
+        atomic.write_json(self.dir / "stats.json", stats)
+        return {"objects": stats["objects"], "cpu_s": stats["cpu_s"]}
+
+
 def unplaced_warnings(stats: dict, inject, n_frames: int) -> list[str]:
     """planner.unplaced_warnings from `write_plan_jsonl`'s counts."""
     out = []

@@ -179,7 +179,7 @@ class Runner:
             address=f["address"], progress=self.progress, seed=job.seed, name="pipeline")
         self.times["pipeline"] = round(time.perf_counter() - t0, 3)
         sums = self.pipeline_summaries
-        for name, group in (("analysis", spec.analysis_stages), ("plan", ("plan",)), ("frames", ("frames",))):
+        for name, group in (("analysis", spec.analysis_stages), ("plan", ("plan", "plan_file")), ("frames", ("frames",))):
             group = [g for g in group if g in sums]
             if not group:
                 continue
@@ -192,36 +192,17 @@ class Runner:
         bad = [x for g, x in sums.items() if g != "frames" and not x.ok]
         if bad:
             raise StageError("; ".join(x.text() for x in bad) + f"\nsee `blendgen status {self.folder.root}`")
-        if spec.analysed:
-            if "analysis" not in self.skipped:
-                self._write_analysis_poses(poses, set(ids))
+        if spec.analysed:  # poses.csv: the analysed poses (the pipeline's poses_file task wrote them)
             self.folder.mark_stage("analysis", {"frames": len(ids)})
-        if not self.folder.stage_done("plan") or not self.folder.plan.exists():
-            from blendgen.pipeline.plan_tasks import unplaced_warnings, write_plan_jsonl
+        from blendgen.pipeline.plan_tasks import plan_dir, unplaced_warnings
 
-            stats = write_plan_jsonl(self.folder.root, spec.times, job.inject.sequences, ids, self.folder.plan)
-            self.warnings = unplaced_warnings(stats, job.inject, len(ids))
+        stats = json.loads((plan_dir(self.folder.root) / "stats.json").read_text())
+        self.warnings = unplaced_warnings(stats, job.inject, len(ids))
+        if not self.folder.stage_done("plan"):
             self.folder.mark_stage("plan", {"frames": len(ids), "objects": stats["objects"], "warnings": self.warnings})
-        else:
-            self.warnings = self.folder.stage_info("plan").get("warnings", [])
         for w in self.warnings:
             print(f"  WARNING: {w}", flush=True)
         return ids
-
-    def _write_analysis_poses(self, poses, ids: set[str]) -> list:
-        """poses.csv/.tum hold what plans and renders use: the analysed frames' camera over
-        the ground plane (ego motion for video), the fixed pose for the others."""
-        from blendgen.analysis.stage import read_analysis
-        from blendgen.sync.pipeline import SyncResult, write_poses
-
-        out, quality = [], []
-        for fid, t, T in poses:
-            a = read_analysis(self.folder.analysis, fid) if fid in ids else None
-            out.append((fid, t, np.asarray(a.T_world_cam) if a is not None and a.T_world_cam else T))
-            quality.append({"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0,
-                            "flags": ["ground_plane"] + (["analysis"] if a is not None else [])})
-        write_poses(self.folder.root, SyncResult(out, np.zeros((len(out), 6)), quality))
-        return out
 
     def assets(self):
         """Import and measure every library asset once in a farm worker (resumable), write

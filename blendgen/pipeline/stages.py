@@ -41,7 +41,7 @@ class PipelineSpec:
         self.pos = {f: k for k, f in enumerate(ids)}           # shared by the stages over the job's frames
         self.dpos = {f: k for k, f in enumerate(self.dense)}
         self.analysis_stages = (("hood", "sample", "elsewhere", "camera", "cues", "analysis")
-                                + (("motion", "poses") if self.video else ()) if self.analysed else ())
+                                + (("motion", "poses") if self.video else ()) + ("poses_file",) if self.analysed else ())
 
     # -- positions -------------------------------------------------------------------------
     def _job_near(self, d: int) -> int:
@@ -109,6 +109,13 @@ class PipelineSpec:
                               priority=PRIORITY["poses"], needs=self.needs_poses, recycle=False, index=self.dpos)]
         out.append(Stage("plan", [w.name for w in self.windows], "blendgen.pipeline.plan_tasks:PlanWindowTask", args,
                          chunk=1, priority=PRIORITY["plan"], needs=self.needs_plan, recycle=False))
+        # the whole-job files, written by a worker once their inputs are in (not the supervisor's work)
+        out.append(Stage("plan_file", ["plan.jsonl"], "blendgen.pipeline.plan_tasks:PlanFileTask", args, chunk=1,
+                         needs=lambda k: [("plan", 0, len(self.windows))], recycle=False))
+        if self.analysed:
+            last = ("poses", 0, len(self.dense)) if self.video else ("analysis", 0, len(self.ids))
+            out.append(Stage("poses_file", ["poses.csv"], f"{mod}:PosesFileTask", args, chunk=1,
+                             needs=lambda k: [last], recycle=False))
         if with_frames:
             out.append(Stage("frames", self.ids, "blendgen.pipeline.frame:FrameProcessor", args,
                              chunk=chunk or self.job.farm.chunk, priority=PRIORITY["frames"], needs=self.needs_frame,

@@ -37,7 +37,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
-VIDEO = ROOT.parent / "shared" / "data" / "real" / "udacity_solidWhiteRight.mp4"
+VIDEO = Path(os.environ.get("BLENDGEN_SHARED_DATA", ROOT.parent / "shared" / "data")) / "real" / "udacity_solidWhiteRight.mp4"
 WORK = HERE / "results" / "tmp" / "long_video"
 RESULTS = HERE / "results" / "long_video.json"
 N_REC = 15000
@@ -68,6 +68,9 @@ def recording() -> Path:
     return rec
 
 
+OBJECTS = [1, 2]   # objects per frame (set by --objects)
+
+
 def write_job(name: str, frames: int, workers: int, engine: str, render: dict | None = None) -> Path:
     import yaml
 
@@ -75,7 +78,7 @@ def write_job(name: str, frames: int, workers: int, engine: str, render: dict | 
     folder.mkdir(parents=True, exist_ok=True)
     job = {"name": name, "seed": 3, "recording": str(recording()), "ground_plane": "auto",
            "frames": {"start": 0, "stop": frames, "step": 1},
-           "inject": {"objects_per_frame": [3, 4], "distance_m": [8, 35], "sequences": True,
+           "inject": {"objects_per_frame": list(OBJECTS), "distance_m": [8, 35], "sequences": True,
                       "classes": {"car": 3, "truck": 1, "bus": 1, "person": 1, "motorcycle": 1, "bicycle": 1}},
            "render": render or {"resolution": [960, 540], "samples": 16, "denoise": True},
            "post": {"illumination": "auto", "color_transfer": "none", "shadows": True},
@@ -134,7 +137,7 @@ def row_main(job_path: str, out_json: str) -> None:
 
 
 def run_row(frames: int, workers: int, engine: str) -> dict:
-    name = f"n{frames}_{engine}_w{workers}"
+    name = f"n{frames}_{engine}_w{workers}_o{OBJECTS[0]}{OBJECTS[1]}"
     job = write_job(name, frames, workers, engine)
     out = WORK / name / "out"
     if out.exists():
@@ -149,8 +152,8 @@ def run_row(frames: int, workers: int, engine: str) -> dict:
     if r.returncode:
         raise SystemExit(f"{name}: {r.stdout[-3000:]}\n{r.stderr[-3000:]}")
     d = json.loads(res.read_text())
-    d.update(frames=frames, workers=workers, engine=engine, load_before=load0[0], load_after=os.getloadavg()[0],
-             process_wall_s=time.perf_counter() - t0)
+    d.update(frames=frames, workers=workers, engine=engine, objects=list(OBJECTS), load_before=load0[0],
+             load_after=os.getloadavg()[0], process_wall_s=time.perf_counter() - t0)
     st = d["summary"]["pipeline"]
     d["stages"] = {k: {"span_s": round(v["last_done_s"] - v["first_start_s"], 1) if v["first_start_s"] is not None
                        and v["last_done_s"] is not None else None, "items": v["total"]} for k, v in st.items()}
@@ -177,7 +180,7 @@ def item_cpu(out: Path) -> dict:
 
 def first_frame(frames: int, workers: int, engine: str, n_render: int) -> dict:
     """The whole job from the command line, stopped once `n_render` frames are rendered."""
-    name = f"first_n{frames}_{engine}_w{workers}"
+    name = f"first_n{frames}_{engine}_w{workers}_o{OBJECTS[0]}{OBJECTS[1]}"
     job = write_job(name, frames, workers, engine)
     out = WORK / name / "out"
     if out.exists():
@@ -207,7 +210,8 @@ def first_frame(frames: int, workers: int, engine: str, n_render: int) -> dict:
             rec = json.loads(line)
             if rec.get("stage") == "frames" and "timings" in rec:
                 renders.append(rec["timings"]["total"])
-    d = {"frames": frames, "workers": workers, "engine": engine, "first_frame_s": first, "rendered": len(renders),
+    d = {"frames": frames, "workers": workers, "engine": engine, "objects": list(OBJECTS), "first_frame_s": first,
+         "rendered": len(renders),
          "render_s": renders, "load_before": load0[0], "load_after": os.getloadavg()[0], "log_tail": "".join(log[-15:])}
     print(f"{name}: first rendered frame after {first:.0f} s; {len(renders)} frames rendered "
           f"({', '.join(f'{x:.1f}' for x in renders)} s each); load {load0[0]:.1f} -> {d['load_after']:.1f}", flush=True)
@@ -222,20 +226,24 @@ def main(argv=None):
     ap.add_argument("--engines", nargs="*", default=["local", "ray"])
     ap.add_argument("--first-frame", type=int, nargs="*", default=[])
     ap.add_argument("--render-frames", type=int, default=6)
+    ap.add_argument("--objects", type=int, nargs=2, default=OBJECTS,
+                    help="objects per frame (the freeway job has 3 4; planning costs grow fast with it)")
+    ap.add_argument("--tag", default="", help="appended to each row's key in the results")
     ap.add_argument("--write-doc", action="store_true")
     a = ap.parse_args(argv)
     if a.row:
         return row_main(*a.row)
+    OBJECTS[:] = a.objects
     if not VIDEO.is_file():
         raise SystemExit(f"needs {VIDEO}")
     results = json.loads(RESULTS.read_text()) if RESULTS.exists() else {"rows": {}, "first": {}}
     for n in a.frames:
         for engine in a.engines:
             for w in a.workers:
-                results["rows"][f"{n}/{engine}/{w}"] = run_row(n, w, engine)
+                results["rows"][f"{n}/{engine}/{w}/o{a.objects[0]}{a.objects[1]}{a.tag}"] = run_row(n, w, engine)
                 RESULTS.write_text(json.dumps(results, indent=1))
     for n in a.first_frame:
-        results["first"][f"{n}/local/2"] = first_frame(n, 2, "local", a.render_frames)
+        results["first"][f"{n}/local/2/o{a.objects[0]}{a.objects[1]}{a.tag}"] = first_frame(n, 2, "local", a.render_frames)
         RESULTS.write_text(json.dumps(results, indent=1))
     if a.write_doc:
         from bench_long_video_doc import write_doc  # noqa: E402 - the table and the estimates

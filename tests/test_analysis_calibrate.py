@@ -14,14 +14,14 @@ from test_analysis_lane_direction import road_frame
 
 
 def test_calibrate_stills_writes_the_estimate(tmp_path, capsys):
-    rec = write_images_recording(tmp_path / "rec", [line_scene(3, -2), line_scene(2, -1, seed=1)])
-    assert main(["calibrate", str(rec.root), "--quiet"]) == 0
+    rec = write_images_recording(tmp_path / "rec", [line_scene(3, -2), line_scene(3, -2, seed=1)])
+    assert main(["calibrate", str(rec.root), "--quiet", "--lane-width", "3.3"]) == 0
     out = capsys.readouterr().out
     assert "2 frames (stills)" in out and "ground_plane.yaml" in out
     doc = yaml.safe_load((rec.root / "ground_plane.yaml").read_text())
     f0 = doc["frames"][0]
     assert f0["id"] == "f000000" and abs(f0["pitch_deg"] - 3) < 0.3 and abs(f0["roll_deg"] + 2) < 0.3
-    assert f0["source"]["height"] == "lane_width" and f0["height_m"] == pytest.approx(1.5, rel=0.1)
+    assert f0["source"]["height"] == "lanes" and f0["height_m"] == pytest.approx(1.5, rel=0.1)
     assert doc["summary"]["frames"] == 2 and "position_m" not in f0
     # a fixed value is kept, another output path is honoured
     assert main(["calibrate", str(rec.root), "--quiet", "--height", "1.3", "--out", str(tmp_path / "g.yaml")]) == 0

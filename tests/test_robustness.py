@@ -70,7 +70,9 @@ def test_folder_lock_covers_every_stage(tmp_path):
 def _plan(tmp_path: Path, out: str, **frames) -> list[dict]:
     import json
 
-    job = load_job(_job(tmp_path, output=out, seed=5, frames=frames,
+    # the fixed pose (no frame analysis): the synthetic frames are dark, and a frame without a
+    # road region takes no object (tests/test_planner_real_outcomes.py)
+    job = load_job(_job(tmp_path, output=out, seed=5, frames=frames, ground_plane={"analysis": False},
                         inject={"objects_per_frame": [3, 3], "classes": {"car": 1}, "min_projected_px": 1}))
     runner = Runner(job, progress=False)
     runner.frames = lambda ids: None  # stop before rendering (no bpy here)

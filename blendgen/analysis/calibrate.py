@@ -31,7 +31,8 @@ def register(subparsers) -> None:
     p.add_argument("--height", type=float, default=None, help="fix the camera height (m)")
     p.add_argument("--pitch", type=float, default=None, help="fix the pitch (deg, > 0 up)")
     p.add_argument("--roll", type=float, default=None, help="fix the roll (deg)")
-    p.add_argument("--lane-width", type=float, default=3.5, help="lane width prior (m, default 3.5)")
+    p.add_argument("--lane-width", type=float, default=None,
+                   help="the road's lane width (m) when known: the height then scales with it (default: a prior)")
     p.add_argument("--detector", type=Path, default=None,
                    help="ONNX YOLOX model: real cars' widths also give the height")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -46,7 +47,8 @@ def _user(args):
 
     kw = {"camera_height_m": args.height, "pitch_deg": args.pitch, "roll_deg": args.roll}
     try:
-        return GroundPlane(**{k: ("auto" if v is None else v) for k, v in kw.items()}, lane_width_m=args.lane_width)
+        lane = {} if args.lane_width is None else {"lane_width_m": args.lane_width}
+        return GroundPlane(**{k: ("auto" if v is None else v) for k, v in kw.items()}, **lane)
     except ValidationError as e:
         err = e.errors()[0]
         flag = {"camera_height_m": "--height", "pitch_deg": "--pitch", "roll_deg": "--roll",

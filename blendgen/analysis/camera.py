@@ -2,30 +2,30 @@
 
 Entry point (called by the analysis stage):
 
-    estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress=False)
+    estimate_cameras(rec, frame_ids, *, user=None, users=None, car_boxes=None, progress=False, hoods=None)
         -> {frame_id: (CameraEstimate, horizon)}
 
 `user` is the job's `ground_plane` section (numbers are fixed, "auto" is estimated; None:
-all estimated), `car_boxes` maps frame_id -> [[x, y, w, h], ...] of real cars, `horizon` is
-[[0, v0], [width - 1, v1]] (model.py) or None when it leaves the frame's rows far behind.
+all estimated), `users` maps frame_id -> [(cls, [x, y, w, h]), ...] of the detector's road
+users (`car_boxes`: frame_id -> boxes of cars only), `horizon` is [[0, v0], [width - 1, v1]]
+(model.py) or None when it leaves the frame's rows far behind.
 
-Per frame (`estimate_frame`):
+Per frame (`frame_cues`, independent of the other frames):
   1. line segments (OpenCV LSD or FLD on a <= 640 px wide grey image), undistorted;
-  2. a Manhattan frame by RANSAC: the road direction F (lane markings, road edges, kerbs,
-     building lines along the street), the vertical U (building edges, poles) and the
-     crosswise L, hypothesised from two segments for one vanishing point and one segment
-     for the other (orthogonality), scored by the length of the segments that point at
-     one of the three vanishing points; priors |pitch|, |roll| < 25 deg, |yaw| < 50 deg;
+  2. a Manhattan frame by RANSAC (`estimate_frame`): the road direction F (lane markings, road
+     edges, kerbs, building lines along the street), the vertical U (building edges, poles)
+     and the crosswise L, hypothesised from two segments for one vanishing point and one
+     segment for the other (orthogonality), scored by the length of the segments that point
+     at one of the three vanishing points; priors |pitch|, |roll| < 25 deg, the road's
+     vanishing point near the view; near-level segments never point along the road;
   3. least squares (soft L1) on pitch, roll, yaw over the inliers; roll is only estimated
      when vertical or crosswise segments support it, otherwise it is the prior (reason
-     logged); the focal length too when the calibration was a guessed field of view and
-     two orthogonal vanishing points are seen;
-  4. confidence from the inlier counts and the fitted angles' standard deviation.
-Over a recording: video frames are smoothed by a confidence-weighted median over +-0.5 s
-(frames that fell back take it); gravity from the IMU, when there is one, is averaged in
-with its own weight; the height is one robust median per recording (lane-width prior:
-spacing of the ego lane's markings on the ground at the estimated pitch, or the widths of
-real cars) unless the user fixed it.
+     logged); the focal length too when the calibration was a guessed field of view;
+  4. the road users standing whole on the road and the ego lane's two painted lines.
+Over the recording, one reduction (`mount.estimate_mount`): stills share one mount (pitch,
+roll, height) with small per-frame deviations; a video's pitch and roll are smoothed over
++-0.5 s here (gravity from the IMU averaged in where there is one) and the reduction fits
+its one height.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from blendgen.analysis.model import CameraEstimate
+from blendgen.analysis.mount import FrameCues, focal_consensus
 from blendgen.geometry import Camera, R_world_cam_from_ypr
 
 log = logging.getLogger(__name__)
@@ -49,6 +50,8 @@ CAR_WIDTH_M = 1.8           # typical passenger car (mirrors folded out of the b
 CAR_LENGTH_M = 4.5
 SMOOTH_S = 0.5              # video: pitch and roll are a weighted median over +- this
 HEIGHT_SAMPLE_FRAMES = 48   # video: frames spread over the recording that may give the height (lanes: ~1 in 10)
+FRAME_FALLBACK_STD_DEG = 1.0   # video: a frame without its own pitch/roll takes the recording's median, this uncertain
+DEFAULT_STD_DEG = 3.0       # nothing to estimate from: dashcams are mounted within a few degrees of level
 
 
 @dataclass
@@ -64,6 +67,8 @@ class CameraConfig:
     max_pitch_deg: float = 25.0
     max_roll_deg: float = 25.0
     max_yaw_deg: float = 50.0
+    yaw_margin_deg: float = 10.0      # the road's vanishing point at most this far outside the view
+    level_deg: float = 4.0            # segments this close to level never point along the road
     seed: int = 0
 
 
@@ -79,6 +84,8 @@ class FrameCamera:
     roll_std: float = float("inf")
     confidence: float = 0.0
     support: dict[str, int] = field(default_factory=dict)   # axis -> inlier segments
+    fx_fit: float | None = None           # the focal length this frame's lines fit (any precision) ...
+    fx_log_std: float = float("inf")      # ... and its standard deviation (of log fx)
     height_lanes: float | None = None     # height from the lane-width prior, m
     height_cars: float | None = None      # from real cars' widths, m
     reasons: list[str] = field(default_factory=list)
@@ -198,12 +205,17 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
     normals = np.cross(rays1, rays2)            # of the plane through the camera and the segment
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     ang = np.degrees(np.arctan2(np.abs(seg[:, 3] - seg[:, 1]), np.abs(seg[:, 2] - seg[:, 0])))
+    # a level segment on the horizon's row (a car's rear, a kerb far ahead) fits any vanishing
+    # point on the horizon: it says where the horizon is only as a crosswise line
+    level = np.abs(ang - abs(roll_prior_deg)) < cfg.level_deg
     steep = np.flatnonzero(ang > 60)            # candidates for the vertical
     flat = np.flatnonzero(ang <= 60)            # candidates for the road direction / crosswise
     thr = math.sin(math.radians(cfg.inlier_deg))
     rng = np.random.default_rng(cfg.seed)
     sin_p, max_r = math.sin(math.radians(cfg.max_pitch_deg)), math.radians(cfg.max_roll_deg)
-    cos_y = math.cos(math.radians(cfg.max_yaw_deg))
+    # the road's vanishing point is in view (or near it): a camera looks along the road
+    half_fov = math.degrees(math.atan(max(camera.cx, camera.width - camera.cx) / camera.fx))
+    cos_y = math.cos(math.radians(min(cfg.max_yaw_deg, half_fov + cfg.yaw_margin_deg)))
     roll0 = math.radians(roll_prior_deg)
     up0 = road_axes(0.0, roll0, 0.0)[2]
     n_it = cfg.ransac_iters
@@ -235,6 +247,7 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
             continue
         R = np.array([F, _cross(U, F), U])
         res = S.residuals(R @ K.T)
+        res[level, 0] = np.inf
         lab = res.argmin(axis=1)
         inl = res[np.arange(len(seg)), lab] < thr
         sc = float(length[inl].sum())
@@ -284,6 +297,7 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
             sol = least_squares(fun, x0, loss="soft_l1", f_scale=thr * float(np.median(sw)))
             p, r, y, f = unpack(sol.x)
             res = S.residuals(road_axes(p, r, y) @ Kf(f).T)
+            res[level, 0] = np.inf
             lab_all = res.argmin(axis=1)
             labels = np.where(res[np.arange(len(seg)), lab_all] < thr, lab_all, -1)
         # standard deviations from the Jacobian (residual scale from the fit)
@@ -295,6 +309,8 @@ def estimate_frame(bgr: np.ndarray, camera: Camera, *, cfg: CameraConfig | None 
         return p, r, y, f, labels, sd
 
     p, r, y, f, labels, sd = fit(*best[1], labels, fit_focal)
+    if fit_focal and 0.5 < f < 2.0 and math.isfinite(sd[-1]):
+        out.fx_fit, out.fx_log_std = float(camera.fx * f), float(sd[-1])   # for the recording's joint focal length
     if fit_focal and not (0.5 < f < 2.0 and sd[-1] < 0.03):
         # the focal length is not known to 3 %: keep the calibration's, and angles that agree with it
         fit_focal = False
@@ -496,23 +512,111 @@ def gravity_up(rec, t: float, window_s: float = 0.5) -> tuple[np.ndarray, float]
     return U, std
 
 
-def _lane_heights_elsewhere(rec, frame_ids, hoods, progress: bool, **frame_kw) -> list[float]:
-    """Camera heights from the lane markings of a video's frames spread over the whole recording
-    (besides the job's own): one camera's height must not depend on which frames a job renders.
-    Lanes give a height in about 1 frame in 10 (both lines of the ego lane within 25 m): on the
-    freeway video frames 0-56 gave none and 1.56 m from the real cars' boxes, every 30th frame
-    1.28 m from one frame's lanes; the sample adds 1.15, 1.16 and 1.29 m. The cars' estimate
-    runs high there (cars seen obliquely in the next lanes); the lane dashes' period agrees
-    with the lanes."""
+# ----------------------------------------------------------------------------- per-frame cues
+
+def _object_points(cls: str, box, camera: Camera, others, image_h: int, image_w: int, floor_v: float):
+    """A road user's box as undistorted pinhole points [bottom centre, bottom left, bottom right,
+    top centre], or None when the box does not show the whole object standing on the ground:
+    cut by the frame's edge or the hood, its bottom hidden behind a nearer road user, or a rider
+    (the person box of a cyclist or motorcyclist)."""
+    x, y, w, h = box
+    if x <= 2 or y <= 2 or x + w >= image_w - 3 or y + h >= min(image_h - 3, floor_v - 3):
+        return None
+    for ocls, (ox, oy, ow, oh) in others:
+        if (ox, oy, ow, oh) == tuple(box):
+            continue
+        overlap = max(0.0, min(x + w, ox + ow) - max(x, ox))
+        if cls == "person" and ocls in ("bicycle", "motorcycle") and overlap > 0.3 * w:
+            return None
+        # a nearer object (lower bottom) over this one's bottom: its contact point is hidden
+        if oy + oh > y + h and oy < y + h and overlap > 0.5 * w:
+            return None
+    px = np.array([[x + w / 2, y + h], [x, y + h], [x + w, y + h], [x + w / 2, y]], float)
+    if camera.distorted:
+        px = camera.normalized(px, P=camera.K)
+    return px.tolist()
+
+
+def _lane_cue(bgr: np.ndarray, camera: Camera, fc: FrameCamera, hood, boxes, lane_width_m: float):
+    """The ego lane's two painted lines (analysis.lanes) as two undistorted pinhole pixels each,
+    found with the frame's own pitch, roll and road direction and a provisional 1.5 m height
+    (the mount reduction measures their spacing again at its own angles), or None."""
+    from blendgen.analysis import ground, lanes, road
+    from blendgen.analysis.model import CameraEstimate
+
+    if fc.pitch is None:
+        return None
+    est = CameraEstimate(DEFAULT_HEIGHT_M, fc.pitch, fc.roll or 0.0)
+    T = ground.camera_pose(est, None if fc.yaw is None else -fc.yaw)
+    H, W = bgr.shape[:2]
+    hmask = None
+    if hood is not None:
+        hmask = np.zeros((H, W), np.uint8)
+        cv2.fillPoly(hmask, [np.round(np.asarray(hood)).astype(np.int32)], 1)
+        hmask = hmask > 0
+    road_px, _ = road.estimate_road(bgr, ground.horizon(camera, T), hmask, boxes)
+    lines, _ = lanes.lane_lines(bgr, road_px, camera, T)
+    ego = lanes.ego_lane(lines, lanes.X_REF, lane_width_m)
+    if ego is None:
+        return None
+    lo, hi, _ = ego
+    pair = [ln for ln in lines if min(abs(ln[0] - lo), abs(ln[0] - hi)) < 1e-6]
+    if len(pair) != 2:  # one side was a lane width beyond a single line, not paint
+        return None
+    xs = np.array([lanes.RANGE_M[0] + 1.0, 20.0])
+    Rcw, t = T[:3, :3].T, T[:3, 3]
+    out = []
+    for y10, slope, _ in pair:
+        P = np.column_stack([xs, y10 + slope * (xs - lanes.X_REF), np.zeros(2)])
+        Xc = (P - t) @ Rcw.T
+        uv = (Xc @ camera.K.T)[:, :2] / Xc[:, 2:3]
+        out.append(uv.tolist())
+    return out
+
+
+def frame_cues(bgr: np.ndarray, camera: Camera, *, t: float = 0.0, hood=None, users=None,
+               lane_width_m: float = DEFAULT_LANE_WIDTH_M, cfg: CameraConfig | None = None,
+               roll_prior_deg: float = 0.0, fit_focal: bool = False) -> FrameCues:
+    """The per-frame part of the camera estimate: the vanishing points' pitch, roll and yaw
+    (`estimate_frame`), the road users standing whole on the road, and the ego lane's lines;
+    `users`: [(cls, [x, y, w, h]), ...] from the detector. The mount reduction
+    (`mount.estimate_mount`) turns the cues of all frames into the camera's mount."""
+    fc = estimate_frame(bgr, camera, cfg=cfg, roll_prior_deg=roll_prior_deg, fit_focal=fit_focal,
+                        lane_width_m=lane_width_m, hood=hood)
+    H, W = bgr.shape[:2]
+    floor_v = float(np.asarray(hood)[:, 1].min()) if hood is not None else float(H)
+    users = [(c, list(b)) for c, b in (users or [])]
+    objs = []
+    for cls, box in users:
+        if cls in ("car", "person"):
+            pts = _object_points(cls, box, camera, users, H, W, floor_v)
+            if pts is not None:
+                objs.append((cls, pts))
+    ok = fc.pitch is not None and math.isfinite(fc.pitch_std)
+    return FrameCues(t=t, pitch=fc.pitch if ok else None, roll=fc.roll, pitch_std=fc.pitch_std if ok else float("inf"),
+                     roll_std=fc.roll_std if ok else float("inf"), yaw=fc.yaw, fx=fc.fx, fx_fit=fc.fx_fit,
+                     fx_log_std=fc.fx_log_std, confidence=fc.confidence,
+                     reasons=list(fc.reasons), objects=objs,
+                     lane=_lane_cue(bgr, camera, fc, hood, [b for _, b in users], lane_width_m) if ok else None)
+
+
+# ----------------------------------------------------------------------------- recording
+
+def _cues_elsewhere(rec, frame_ids, hood, cfg, fit_focal, roll_prior, lane_w, progress: bool) -> dict[str, FrameCues]:
+    """Video: lane cues from frames spread over the whole recording (besides the job's own):
+    one camera's height must not depend on which frames a job renders. Lanes bound the ego lane
+    in about 1 frame in 10; on the freeway video frames 0-56 had none."""
     chosen = set(frame_ids)
     idx = np.unique(np.linspace(0, rec.n_frames - 1, HEIGHT_SAMPLE_FRAMES).round().astype(int))
     extra = [rec.frame_id(int(i)) for i in idx if rec.frame_id(int(i)) not in chosen]
-    hood = next((h for h in (hoods or {}).values() if h is not None), None)  # the hood does not move
-    out = []
+    out = {}
     for fid, im in read_frames(rec, extra, progress=progress, desc="calibrate (height)"):
         if im is not None:
-            h = estimate_frame(im, rec.camera, hood=hood, **frame_kw).height_lanes
-            out += [h] if h else []
+            c = frame_cues(im, rec.camera, hood=hood, cfg=cfg, fit_focal=fit_focal, roll_prior_deg=roll_prior,
+                           lane_width_m=lane_w)
+            if c.lane is not None and c.pitch is not None:
+                out["height:" + fid] = FrameCues(t=c.t, pitch=c.pitch, roll=c.roll or 0.0, pitch_std=c.pitch_std,
+                                                 roll_std=c.roll_std, lane=c.lane)
     return out
 
 
@@ -522,62 +626,23 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[o][np.searchsorted(c, 0.5 * c[-1])])
 
 
-def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: bool = False,
-                     hoods=None, cfg: CameraConfig | None = None) -> dict[str, tuple[CameraEstimate, list | None]]:
-    """Camera (height, pitch, roll, focal length) and horizon per frame; see the module doc.
-    `hoods`: find_hood's result when the caller has it (otherwise it is found here)."""
-    from blendgen.analysis.hood import find_hood, hood_in_still
-
-    cfg = cfg or CameraConfig()
-    camera: Camera = rec.camera
-    car_boxes = car_boxes or {}
-    fixed = {k: _user_value(user, k) for k in ("camera_height_m", "pitch_deg", "roll_deg")}
-    lane_w = _user_value(user, "lane_width_m") or DEFAULT_LANE_WIDTH_M
-    fit_focal = focal_was_guessed(rec)
-    frame_ids = list(frame_ids)
-    need_lines = any(v is None for v in fixed.values())
-    seq = is_sequence(rec)
-    per: dict[str, FrameCamera] = {}
-    if need_lines:
-        if hoods is None and seq:
-            hoods = find_hood(rec, frame_ids)
-        for fid, im in read_frames(rec, frame_ids, progress=progress, desc="calibrate"):
-            if im is None:
-                per[fid] = FrameCamera(None, None, reasons=["frame does not decode"])
-                continue
-            hood = hoods.get(fid) if hoods is not None else hood_in_still(im)[0]
-            per[fid] = estimate_frame(im, camera, cfg=cfg, roll_prior_deg=fixed["roll_deg"] or 0.0,
-                                      fit_focal=fit_focal, lane_width_m=lane_w, car_boxes=car_boxes.get(fid),
-                                      hood=hood)
-    t_of = {rec.frame_id(i): float(rec.frames_t[i]) for i in frame_indices(rec, frame_ids)}
-    out = {}
-    # recording-wide values: focal length, height, and the fallbacks for pitch and roll
-    fxs = [f.fx for f in per.values() if f.fx is not None and f.confidence > 0.3]
-    fx = float(np.median(fxs)) if fxs else None
-    hl = [f.height_lanes for f in per.values() if f.height_lanes]
-    if seq and need_lines and fixed["camera_height_m"] is None:
-        hl += _lane_heights_elsewhere(rec, frame_ids, hoods, progress, cfg=cfg, fit_focal=fit_focal,
-                                      roll_prior_deg=fixed["roll_deg"] or 0.0, lane_width_m=lane_w)
-    hc = [f.height_cars for f in per.values() if f.height_cars]
-    rec_height = (float(np.median(hl)), "lane_width") if hl else (float(np.median(hc)), "cars") if hc else None
-    cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
-                                           camera.cx, camera.cy, list(camera.dist))
+def _smooth(per: dict[str, FrameCues], frame_ids, t_of, seq: bool, rec, fixed) -> dict[str, dict]:
+    """Video: pitch and roll per frame, a confidence-weighted median over +- SMOOTH_S (frames
+    that fell back take it), averaged with the IMU's gravity where there is one. Stills: the
+    IMU alone where there is one (the mount reduction does the rest)."""
     by_time = sorted(per, key=t_of.__getitem__)
     t_sorted = np.array([t_of[g] for g in by_time])
+    out = {}
     for fid in frame_ids:
-        fc = per.get(fid, FrameCamera(None, None))
-        est = CameraEstimate(height_m=DEFAULT_HEIGHT_M, pitch_deg=0.0, roll_deg=0.0, fx=fx,
-                             yaw_deg=fc.yaw, confidence=fc.confidence, reasons=list(fc.reasons))
-        if fx is not None:
-            est.source["fx"] = "vanishing_point"
+        fc = per[fid]
         t = t_of[fid]
         near = by_time[np.searchsorted(t_sorted, t - SMOOTH_S):np.searchsorted(t_sorted, t + SMOOTH_S, "right")] \
             if seq else []
         up = gravity_up(rec, t)
+        row = {"reasons": [], "confidence": fc.confidence}
         for name, std_name, key in (("pitch", "pitch_std", "pitch_deg"), ("roll", "roll_std", "roll_deg")):
             if fixed[key] is not None:
-                setattr(est, key, fixed[key])
-                est.source[name] = "user"
+                row[name], row[name + "_src"], row[std_name] = fixed[key], "user", 0.0
                 continue
             vals = [(getattr(per[g], name), per[g].confidence) for g in near
                     if getattr(per[g], name) is not None and math.isfinite(getattr(per[g], std_name))]
@@ -590,38 +655,108 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, progress: boo
             elif own is not None and math.isfinite(getattr(fc, std_name)):
                 value, src, std = own, "vanishing_point", max(0.05, getattr(fc, std_name))
             else:
-                value, src, std = None, None, None
+                value, src, std = None, None, float("inf")
             if up is not None:
                 p_i, r_i, _ = angles_from_axes(np.array([0.0, 0.0, 1.0]), up[0])
                 gv = math.degrees(p_i if name == "pitch" else r_i)
                 if value is None:
-                    value, src = gv, "imu"
-                    est.confidence = max(est.confidence, 1.0 / (1.0 + (up[1] / 1.0) ** 2))
+                    value, src, std = gv, "imu", up[1]
+                    row["confidence"] = max(row["confidence"], 1.0 / (1.0 + (up[1] / 1.0) ** 2))
                 else:   # inverse-variance average of lines and gravity
                     w1, w2 = 1 / std ** 2, 1 / up[1] ** 2
-                    value, src = (w1 * value + w2 * gv) / (w1 + w2), src + "+imu"
-            if value is None:
-                allv = [getattr(f, name) for f in per.values()
-                        if getattr(f, name) is not None and math.isfinite(getattr(f, std_name))]
-                if allv:
-                    value, src = float(np.median(allv)), "recording_median"
-                    est.reasons.append(f"{name}: no estimate in this frame, the recording's median")
-                else:
-                    value, src = (fc.roll if name == "roll" and fc.roll is not None else 0.0), "default"
-                    est.reasons.append(f"{name}: nothing to estimate it from, assumed {value:g} deg")
-                est.confidence = 0.0 if src == "default" else min(est.confidence, 0.3)
-            setattr(est, key, float(value))
+                    value, src, std = (w1 * value + w2 * gv) / (w1 + w2), src + "+imu", (w1 + w2) ** -0.5
+            row[name], row[name + "_src"], row[std_name] = value, src, std
+        out[fid] = row
+    return out
+
+
+def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, users=None, progress: bool = False,
+                     hoods=None, cfg: CameraConfig | None = None) -> dict[str, tuple[CameraEstimate, list | None]]:
+    """Camera (height, pitch, roll, focal length) and horizon per frame; see the module doc.
+    `users`: {frame_id: [(cls, [x, y, w, h]), ...]} the detector's road users (`car_boxes`:
+    {frame_id: [box, ...]} of cars only); `hoods`: find_hood's result when the caller has it
+    (otherwise it is found here). Per-frame cues (`frame_cues`), then one recording-wide
+    reduction (`mount.estimate_mount`)."""
+    from blendgen.analysis.hood import find_hood
+    from blendgen.analysis.mount import estimate_mount
+
+    cfg = cfg or CameraConfig()
+    camera: Camera = rec.camera
+    users = dict(users or {})
+    for f, boxes in (car_boxes or {}).items():
+        users.setdefault(f, [("car", b) for b in boxes])
+    fixed = {k: _user_value(user, k) for k in ("camera_height_m", "pitch_deg", "roll_deg")}
+    lane_w = _user_value(user, "lane_width_m") or DEFAULT_LANE_WIDTH_M
+    # a lane width the user gave is this road's: the height scales with it, not with the prior
+    lane_known = lane_w if "lane_width_m" in (getattr(user, "model_fields_set", None) or ()) else None
+    fit_focal = focal_was_guessed(rec)
+    frame_ids = list(frame_ids)
+    seq = is_sequence(rec)
+    t_of = {rec.frame_id(i): float(rec.frames_t[i]) for i in frame_indices(rec, frame_ids)}
+    if hoods is None:
+        hoods = find_hood(rec, frame_ids)
+    per: dict[str, FrameCues] = {}
+    for fid, im in read_frames(rec, frame_ids, progress=progress, desc="calibrate"):
+        per[fid] = (FrameCues(t=t_of[fid], reasons=["frame does not decode"]) if im is None else
+                    frame_cues(im, camera, t=t_of[fid], hood=hoods.get(fid), users=users.get(fid), cfg=cfg,
+                               lane_width_m=lane_w, roll_prior_deg=fixed["roll_deg"] or 0.0, fit_focal=fit_focal))
+    # the recording's focal length
+    fx, why_fx = focal_consensus(per) if fit_focal else (None, "")
+    if fit_focal:
+        log.info("focal length: %s", why_fx)
+    cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
+                                           camera.cx, camera.cy, list(camera.dist))
+    angles = _smooth(per, frame_ids, t_of, seq, rec, fixed)
+    imu = any(a[n + "_src"] and "imu" in a[n + "_src"] for a in angles.values() for n in ("pitch", "roll"))
+    # the mount: stills jointly (pitch and roll per frame shrink to the camera's), video with
+    # its smoothed angles given (frames without one take the recording's median)
+    cues = {}
+    for fid in frame_ids:
+        c, a = per[fid], angles[fid]
+        if seq or imu:
+            c = FrameCues(**{**c.__dict__, "pitch": a["pitch"], "roll": a["roll"],
+                             "pitch_std": a["pitch_std"], "roll_std": a["roll_std"]})
+        cues[fid] = c
+    if seq or imu:
+        for name, std_name in (("pitch", "pitch_std"), ("roll", "roll_std")):
+            have = [getattr(c, name) for c in cues.values() if getattr(c, name) is not None]
+            for fid, c in cues.items():
+                if getattr(c, name) is None or not math.isfinite(getattr(c, std_name)):
+                    setattr(c, name, float(np.median(have)) if have else 0.0)
+                    setattr(c, std_name, float("inf"))
+        if seq and fixed["camera_height_m"] is None:
+            hood = next((h for h in hoods.values() if h is not None), None)  # the hood does not move
+            cues.update(_cues_elsewhere(rec, frame_ids, hood, cfg, fit_focal, fixed["roll_deg"] or 0.0, lane_w,
+                                        progress))
+    mount = estimate_mount(cues, cam.K, sequence=seq or imu, fixed=fixed, lane_width_m=lane_known)
+    out = {}
+    for fid in frame_ids:
+        fc, a = per[fid], angles[fid]
+        est = CameraEstimate(height_m=mount.height_m, pitch_deg=mount.frame_pitch[fid], roll_deg=mount.frame_roll[fid],
+                             fx=fx, yaw_deg=fc.yaw, confidence=a["confidence"], reasons=list(fc.reasons),
+                             height_std_rel=round(mount.height_std_log, 4))
+        if fx is not None:
+            est.source["fx"] = "vanishing_point"
+        for name, std_name in (("pitch", "pitch_std"), ("roll", "roll_std")):
+            if seq or imu:
+                src, std = a[name + "_src"], a[std_name]
+                if src is None:
+                    have = any(x[name + "_src"] for x in angles.values())
+                    src, std = ("recording_median", FRAME_FALLBACK_STD_DEG) if have else ("default", DEFAULT_STD_DEG)
+                    est.reasons.append(f"{name}: no estimate in this frame, the recording's median" if have else
+                                       f"{name}: nothing to estimate it from, assumed {getattr(est, name + '_deg'):g} deg")
+                    est.confidence = 0.0 if src == "default" else min(est.confidence, 0.3)
+            else:
+                src = mount.source[name]
+                std = (mount.frame_pitch_std if name == "pitch" else mount.frame_roll_std)[fid]
+                if src == "mount" and not (mount.cues["vanishing_points"] or mount.cues.get("car_width")):
+                    src, std = "default", DEFAULT_STD_DEG
+                    est.reasons.append(f"{name}: nothing to estimate it from in any frame of this camera")
+                    est.confidence = 0.0
             est.source[name] = src
-        if fixed["camera_height_m"] is not None:
-            est.height_m, est.source["height"] = fixed["camera_height_m"], "user"
-        elif not seq and (fc.height_lanes or fc.height_cars):
-            est.height_m, est.source["height"] = ((fc.height_lanes, "lane_width") if fc.height_lanes
-                                                  else (fc.height_cars, "cars"))
-        elif rec_height is not None:
-            est.height_m, est.source["height"] = rec_height
-        else:
-            est.height_m, est.source["height"] = DEFAULT_HEIGHT_M, "default"
-            est.reasons.append(f"height: no lane markings or cars to scale with, assumed {DEFAULT_HEIGHT_M} m")
+            setattr(est, std_name + "_deg", round(float(std), 3))
+        est.source["height"] = mount.source["height"]
+        est.reasons += mount.reasons
         if est.source["pitch"] == "user" and est.source["roll"] == "user":
             est.confidence = 1.0
         for r in est.reasons:

@@ -13,10 +13,14 @@ objects behind it are hidden by it.
   recording (the moving road blurs away, the hood edge stays sharp) and the region below
   the edge must be static (temporal standard deviation < 6 grey levels on 80 % of it).
   One polygon for all frames.
+- Stills of one camera (>= 3): each frame's edge below, then `mount.hood_consensus`: where most
+  frames found it at one place, that hood in every frame; found in a minority, none.
 - Still: a smooth curve across the whole width in the bottom band (dynamic programming
   over 4-pixel column bins on the vertical gradient, at most one row per bin: slopes up to
   14 deg), accepted when it is a strong edge along most of its length, close to a
-  parabola, and the region below it differs in colour from the road above it.
+  parabola, the region below it differs in colour from the road above it, and no line of the
+  scene runs on across it (lane lines and kerbs end at a hood's edge, and cross a shadow's or a
+  kerb's on the road: the next edge below is tried).
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ WORK_WIDTH = 320     # detection runs on a frame downscaled to this width
 MIN_HEIGHT = 0.025   # a hood lower than this fraction of the frame is ignored
 N_VIDEO = 40
 BIN = 4              # columns per step of the edge path (at WORK_WIDTH)
+CONSENSUS_MIN_FRAMES = 3   # stills: from this many frames on, the camera's hood is their consensus
+CROSS_PX = 5         # a scene line crosses an edge when it runs this far (px at WORK_WIDTH) on both sides
 
 
 def _gray_small(bgr: np.ndarray) -> tuple[np.ndarray, float]:
@@ -123,22 +129,57 @@ def hood_in_still(bgr: np.ndarray, min_strong: float = 0.58) -> tuple[list[list[
             return f"the edge does not separate two regions (colour difference {diff:.0f} < 12)"
         return None
 
-    path = _path(eb, e.shape[1])
-    why = check(path)
-    if why:
+    segs = _segments(gray, y0)
+    rows = np.arange(eb.shape[0])[:, None]
+    cost, why = eb.copy(), ""
+    for _ in range(3):
+        path = _path(cost, e.shape[1])
+        why = check(path)
+        if why:
+            return None, why
+        crossing = _crossing(segs, path + y0)
+        if not crossing:
+            why = ""
+            break
+        # lines of the scene run on across this edge: it lies on the road (a shadow, a kerb);
+        # a hood, if any, is below it
+        why = f"the strongest edge is crossed by {crossing} lines of the scene (the road, not a hood)"
+        cost[rows <= path[::BIN][: eb.shape[1]][None, :] + 2] = 0
+    else:
         return None, why
     # the hood's top is the topmost such edge (reflections on a glossy hood make more below);
     # above a found hood edge a somewhat weaker one is accepted (glare hides parts of it; at
-    # night the hood is as dark as the road)
+    # night the hood is as dark as the road) unless scene lines cross it
     for _ in range(3):
         upper = eb.copy()
         top = path[::BIN][: eb.shape[1]]
-        upper[np.arange(eb.shape[0])[:, None] > top[None, :] - 3] = 0
+        upper[rows > top[None, :] - 3] = 0
         cand = _path(upper, e.shape[1])
-        if check(cand, 0.45, 3.0, colour_test=False):
+        if check(cand, 0.45, 3.0, colour_test=False) or _crossing(segs, cand + y0):
             break
         path = cand
     return _polygon(path, y0, s, W, H), "hood edge found"
+
+
+def _segments(gray: np.ndarray, y0: int) -> np.ndarray:
+    """LSD segments (x1, y1, x2, y2) of the lower frame (from rows above the search band)."""
+    top = max(0, y0 - int(0.15 * gray.shape[0]))
+    seg = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(gray[top:])[0]
+    return np.zeros((0, 4)) if seg is None else seg.reshape(-1, 4) + [0, top, 0, top]
+
+
+def _crossing(segs: np.ndarray, edge_rows: np.ndarray, margin: float = CROSS_PX) -> int:
+    """How many scene lines (steeper than 15 deg) run on across the edge: an end more than
+    `margin` px above it and the other more than `margin` below. A hood occludes the road: lane
+    lines and kerbs end at its edge; a shadow or a kerb on the road is crossed by them."""
+    if not len(segs):
+        return 0
+    x1, y1, x2, y2 = segs.T
+    steep = np.abs(y2 - y1) > np.tan(np.radians(15)) * np.abs(x2 - x1)
+    cols = np.arange(len(edge_rows))
+    d1 = y1 - np.interp(x1, cols, edge_rows)
+    d2 = y2 - np.interp(x2, cols, edge_rows)
+    return int(np.count_nonzero(steep & (np.minimum(d1, d2) < -margin) & (np.maximum(d1, d2) > margin)))
 
 
 def hood_in_video(frames: list[np.ndarray]) -> tuple[list[list[float]] | None, str]:
@@ -177,4 +218,9 @@ def find_hood(rec, frame_ids, *, progress: bool = False) -> dict[str, list[list[
     for fid, im in read_frames(rec, frame_ids, progress=progress, desc="hood"):
         out[fid], why = (None, "frame does not decode") if im is None else hood_in_still(im)
         log.info("%s: hood: %s", fid, why)
+    if len(out) >= CONSENSUS_MIN_FRAMES:  # stills of one camera: one hood, in most frames or none
+        from blendgen.analysis.mount import hood_consensus
+
+        out, why = hood_consensus(out, rec.camera.width, rec.camera.height)
+        log.info("hood: %s", why)
     return out

@@ -30,6 +30,10 @@ class CameraEstimate:
     confidence: float = 0.0                 # 0..1, the weakest of the estimates that were used
     source: dict[str, str] = field(default_factory=dict)   # quantity -> "vanishing_point" | "imu" | "lane_width" | "cars" | "user" | "default" | "smoothed"
     reasons: list[str] = field(default_factory=list)        # why a quantity fell back, one sentence each
+    # 1-sigma uncertainties (None: not known), from the camera mount estimate (analysis.mount)
+    pitch_std_deg: float | None = None
+    roll_std_deg: float | None = None
+    height_std_rel: float | None = None    # of height_m (0.1: +-10 %)
 
 
 @dataclass
@@ -56,6 +60,7 @@ class FrameAnalysis:
     edge_line_m: float | None = None                 # lateral offset (< 0) of the solid right edge line: no traffic beyond it
     lane_lines: list[list[float]] = field(default_factory=list)  # painted lines [y10, slope, cover] (analysis.lanes)
     real_objects: list[RealObject] = field(default_factory=list)
+    placement_max_m: float | None = None             # objects farther than this would float or sink (camera uncertainty); None: no limit
     decisions: list[dict[str, Any]] = field(default_factory=list)  # {"what", "value", "reason"}: what the manifest records
     version: int = SCHEMA_VERSION
 

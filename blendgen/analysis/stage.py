@@ -21,6 +21,7 @@ import numpy as np
 from blendgen import atomic
 from blendgen.analysis import ground, lanes, objects, road
 from blendgen.analysis.model import CameraEstimate, FrameAnalysis
+from blendgen.analysis.mount import placement_limit
 from blendgen.geometry import Camera
 
 log = logging.getLogger(__name__)
@@ -72,6 +73,8 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
     decide("camera", {"height_m": est.height_m, "pitch_deg": est.pitch_deg, "roll_deg": est.roll_deg},
            "; ".join(est.reasons) or ", ".join(f"{k}: {v}" for k, v in est.source.items()))
     decide("hood", hood is not None, "hood polygon found" if hood else "no hood found: the whole frame is scene")
+    limit, why = placement_limit(est.pitch_std_deg, est.roll_std_deg, est.height_std_rel, camera.hfov_deg)
+    decisions.append({"what": "placement_max_m", "value": None if limit is None else round(limit, 1), "reason": why})
 
     kept, dropped = not_ego(objects.road_users(image, detector) if users is None else users, hmask, W, H)
     for o in dropped:
@@ -128,6 +131,7 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
                        road_direction_deg=None if yaw is None else round(yaw, 2),
                        centre_line_m=None if centre is None else round(centre, 2),
                        edge_line_m=None if edge is None else round(edge, 2), lane_lines=lines, real_objects=kept,
+                       placement_max_m=None if limit is None else round(limit, 1),
                        decisions=decisions)
     return fa, mask
 
@@ -179,7 +183,7 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
                                                                                  image.shape[0]), *image.shape[1::-1])[0]
         report(before, "camera")
         cams = estimate_cameras(rec, todo, user=gp, hoods=hoods, progress=progress,
-                                car_boxes={f: [o.box for o in u if o.cls == "car"] for f, u in users.items()})
+                                users={f: [(o.cls, o.box) for o in u] for f, u in users.items()})
         shared = (time.process_time() - t0) / len(todo)
         for n, (fid, image) in enumerate(read_frames(rec, todo)):
             report(before + n, "road, lanes, footprints")

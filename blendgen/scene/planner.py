@@ -484,6 +484,22 @@ class Planner:
             return "no centre line and nothing to walk on beside the road: a divided highway"
         return None
 
+    def _real_frame_limits(self, k: int) -> tuple[str | None, list[dict]]:
+        """A real frame's limits on placement: (why it takes no object at all, or None; its
+        decisions for the manifest). Sets the far end of the distance range (self.d1) for frame
+        k: objects beyond the camera's `max_distance` would float above or sink into the road."""
+        self.d1 = self.inject.distance_m[1]
+        if self.real is None:
+            return None, []
+        shut = self.real.closed(k)
+        lim, why = self.real.max_distance(k)
+        if shut is not None or lim >= self.d1:
+            return shut, []
+        if lim <= self.d0:
+            return f"no distance of the job's {self.d0:g}-{self.d1:g} m is safe: {why}", []
+        self.d1 = lim
+        return None, [{"what": "max_distance_m", "value": round(lim, 1), "reason": why}]
+
     def _closed(self, cls: str, k: int, rejected: dict) -> bool:
         motorway = self._motorway(k) if cls in MOTORWAY_CLOSED else None
         if motorway:
@@ -869,7 +885,8 @@ class Planner:
             if t >= target_until or not self.inject.sequences:
                 target = int(self.rng.integers(lo, hi + 1))
                 target_until = t + TARGET_PERIOD_S
-            for name in self.inject.scenarios:
+            shut, frame_notes = self._real_frame_limits(k)
+            for name in self.inject.scenarios if shut is None else ():
                 alive = any(tr.scenario == name and tr.k1 > k for tr in self.tracks)
                 if not alive and t - last_staged[name] >= SCENARIO_PERIOD_S and t >= retry_at[name]:
                     if self.stage_scenario(name, k):
@@ -880,6 +897,10 @@ class Planner:
             rejected: dict[tuple[str, str], int] = {}
             limit = 12 if self.real is None else 36
             failures = {c: limit for c in self.classes if self._closed(c, k, rejected)}
+            if shut is not None:  # the real frame takes no object at all: each class says why
+                for c in self.classes:
+                    failures[c] = limit
+                    rejected[c, shut] = 1
             # each open class's share of the frame's objects: refills stop at it (below)
             open_w = {c: w for c, w in zip(self.classes, self.weights) if c not in failures}
             total_w = sum(open_w.values())
@@ -927,7 +948,8 @@ class Planner:
                     yaw=float(tr.yaw[i]), dims=tuple(float(x) for x in tr.dims), variant=dict(tr.variant),
                     velocity=tr.velocity(i, self.times), state=tr.states[i] if tr.states else None,
                     scenario=tr.scenario, pitch=float(tr.pitch[i]), roll=float(tr.roll[i])), tr.rider_id)
-            decisions = [{"what": "rejected", "cls": c, "reason": r, "count": n} for (c, r), n in rejected.items()]
+            decisions = frame_notes + [{"what": "rejected", "cls": c, "reason": r, "count": n}
+                                       for (c, r), n in rejected.items()]
             if self.real is not None:
                 for tr in vis:
                     i = k - tr.k0

@@ -40,6 +40,10 @@ class RealFrame:
         self.footprints = [(o, np.asarray(o.footprint, float)) for o in fa.real_objects if o.footprint]
         self.boxes = [(o, np.asarray(o.box, float)) for o in fa.real_objects]
 
+    def decision(self, what: str) -> str:
+        """The analysis' reason for `what` (its decisions), or ''."""
+        return next((str(d.get("reason", "")) for d in self.fa.decisions if d.get("what") == what), "")
+
 
 class RealScene:
     """Per frame index k of the plan: the real frame's constraints."""
@@ -105,6 +109,28 @@ class RealScene:
             return "not on the walkable band beside the road"
         return None
 
+    def closed(self, k: int) -> str | None:
+        """Why no new object of any class may be placed in frame k, or None. Every class stands
+        on the frame's road or beside it: a frame without a road region (all hood, no free
+        ground, a black frame) takes none, and neither does a frame whose camera is too
+        uncertain for any distance of the job (`max_distance`)."""
+        rf = self.frames[k] if k < len(self.frames) else None
+        if rf is None:
+            return None
+        if rf.road is None:
+            why = rf.decision("road") or "no road region"
+            return f"no road region in this frame ({why})"
+        return None
+
+    def max_distance(self, k: int) -> tuple[float, str]:
+        """How far from the camera objects may stand in frame k (inf: no limit) and why: the
+        analysis' `placement_max_m`, from the camera's pitch, roll and height uncertainty."""
+        rf = self.frames[k] if k < len(self.frames) else None
+        lim = None if rf is None else rf.fa.placement_max_m
+        if lim is None:
+            return float("inf"), ""
+        return float(lim), rf.decision("placement_max_m")
+
     def oncoming(self, k: int, T, xy) -> bool:
         """Whether traffic at ground point `xy` comes towards the camera in frame k: beyond the
         frame's centre line (the analysis' `centre_line_m`, left of the camera at pose T)."""
@@ -151,7 +177,9 @@ class RealScene:
         with `keep`, one of the points (N, 2) for which keep(points) is True)."""
         from blendgen.analysis.ground import to_ground
 
-        rf = self.frames[k]
+        rf = self.frames[k] if k < len(self.frames) else None
+        if rf is None or rf.road is None:  # nothing estimated to stand on (RealScene.closed says why)
+            return None
         if value == ROAD_EDGE:
             road = rf.road == ROAD
             off = cv2.dilate((~road).astype(np.uint8), np.ones((1, 2 * EDGE_PX + 1), np.uint8)) > 0

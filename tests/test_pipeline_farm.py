@@ -36,13 +36,12 @@ def recording(tmp_path_factory):
     return root
 
 
-def write_job(folder: Path, rec: Path, *, frames=16, workers=2, engine="local", render=None) -> Path:
+def write_job(folder: Path, rec: Path, *, frames=16, workers=2, engine="local", render=None, stills=False) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     job = {"name": "freeway", "seed": 3, "recording": str(rec),
-           # a fixed height keeps the recording-wide step short (no lane widths elsewhere in the video)
-           "ground_plane": {"camera_height_m": 1.3, "pitch_deg": "auto", "roll_deg": "auto"},
-           "frames": {"start": 20, "stop": 20 + frames, "step": 1},
-           "inject": {"objects_per_frame": [3, 4], "distance_m": [8, 35], "sequences": True,
+           "ground_plane": "auto",   # video: the height from the job's and 48 other frames' lanes and cars
+           "frames": {"start": 0, "stop": None, "step": 1} if stills else {"start": 20, "stop": 20 + frames, "step": 1},
+           "inject": {"objects_per_frame": [3, 4], "distance_m": [8, 35], "sequences": not stills,
                       "classes": {"car": 3, "truck": 1, "bus": 1, "motorcycle": 1}},
            "render": render or {"resolution": [320, 180], "samples": 1, "denoise": False},
            "export": {"formats": ["coco"], "min_visible_px": 4},
@@ -105,6 +104,22 @@ def test_farm_analysis_and_plan_equal_the_in_process_stages(recording, ref, tmp_
     assert [json.loads(x) for x in (out / "plan.jsonl").read_text().splitlines()] == ref_plans
     assert sum(len(p["objects"]) for p in ref_plans) > 0
     assert json.loads((out / "analysis" / "recording.json").read_text())["sample"] == ids
+
+
+def test_stills_farm_analysis_and_plan_equal_the_in_process_stages(tmp_path):
+    """Six photos of one camera: one hood by consensus, one mount fitted jointly (analysis.mount)."""
+    photos = DATA / "real" / "udacity_highway_images"
+    if not photos.is_dir():
+        pytest.skip(f"needs {photos}")
+    rec = tmp_path / "rec"
+    r = subprocess.run([sys.executable, "-m", "blendgen.cli", "import", "images", str(photos), str(rec), "--hfov", "55",
+                        "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    job = write_job(tmp_path / "job", rec, stills=True)
+    ids, plans = reference(job, tmp_path / "ref")
+    out = run_until_plan(job)
+    assert analyses(out / "analysis", ids) == analyses(tmp_path / "ref", ids)
+    assert [json.loads(x) for x in (out / "plan.jsonl").read_text().splitlines()] == plans
 
 
 @pytest.mark.timeout(900)

@@ -2,39 +2,40 @@
 so that a long recording is analysed by farm tasks in parallel (pipeline.analysis_tasks)
 with the results `stage.run_analysis` gives in one process.
 
-Recording-wide (one task, `calibrate`, from a bounded sample; ~100 frames whatever the length):
+Recording-wide (a few tasks over a bounded sample; ~100 frames whatever the length):
 - the sample: every frame of a job of up to `N_SAMPLE` frames, else `N_SAMPLE` spread evenly;
-- a video's hood (`hood.hood_in_video` over 40 frames spread over the job, as `find_hood`);
-- the camera's recording-wide values (`camera.estimate_cameras`): the focal length, the height
-  (lane widths in the sample and in 48 frames spread over the recording, else real cars'
-  widths), the pitch and roll a frame without its own takes;
+- the hood: a video's from 40 frames spread over the job (`hood.hood_in_video`), stills' the
+  consensus of the sample's (`mount.hood_consensus`: one for all, each its own, or none);
+- the camera (`camera.recording_camera`): the focal length (`mount.focal_consensus`) and the
+  mount (`mount.estimate_mount`: a video's height; stills' height, pitch and roll) from the
+  sample's cues, with a video's lane cues from 48 frames outside the job;
 - the camera's yaw on its mount (ego motion: the median of the frames' road yaw) and whether
-  GNSS covers the drive (its step lengths).
+  GNSS covers the drive.
 Per frame (parallel):
-- `frame_cues`: the frame's hood (stills), real road users (detector), vanishing-point camera;
-- `frame_camera`: its camera from the cues of the frames within +-0.5 s (video smoothing) and
-  the recording-wide values; then `stage.analyse_frame` (road, bands, lanes, footprints);
+- `frame_cues`: the frame's hood (stills with their own), real road users (detector),
+  `camera.frame_cues` (vanishing points, whole road users, the ego lane's lines);
+- its angles from the cues of the frames within +-0.5 s (`camera._smooth`) and its estimate
+  (`camera.camera_of_frame`; a still outside the sample: the mount fitted again with it); then
+  `stage.analyse_frame` (road, bands, lanes, footprints);
 - ego motion (video): `egomotion.pair_motions` per pair of frames, then `egomotion.chain_step`
-  in order, a few microseconds a frame (the pipeline's only serial chain).
+  in order, a few milliseconds a frame (the pipeline's only serial chain).
 For a job of up to `N_SAMPLE` frames the sample is the job: every value is the one
 `run_analysis` computes. For a longer one, the recording-wide values come from the sample
-instead of every frame (docs/farm.md says what that costs).
+instead of every frame, and the sample's frames are smoothed among themselves (docs/farm.md).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 
 from blendgen.analysis import ground, objects
-from blendgen.analysis.camera import (DEFAULT_HEIGHT_M, DEFAULT_LANE_WIDTH_M, HEIGHT_SAMPLE_FRAMES, SMOOTH_S,
-                                      CameraConfig, FrameCamera, _user_value, _weighted_median, angles_from_axes,
-                                      estimate_frame, focal_was_guessed, gravity_up, horizon_line, is_sequence,
-                                      road_axes)
+from blendgen.analysis.camera import (HEIGHT_SAMPLE_FRAMES, SMOOTH_S, CameraSettings, RecordingCamera, _smooth,
+                                      camera_of_frame, is_sequence, recording_camera)
 from blendgen.analysis.model import CameraEstimate, RealObject
+from blendgen.analysis.mount import FrameCues, Mount
 from blendgen.geometry import Camera
 
 N_SAMPLE = 48       # frames of the job that give the recording-wide values
@@ -113,167 +114,122 @@ def frames_at(rec, frame_ids, reader: FrameReader | None = None):
 
 # ----------------------------------------------------------------------------- settings
 
-class Settings:
-    """The job's ground-plane settings as the camera estimate reads them."""
+class Settings(CameraSettings):
+    """The job's ground-plane settings as the analysis reads them."""
 
     def __init__(self, rec, gp):
-        self.fixed = {k: _user_value(gp, k) for k in ("camera_height_m", "pitch_deg", "roll_deg")}
-        self.lane_w = _user_value(gp, "lane_width_m") or DEFAULT_LANE_WIDTH_M
-        self.fit_focal = focal_was_guessed(rec)
-        self.need_lines = any(v is None for v in self.fixed.values())
-        self.seq = is_sequence(rec)
+        super().__init__(rec, gp)
         self.oncoming = getattr(gp, "oncoming", "auto")
         self.lane_width_m = getattr(gp, "lane_width_m", 3.5)
-        self.cfg = CameraConfig()
-
-    def frame_kw(self) -> dict:
-        return dict(cfg=self.cfg, roll_prior_deg=self.fixed["roll_deg"] or 0.0, fit_focal=self.fit_focal,
-                    lane_width_m=self.lane_w)
 
 
 def video_hood(rec, frame_ids: list[str]) -> bool:
     return is_sequence(rec) and len(frame_ids) >= VIDEO_HOOD_MIN
 
 
+# ----------------------------------------------------------------------------- hood
+
+def stills_hood(polys: dict[str, list | None], camera: Camera) -> dict:
+    """Stills: what `hood.find_hood` decides from the sample's own hoods: one for all frames
+    ("one"), none ("none"), or each frame its own ("own")."""
+    from blendgen.analysis.hood import CONSENSUS_MIN_FRAMES
+    from blendgen.analysis.mount import hood_consensus
+
+    if len(polys) < CONSENSUS_MIN_FRAMES:
+        return {"mode": "own", "hood": None, "reason": f"{len(polys)} still(s): each keeps its own hood"}
+    out, why = hood_consensus(polys, camera.width, camera.height)
+    if all(v is None for v in out.values()):
+        return {"mode": "none", "hood": None, "reason": why}
+    if why.startswith("the same hood edge"):
+        return {"mode": "one", "hood": next(iter(out.values())), "reason": why}
+    return {"mode": "own", "hood": None, "reason": why}
+
+
 # ----------------------------------------------------------------------------- per frame: cues
 
-def frame_cues(image, fid: str, t: float, rec, settings: Settings, detector, hood=None, *, video: bool) -> dict:
-    """The per-frame part before the camera: hood (stills: this frame's), the real road users off
-    the hood, the frame's vanishing-point camera. JSON-able."""
+def frame_cues(image, fid: str, t: float, rec, settings: Settings, detector, hood: dict) -> dict:
+    """The per-frame part before the camera, JSON-able: the frame's hood (`hood`: the hood task's
+    decision), the real road users off it, `camera.frame_cues`."""
+    from blendgen.analysis.camera import frame_cues as camera_cues
     from blendgen.analysis.hood import hood_in_still
     from blendgen.analysis.stage import hood_mask, not_ego
 
     if image is None:
-        fc = FrameCamera(None, None, reasons=["frame does not decode"]) if settings.need_lines else None
-        return {"frame_id": fid, "t": t, "decoded": False, "hood": hood if video else None, "users": [],
-                "camera": None if fc is None else _fc_dict(fc)}
-    if not video:
-        hood = hood_in_still(image)[0]
+        return {"frame_id": fid, "t": t, "decoded": False, "hood": None, "users": [],
+                "cues": asdict(FrameCues(t=t, reasons=["frame does not decode"]))}
+    poly = hood_in_still(image)[0] if hood["mode"] == "own" else hood["hood"]
     H, W = image.shape[:2]
-    users = not_ego(objects.road_users(image, detector), hood_mask(hood, W, H), W, H)[0]
-    fc = None
-    if settings.need_lines:
-        fc = estimate_frame(image, rec.camera, car_boxes=[o.box for o in users if o.cls == "car"], hood=hood,
-                            **settings.frame_kw())
-    return {"frame_id": fid, "t": t, "decoded": True, "hood": hood, "users": [asdict(o) for o in users],
-            "camera": None if fc is None else _fc_dict(fc)}
+    users = not_ego(objects.road_users(image, detector), hood_mask(poly, W, H), W, H)[0]
+    c = camera_cues(image, rec.camera, t=t, hood=poly, users=[(o.cls, o.box) for o in users], **settings.cue_kw())
+    return {"frame_id": fid, "t": t, "decoded": True, "hood": poly, "users": [asdict(o) for o in users],
+            "cues": asdict(c)}
 
 
-def _fc_dict(fc: FrameCamera) -> dict:
-    return {k: v for k, v in fc.__dict__.items() if k not in ("segments", "labels")}
-
-
-def fc_of(cue: dict) -> FrameCamera | None:
-    return None if cue.get("camera") is None else FrameCamera(**cue["camera"])
+def cues_of(cue: dict) -> FrameCues:
+    return FrameCues(**cue["cues"])
 
 
 def users_of(cue: dict) -> list[RealObject]:
     return [RealObject(**o) for o in cue["users"]]
 
 
-# ----------------------------------------------------------------------------- recording-wide
+def elsewhere_cue(image, rec, settings: Settings, hood) -> dict | None:
+    """A video frame outside the job: its lane cue for the height (`camera._cues_elsewhere`)."""
+    from blendgen.analysis.camera import frame_cues as camera_cues
 
-def lane_heights_elsewhere(rec, chosen: set[str], hood, settings: Settings) -> list[float]:
-    """As camera._lane_heights_elsewhere: heights from lane widths in frames spread over the
-    whole recording besides the job's own (read by seeking: a long video is not decoded whole)."""
-    idx = np.unique(np.linspace(0, rec.n_frames - 1, HEIGHT_SAMPLE_FRAMES).round().astype(int))
-    extra = [rec.frame_id(int(i)) for i in idx if rec.frame_id(int(i)) not in chosen]
-    out = []
-    for _, im in frames_at(rec, extra):
-        if im is not None:
-            h = estimate_frame(im, rec.camera, hood=hood, **settings.frame_kw()).height_lanes
-            out += [h] if h else []
-    return out
-
-
-def recording_values(rec, per: dict[str, FrameCamera], settings: Settings, hl_elsewhere: list[float]) -> dict:
-    """The recording-wide part of `camera.estimate_cameras` from the sample's frame cameras."""
-    fxs = [f.fx for f in per.values() if f.fx is not None and f.confidence > 0.3]
-    hl = [f.height_lanes for f in per.values() if f.height_lanes] + list(hl_elsewhere)
-    hc = [f.height_cars for f in per.values() if f.height_cars]
-    out = {"fx": float(np.median(fxs)) if fxs else None,
-           "height": [float(np.median(hl)), "lane_width"] if hl else [float(np.median(hc)), "cars"] if hc else None}
-    for name, std_name in (("pitch", "pitch_std"), ("roll", "roll_std")):
-        allv = [getattr(f, name) for f in per.values()
-                if getattr(f, name) is not None and math.isfinite(getattr(f, std_name))]
-        out[name + "_median"] = float(np.median(allv)) if allv else None
-    return out
+    if image is None:
+        return None
+    c = camera_cues(image, rec.camera, hood=hood, cfg=settings.cfg, fit_focal=settings.fit_focal,
+                    roll_prior_deg=settings.fixed["roll_deg"] or 0.0, lane_width_m=settings.lane_w)
+    if c.lane is None or c.pitch is None:
+        return None
+    return asdict(FrameCues(t=c.t, pitch=c.pitch, roll=c.roll or 0.0, pitch_std=c.pitch_std, roll_std=c.roll_std,
+                            lane=c.lane))
 
 
-def frame_camera(fid: str, t: float, fc: FrameCamera | None, near: list[FrameCamera], rec, settings: Settings,
-                 values: dict) -> tuple[CameraEstimate, list | None]:
-    """One frame's camera (the loop of `camera.estimate_cameras`): `near`, the frame cameras of the
-    job's frames within +-SMOOTH_S of it (itself included; video only), `values` the
-    recording-wide ones (`recording_values`)."""
-    fixed, seq = settings.fixed, settings.seq
-    fc = fc or FrameCamera(None, None)
-    fx = values["fx"]
-    camera: Camera = rec.camera
-    cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
-                                           camera.cx, camera.cy, list(camera.dist))
-    est = CameraEstimate(height_m=DEFAULT_HEIGHT_M, pitch_deg=0.0, roll_deg=0.0, fx=fx, yaw_deg=fc.yaw,
-                         confidence=fc.confidence, reasons=list(fc.reasons))
-    if fx is not None:
-        est.source["fx"] = "vanishing_point"
-    near = near if seq else []
-    up = gravity_up(rec, t)
-    for name, std_name, key in (("pitch", "pitch_std", "pitch_deg"), ("roll", "roll_std", "roll_deg")):
-        if fixed[key] is not None:
-            setattr(est, key, fixed[key])
-            est.source[name] = "user"
-            continue
-        vals = [(getattr(g, name), g.confidence) for g in near
-                if getattr(g, name) is not None and math.isfinite(getattr(g, std_name))]
-        own = getattr(fc, name)
-        if len(vals) >= 2:       # video: confidence-weighted median over +-0.5 s
-            v = np.array(vals)
-            value, src = _weighted_median(v[:, 0], v[:, 1] + 1e-6), "smoothed"
-            std = max(0.05, float(np.median([getattr(g, std_name) for g in near
-                                             if math.isfinite(getattr(g, std_name))])))
-        elif own is not None and math.isfinite(getattr(fc, std_name)):
-            value, src, std = own, "vanishing_point", max(0.05, getattr(fc, std_name))
-        else:
-            value, src, std = None, None, None
-        if up is not None:
-            p_i, r_i, _ = angles_from_axes(np.array([0.0, 0.0, 1.0]), up[0])
-            gv = math.degrees(p_i if name == "pitch" else r_i)
-            if value is None:
-                value, src = gv, "imu"
-                est.confidence = max(est.confidence, 1.0 / (1.0 + (up[1] / 1.0) ** 2))
-            else:   # inverse-variance average of lines and gravity
-                w1, w2 = 1 / std ** 2, 1 / up[1] ** 2
-                value, src = (w1 * value + w2 * gv) / (w1 + w2), src + "+imu"
-        if value is None:
-            med = values[name + "_median"]
-            if med is not None:
-                value, src = med, "recording_median"
-                est.reasons.append(f"{name}: no estimate in this frame, the recording's median")
-            else:
-                value, src = (fc.roll if name == "roll" and fc.roll is not None else 0.0), "default"
-                est.reasons.append(f"{name}: nothing to estimate it from, assumed {value:g} deg")
-            est.confidence = 0.0 if src == "default" else min(est.confidence, 0.3)
-        setattr(est, key, float(value))
-        est.source[name] = src
-    if fixed["camera_height_m"] is not None:
-        est.height_m, est.source["height"] = fixed["camera_height_m"], "user"
-    elif not seq and (fc.height_lanes or fc.height_cars):
-        est.height_m, est.source["height"] = ((fc.height_lanes, "lane_width") if fc.height_lanes
-                                              else (fc.height_cars, "cars"))
-    elif values["height"] is not None:
-        est.height_m, est.source["height"] = values["height"][0], values["height"][1]
-    else:
-        est.height_m, est.source["height"] = DEFAULT_HEIGHT_M, "default"
-        est.reasons.append(f"height: no lane markings or cars to scale with, assumed {DEFAULT_HEIGHT_M} m")
-    if est.source["pitch"] == "user" and est.source["roll"] == "user":
-        est.confidence = 1.0
-    U = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)[2]
-    return est, horizon_line(cam, U)
+# ----------------------------------------------------------------------------- camera
+
+def angles_of(fid: str, cues: dict[str, FrameCues], rec, settings: Settings) -> dict:
+    """A frame's pitch and roll (`camera._smooth`) from the cues of the frames within +-0.5 s
+    (itself included; `cues` may hold more)."""
+    return _smooth(cues, [fid], {f: c.t for f, c in cues.items()}, settings.seq, rec, settings.fixed)[fid]
+
+
+def recording_doc(sample: dict[str, FrameCues], rec, settings: Settings, elsewhere: list[dict]) -> dict:
+    """`camera.recording_camera` over the sample, as JSON (analysis/recording.json's "camera")."""
+    angles = _smooth(sample, list(sample), {f: c.t for f, c in sample.items()}, settings.seq, rec, settings.fixed)
+    rc = recording_camera(sample, angles, settings, {f"height:{k}": FrameCues(**d) for k, d in enumerate(elsewhere)})
+    d = asdict(rc)
+    d["angles"] = angles
+    return d
+
+
+def recording_of(doc: dict) -> RecordingCamera:
+    d = dict(doc)
+    d.pop("angles", None)
+    d["mount"] = Mount(**d["mount"])
+    d["cues"] = {f: FrameCues(**c) for f, c in d["cues"].items()}
+    return RecordingCamera(**d)
+
+
+def frame_camera(fid: str, fc: FrameCues, a: dict, rc: RecordingCamera, rec) -> tuple[CameraEstimate, list | None]:
+    return camera_of_frame(fid, fc, a, rc, rec.camera)
 
 
 def smoothing_range(times: np.ndarray, p: int) -> tuple[int, int]:
     """Positions of the job's frames within +-SMOOTH_S of frame p (times sorted)."""
     return (int(np.searchsorted(times, times[p] - SMOOTH_S)),
             int(np.searchsorted(times, times[p] + SMOOTH_S, side="right")))
+
+
+def elsewhere_ids(rec, ids: list[str], settings: Settings) -> list[str]:
+    """The recording frames whose lane cues also scale a video's height (none when the job's
+    camera height is fixed)."""
+    if not (settings.seq and settings.fixed["camera_height_m"] is None):
+        return []
+    chosen = set(ids)
+    idx = np.unique(np.linspace(0, rec.n_frames - 1, HEIGHT_SAMPLE_FRAMES).round().astype(int))
+    return [rec.frame_id(int(i)) for i in idx if rec.frame_id(int(i)) not in chosen]
 
 
 # ----------------------------------------------------------------------------- ego motion

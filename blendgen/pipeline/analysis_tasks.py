@@ -43,7 +43,7 @@ class AnalysisContext:
     """What every analysis task knows: the job, the recording, the job's frames (positions,
     recording indices, times) and, for a video, the recording frames the ego motion runs over."""
 
-    def __init__(self, job: dict, out_dir: str):
+    def __init__(self, job: dict, out_dir: str, lane_width_given: bool = False):
         import cv2
 
         cv2.setNumThreads(1)  # one worker per core: no worker competes with the others for cores
@@ -57,6 +57,8 @@ class AnalysisContext:
         self.times = np.asarray(self.rec.frames_t, float)[self.index]
         self.gp = self.job.ground_plane
         self.settings = split.Settings(self.rec, self.gp)
+        # the resolved job names every field: whether the user gave the lane width comes from the job file
+        self.settings.lane_known = self.settings.lane_w if lane_width_given else None
         self.video = split.video_hood(self.rec, self.ids)
         self.seq = self.settings.seq and len(self.ids) > 1   # ego motion over the video
         self.reader = split.FrameReader(self.rec)
@@ -78,9 +80,13 @@ class AnalysisContext:
         return json.loads((self.dir / "recording.json").read_text())
 
     @cached_property
-    def hood(self):
-        """The video's hood (HoodTask), None for stills."""
-        return json.loads((self.dir / "hood.json").read_text())["hood"]
+    def hood(self) -> dict:
+        """HoodTask's decision: {"mode": "one" | "none" | "own", "hood": polygon or None}."""
+        return json.loads((self.dir / "hood.json").read_text())
+
+    @cached_property
+    def recording_camera(self):
+        return split.recording_of(self.calib["camera"])
 
     def cue_path(self, fid: str) -> Path:
         return self.dir / "cues" / f"{fid}.json"
@@ -96,30 +102,34 @@ class AnalysisContext:
 # ----------------------------------------------------------------------------- recording-wide
 
 class HoodTask(AnalysisContext):
-    """Item "hood": a video's one hood (as hood.find_hood: 40 frames spread over the job); stills
-    find theirs frame by frame (cues)."""
+    """Item "hood": a video's one hood (as hood.find_hood: 40 frames spread over the job), or
+    what stills do (the sample's own hoods' consensus: one for all, none, or each its own)."""
 
     def is_done(self, item: str) -> bool:
         return (self.dir / "hood.json").is_file()
 
     def process(self, item: str) -> dict:
-        from blendgen.analysis.hood import N_VIDEO, hood_in_video
+        from blendgen.analysis.hood import N_VIDEO, hood_in_still, hood_in_video
 
         t0 = time.process_time()
-        hood, why = None, "stills: each frame's own"
         if self.video:
             k = np.linspace(0, len(self.ids) - 1, min(N_VIDEO, len(self.ids))).astype(int)
             pick = sorted({self.ids[i] for i in k})
             frames = [im for _, im in split.frames_at(self.rec, pick, self.reader) if im is not None]
             hood, why = hood_in_video(frames)
-        cpu = round(time.process_time() - t0, 3)
-        atomic.write_json(self.dir / "hood.json", {"video": self.video, "hood": hood, "reason": why, "cpu_s": cpu})
-        return {"hood": hood is not None, "cpu_s": cpu}
+            doc = {"mode": "one" if hood is not None else "none", "hood": hood, "reason": why}
+        else:
+            polys = {f: (None if im is None else hood_in_still(im)[0])
+                     for f, im in split.frames_at(self.rec, split.sample_ids(self.ids), self.reader)}
+            doc = split.stills_hood(polys, self.rec.camera)
+        doc["cpu_s"] = round(time.process_time() - t0, 3)
+        atomic.write_json(self.dir / "hood.json", doc)
+        return {"mode": doc["mode"], "cpu_s": doc["cpu_s"]}
 
 
 class ElsewhereTask(AnalysisContext):
-    """A recording frame outside the job, spread over the video: its lane-width height
-    (camera._lane_heights_elsewhere; one camera's height must not depend on the job's frames)."""
+    """A recording frame outside the job, spread over the video: its lane cue for the height
+    (camera._cues_elsewhere; one camera's height must not depend on the job's frames)."""
 
     def path(self, fid: str) -> Path:
         return self.dir / "elsewhere" / f"{fid}.json"
@@ -128,30 +138,15 @@ class ElsewhereTask(AnalysisContext):
         return self.path(item).is_file()
 
     def process(self, item: str) -> dict:
-        from blendgen.analysis.camera import estimate_frame
-
         t0 = time.process_time()
-        im = self.frame(item)
-        h = None if im is None else estimate_frame(im, self.rec.camera, hood=self.hood,
-                                                   **self.settings.frame_kw()).height_lanes
-        atomic.write_json(self.path(item), {"height_lanes": h})
-        return {"height_lanes": h, "cpu_s": round(time.process_time() - t0, 4)}
-
-
-def elsewhere_ids(rec, ids: list[str], settings) -> list[str]:
-    """The recording frames `ElsewhereTask` measures (none when the job's camera needs none)."""
-    from blendgen.analysis.camera import HEIGHT_SAMPLE_FRAMES
-
-    if not (settings.seq and settings.need_lines and settings.fixed["camera_height_m"] is None):
-        return []
-    chosen = set(ids)
-    idx = np.unique(np.linspace(0, rec.n_frames - 1, HEIGHT_SAMPLE_FRAMES).round().astype(int))
-    return [rec.frame_id(int(i)) for i in idx if rec.frame_id(int(i)) not in chosen]
+        cue = split.elsewhere_cue(self.frame(item), self.rec, self.settings, self.hood["hood"])
+        atomic.write_json(self.path(item), {"cue": cue})
+        return {"lane": cue is not None, "cpu_s": round(time.process_time() - t0, 4)}
 
 
 class CameraTask(AnalysisContext):
-    """Item "camera": the recording-wide values from the sample's cues and the heights elsewhere
-    (analysis.split) -> analysis/recording.json."""
+    """Item "camera": the recording-wide values from the sample's cues and the lane cues
+    elsewhere (camera.recording_camera) -> analysis/recording.json."""
 
     def is_done(self, item: str) -> bool:
         return (self.dir / "recording.json").is_file()
@@ -160,28 +155,20 @@ class CameraTask(AnalysisContext):
         t0 = time.process_time()
         st = self.settings
         sample = split.sample_ids(self.ids)
-        cues = {f: json.loads(self.cue_path(f).read_text()) for f in sample}
-        per = {f: split.fc_of(c) for f, c in cues.items() if c["camera"] is not None}
-        elsewhere = [json.loads((self.dir / "elsewhere" / f"{f}.json").read_text())["height_lanes"]
-                     for f in elsewhere_ids(self.rec, self.ids, st)]
-        values = split.recording_values(self.rec, per, st, [h for h in elsewhere if h])
-        hood = json.loads((self.dir / "hood.json").read_text())
-        doc = {"version": 1, "frames": len(self.ids), "sample": sample, "video_hood": self.video, "hood": hood["hood"],
-               "hood_reason": hood["reason"], "values": values, "lane_heights_elsewhere": [h for h in elsewhere if h]}
-        if self.seq:  # the camera's yaw on its mount, from the sample's cameras (all of a short job's)
-            ests = {}
-            ts = np.array([c["t"] for c in cues.values()])
-            fcs = {f: split.fc_of(c) for f, c in cues.items()}
-            order = list(cues)
-            for j, fid in enumerate(order):
-                lo, hi = split.smoothing_range(ts, j)
-                near = [fcs[g] for g in order[lo:hi] if fcs[g] is not None]
-                ests[self.pos[fid]] = split.frame_camera(fid, cues[fid]["t"], fcs[fid], near, self.rec, st, values)[0]
+        cues = {f: split.cues_of(json.loads(self.cue_path(f).read_text())) for f in sample}
+        elsewhere = [c for c in (json.loads((self.dir / "elsewhere" / f"{f}.json").read_text())["cue"]
+                                 for f in split.elsewhere_ids(self.rec, self.ids, st)) if c is not None]
+        camera = split.recording_doc(cues, self.rec, st, elsewhere)
+        doc = {"version": 2, "frames": len(self.ids), "sample": sample, "hood": self.hood, "camera": camera}
+        if self.seq:  # the camera's yaw on its mount, from the sample's estimates (all of a short job's)
+            rc = split.recording_of(camera)
+            ests = {self.pos[f]: split.frame_camera(f, c, camera["angles"][f], rc, self.rec)[0] for f, c in cues.items()}
             doc["mount_yaw"] = split.mount_yaw(self.rec, self.index, ests)
             doc["gnss"] = split.gnss_track(self.rec, float(self.times[0]), float(self.times[-1])) is not None
         doc["cpu_s"] = round(time.process_time() - t0, 3)
         atomic.write_json(self.dir / "recording.json", doc)
-        return {"sample": len(sample), "cpu_s": doc["cpu_s"], "height": values["height"], "fx": values["fx"]}
+        return {"sample": len(sample), "cpu_s": doc["cpu_s"], "height_m": camera["mount"]["height_m"],
+                "fx": camera["fx"]}
 
 
 # ----------------------------------------------------------------------------- cues
@@ -194,7 +181,7 @@ class CuesTask(AnalysisContext):
         t0 = time.process_time()
         fid, im = item, self.frame(item)
         cue = split.frame_cues(im, fid, float(self.times[self.pos[fid]]), self.rec, self.settings, self.detector,
-                               self.hood, video=self.video)
+                               self.hood)
         cue["cpu_s"] = round(time.process_time() - t0, 4)
         atomic.write_json(self.cue_path(fid), cue)
         return {"cpu_s": cue["cpu_s"], "users": len(cue["users"])}
@@ -205,8 +192,8 @@ class CuesTask(AnalysisContext):
 class AnalysisTask(AnalysisContext):
     """The frame's camera (from the cues around it) and the rest of its analysis."""
 
-    def __init__(self, job: dict, out_dir: str):
-        super().__init__(job, out_dir)
+    def __init__(self, job: dict, out_dir: str, **kw):
+        super().__init__(job, out_dir, **kw)
         self._cues: dict[str, dict] = {}
 
     def cue(self, fid: str) -> dict:
@@ -219,10 +206,10 @@ class AnalysisTask(AnalysisContext):
 
     def camera(self, fid: str):
         p = self.pos[fid]
-        lo, hi = split.smoothing_range(self.times, p)
-        near = [g for g in (split.fc_of(self.cue(x)) for x in self.ids[lo:hi]) if g is not None]
-        return split.frame_camera(fid, float(self.times[p]), split.fc_of(self.cue(fid)), near, self.rec,
-                                  self.settings, self.calib["values"])
+        lo, hi = split.smoothing_range(self.times, p) if self.settings.seq else (p, p + 1)
+        window = {x: split.cues_of(self.cue(x)) for x in self.ids[lo:hi]}
+        a = split.angles_of(fid, window, self.rec, self.settings)
+        return split.frame_camera(fid, window[fid], a, self.recording_camera, self.rec)
 
     def is_done(self, item: str) -> bool:
         return self.part_path(item).is_file()
@@ -264,8 +251,8 @@ class AnalysisTask(AnalysisContext):
 class MotionContext(AnalysisContext):
     """Per recording frame of the drive: the camera and hood of the nearest job frame."""
 
-    def __init__(self, job: dict, out_dir: str):
-        super().__init__(job, out_dir)
+    def __init__(self, job: dict, out_dir: str, **kw):
+        super().__init__(job, out_dir, **kw)
         self.dpos = {f: k for k, f in enumerate(self.dense)}
         self._parts: dict[str, FrameAnalysis] = {}
 
@@ -304,8 +291,8 @@ class MotionTask(MotionContext):
     bird's-eye view carry over); a run that starts elsewhere starts one frame early. Frame 0
     decides the road patch (`near`) for all."""
 
-    def __init__(self, job: dict, out_dir: str):
-        super().__init__(job, out_dir)
+    def __init__(self, job: dict, out_dir: str, **kw):
+        super().__init__(job, out_dir, **kw)
         self._gen, self._next = None, None
 
     def is_done(self, item: str) -> bool:
@@ -339,8 +326,8 @@ class MotionTask(MotionContext):
 class PosesTask(MotionContext):
     """The chain: each frame's pose from the one before; a job frame's final analysis."""
 
-    def __init__(self, job: dict, out_dir: str):
-        super().__init__(job, out_dir)
+    def __init__(self, job: dict, out_dir: str, **kw):
+        super().__init__(job, out_dir, **kw)
         from blendgen.analysis.split import gnss_track
 
         self.gnss = gnss_track(self.rec, float(self.times[0]), float(self.times[-1])) if self.seq else None

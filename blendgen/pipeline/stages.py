@@ -83,29 +83,29 @@ class PipelineSpec:
         mod = "blendgen.pipeline.analysis_tasks"
         out = []
         if self.analysed:
-            from blendgen.pipeline.analysis_tasks import elsewhere_ids
-
+            # the camera scales its height exactly with a lane width the user gave (camera.CameraSettings)
+            an = {**args, "lane_width_given": "lane_width_m" in self.job.ground_plane.model_fields_set}
             sample = split.sample_ids(self.ids)
             spos = {f: k for k, f in enumerate(sample)}
-            elsewhere = elsewhere_ids(self.rec, self.ids, split.Settings(self.rec, self.job.ground_plane))
-            out += [Stage("hood", ["hood"], f"{mod}:HoodTask", args, chunk=1, priority=PRIORITY["hood"], recycle=False),
-                    Stage("sample", sample, f"{mod}:CuesTask", args, chunk=2, priority=PRIORITY["sample"],
+            elsewhere = split.elsewhere_ids(self.rec, self.ids, split.Settings(self.rec, self.job.ground_plane))
+            out += [Stage("hood", ["hood"], f"{mod}:HoodTask", an, chunk=1, priority=PRIORITY["hood"], recycle=False),
+                    Stage("sample", sample, f"{mod}:CuesTask", an, chunk=2, priority=PRIORITY["sample"],
                           needs=lambda k: [("hood", 0, 1)], recycle=False),
-                    Stage("camera", ["camera"], f"{mod}:CameraTask", args, chunk=1, priority=PRIORITY["camera"],
+                    Stage("camera", ["camera"], f"{mod}:CameraTask", an, chunk=1, priority=PRIORITY["camera"],
                           needs=lambda k: [("sample", 0, len(sample)), ("elsewhere", 0, len(elsewhere))],
                           recycle=False),
-                    Stage("cues", self.ids, f"{mod}:CuesTask", args, chunk=CUES_CHUNK, priority=PRIORITY["cues"],
+                    Stage("cues", self.ids, f"{mod}:CuesTask", an, chunk=CUES_CHUNK, priority=PRIORITY["cues"],
                           needs=lambda p: [("hood", 0, 1)] + ([("sample", spos[self.ids[p]], spos[self.ids[p]] + 1)]
                                                               if self.ids[p] in spos else []), recycle=False,
                           index=self.pos),
-                    Stage("analysis", self.ids, f"{mod}:AnalysisTask", args, chunk=CUES_CHUNK,
+                    Stage("analysis", self.ids, f"{mod}:AnalysisTask", an, chunk=CUES_CHUNK,
                           priority=PRIORITY["analysis"], needs=self.needs_analysis, recycle=False, index=self.pos)]
-            out.insert(2, Stage("elsewhere", elsewhere, f"{mod}:ElsewhereTask", args, chunk=2,
+            out.insert(2, Stage("elsewhere", elsewhere, f"{mod}:ElsewhereTask", an, chunk=2,
                                 priority=PRIORITY["sample"], needs=lambda k: [("hood", 0, 1)], recycle=False))
             if self.video:
-                out += [Stage("motion", self.dense, f"{mod}:MotionTask", args, chunk=MOTION_CHUNK,
+                out += [Stage("motion", self.dense, f"{mod}:MotionTask", an, chunk=MOTION_CHUNK,
                               priority=PRIORITY["motion"], needs=self.needs_motion, recycle=False, index=self.dpos),
-                        Stage("poses", self.dense, f"{mod}:PosesTask", args, chunk=CHAIN_CHUNK,
+                        Stage("poses", self.dense, f"{mod}:PosesTask", an, chunk=CHAIN_CHUNK,
                               priority=PRIORITY["poses"], needs=self.needs_poses, recycle=False, index=self.dpos)]
         out.append(Stage("plan", [w.name for w in self.windows], "blendgen.pipeline.plan_tasks:PlanWindowTask", args,
                          chunk=1, priority=PRIORITY["plan"], needs=self.needs_plan, recycle=False))
@@ -114,7 +114,7 @@ class PipelineSpec:
                          needs=lambda k: [("plan", 0, len(self.windows))], recycle=False))
         if self.analysed:
             last = ("poses", 0, len(self.dense)) if self.video else ("analysis", 0, len(self.ids))
-            out.append(Stage("poses_file", ["poses.csv"], f"{mod}:PosesFileTask", args, chunk=1,
+            out.append(Stage("poses_file", ["poses.csv"], f"{mod}:PosesFileTask", an, chunk=1,
                              needs=lambda k: [last], recycle=False))
         if with_frames:
             out.append(Stage("frames", self.ids, "blendgen.pipeline.frame:FrameProcessor", args,

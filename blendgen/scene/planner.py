@@ -287,7 +287,7 @@ class Planner:
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
 
-    def _real_lanes(self, k, rg, index, direction, s):
+    def _real_lanes(self, k, rg, index, direction, s, cd=None, xy=None):
         """Frame k's real lanes where a vehicle of twin lane (index, direction) is at arc length
         s: (n, y, centres, w) = the twin lane's number from the twin's ego lane (0 the camera's,
         +1 left), its centre's world y, the world y of each real lane's centre by number
@@ -297,27 +297,13 @@ class Planner:
         ego = self.ego.lane[k] if self.real is not None else None
         if ego is None or self.twin.roads[ego.road] is not rg:
             return None
-        cd = float(rg.lane_d(index, direction, np.array([s]))[0])
-        x, y = rg.line.offset_point(np.array([s]), np.array([cd]))[0]
+        if cd is None:  # `cd`, `xy`: the lane centre's offset and point at s when the caller has them
+            cd = float(rg.lane_d(index, direction, np.array([s]))[0])
+            xy = rg.line.offset_point(np.array([s]), np.array([cd]))[0]
+        x, y = xy
         centres = self.real.lane_centres(k, self.ego.T[k], float(x), ego.width)
         return None if centres is None else (int(round((cd - ego.center_d) / ego.width)), float(y), centres,
                                              ego.width)
-
-    def _real_lanes_along(self, k0, rg, index, direction, s: np.ndarray) -> list:
-        """`_real_lanes` for frames k0, k0 + 1, ... at arc lengths s (one lane-geometry pass)."""
-        cd = rg.lane_d(index, direction, s)
-        xy = rg.line.offset_point(s, cd)
-        rows = []
-        for i in range(len(s)):
-            k = k0 + i
-            ego = self.ego.lane[k]
-            if ego is None or self.twin.roads[ego.road] is not rg:
-                rows.append(None)
-                continue
-            centres = self.real.lane_centres(k, self.ego.T[k], float(xy[i, 0]), ego.width)
-            rows.append(None if centres is None else (int(round((float(cd[i]) - ego.center_d) / ego.width)),
-                                                      float(xy[i, 1]), centres, ego.width))
-        return rows
 
     def _real_lane_shifts(self, k0, rg, index, direction, s, tt=(0.0,)) -> np.ndarray | float:
         """Metres to add to a track's twin lane centre offset in its frames k0, k0 + 1, ... (at
@@ -331,7 +317,15 @@ class Planner:
         without any the nearest frame's with lines (video only: stills do not share a world)."""
         if self.real is None:
             return 0.0
-        rows = self._real_lanes_along(k0, rg, index, direction, np.asarray(s, float))
+        s = np.asarray(s, float)
+        # the lane geometry of every frame in one pass (the planner asks for thousands of frames per spawn)
+        geo = None
+        if rg is not None:
+            cd = rg.lane_d(index, direction, s)
+            geo = (cd, rg.line.offset_point(s, cd))
+        rows = [self._real_lanes(k0 + i, rg, index, direction, float(si), *(() if geo is None else
+                                                                              (float(geo[0][i]), geo[1][i])))
+                for i, si in enumerate(s)]
         ref = next((r for r in rows if r is not None), None)
         if ref is None:
             near = np.argsort(np.abs(self.times - self.times[k0]))[:LANE_BORROW_FRAMES] if self.inject.sequences else []

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from blendgen.analysis.model import CameraEstimate
-from blendgen.analysis.mount import FrameCues, focal_consensus
+from blendgen.analysis.mount import FrameCues, Mount, focal_consensus
 from blendgen.geometry import Camera, R_world_cam_from_ypr
 
 log = logging.getLogger(__name__)
@@ -676,91 +676,163 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, users=None, p
     `users`: {frame_id: [(cls, [x, y, w, h]), ...]} the detector's road users (`car_boxes`:
     {frame_id: [box, ...]} of cars only); `hoods`: find_hood's result when the caller has it
     (otherwise it is found here). Per-frame cues (`frame_cues`), then one recording-wide
-    reduction (`mount.estimate_mount`)."""
+    reduction (`recording_camera`: focal length, `mount.estimate_mount`), then each frame's
+    estimate (`camera_of_frame`); the farm runs the same three parts as tasks
+    (analysis.split)."""
     from blendgen.analysis.hood import find_hood
-    from blendgen.analysis.mount import estimate_mount
 
     cfg = cfg or CameraConfig()
     camera: Camera = rec.camera
     users = dict(users or {})
     for f, boxes in (car_boxes or {}).items():
         users.setdefault(f, [("car", b) for b in boxes])
-    fixed = {k: _user_value(user, k) for k in ("camera_height_m", "pitch_deg", "roll_deg")}
-    lane_w = _user_value(user, "lane_width_m") or DEFAULT_LANE_WIDTH_M
-    # a lane width the user gave is this road's: the height scales with it, not with the prior
-    lane_known = lane_w if "lane_width_m" in (getattr(user, "model_fields_set", None) or ()) else None
-    fit_focal = focal_was_guessed(rec)
+    st = CameraSettings(rec, user, cfg)
     frame_ids = list(frame_ids)
-    seq = is_sequence(rec)
     t_of = {rec.frame_id(i): float(rec.frames_t[i]) for i in frame_indices(rec, frame_ids)}
     if hoods is None:
         hoods = find_hood(rec, frame_ids)
     per: dict[str, FrameCues] = {}
     for fid, im in read_frames(rec, frame_ids, progress=progress, desc="calibrate"):
         per[fid] = (FrameCues(t=t_of[fid], reasons=["frame does not decode"]) if im is None else
-                    frame_cues(im, camera, t=t_of[fid], hood=hoods.get(fid), users=users.get(fid), cfg=cfg,
-                               lane_width_m=lane_w, roll_prior_deg=fixed["roll_deg"] or 0.0, fit_focal=fit_focal))
+                    frame_cues(im, camera, t=t_of[fid], hood=hoods.get(fid), users=users.get(fid), **st.cue_kw()))
+    angles = _smooth(per, frame_ids, t_of, st.seq, rec, st.fixed)
+    elsewhere = None
+    if st.seq and st.fixed["camera_height_m"] is None:
+        hood = next((h for h in hoods.values() if h is not None), None)  # the hood does not move
+        elsewhere = _cues_elsewhere(rec, frame_ids, hood, cfg, st.fit_focal, st.fixed["roll_deg"] or 0.0, st.lane_w,
+                                    progress)
+    rc = recording_camera(per, angles, st, elsewhere or {})
+    return {fid: camera_of_frame(fid, per[fid], angles[fid], rc, camera) for fid in frame_ids}
+
+
+class CameraSettings:
+    """The job's ground_plane section and the recording, as the camera estimate reads them."""
+
+    def __init__(self, rec, user=None, cfg: CameraConfig | None = None):
+        self.cfg = cfg or CameraConfig()
+        self.camera: Camera = rec.camera
+        self.fixed = {k: _user_value(user, k) for k in ("camera_height_m", "pitch_deg", "roll_deg")}
+        self.lane_w = _user_value(user, "lane_width_m") or DEFAULT_LANE_WIDTH_M
+        # a lane width the user gave is this road's: the height scales with it, not with the prior
+        self.lane_known = self.lane_w if "lane_width_m" in (getattr(user, "model_fields_set", None) or ()) else None
+        self.fit_focal = focal_was_guessed(rec)
+        self.seq = is_sequence(rec)
+
+    def cue_kw(self) -> dict:
+        return dict(cfg=self.cfg, lane_width_m=self.lane_w, roll_prior_deg=self.fixed["roll_deg"] or 0.0,
+                    fit_focal=self.fit_focal)
+
+
+@dataclass
+class RecordingCamera:
+    """The recording-wide part of the camera estimate, from the frames it saw (`recording_camera`)."""
+
+    fx: float | None
+    seq: bool
+    imu: bool                                  # a frame's angles came from the IMU: the mount fit takes them as given
+    fixed: dict
+    median: dict[str, float]                   # pitch/roll a frame without one takes (video, IMU)
+    have: dict[str, bool]                      # whether any frame had its own pitch/roll
+    mount: Mount
+    cues: dict[str, FrameCues] = field(default_factory=dict)   # stills: the frames the mount was fitted on
+    lane_known: float | None = None
+
+    def camera(self, camera: Camera) -> Camera:
+        return camera if self.fx is None else Camera(camera.width, camera.height, self.fx,
+                                                     self.fx * camera.fy / camera.fx, camera.cx, camera.cy,
+                                                     list(camera.dist))
+
+
+def recording_camera(per: dict[str, FrameCues], angles: dict[str, dict], st: CameraSettings,
+                     elsewhere: dict[str, FrameCues]) -> RecordingCamera:
+    """The focal length and the mount (`mount.estimate_mount`) from the cues of `per` (every frame
+    of a job, or a sample of a long one) with their angles (`_smooth`); `elsewhere`: the video's
+    lane cues outside the job (`_cues_elsewhere`)."""
+    from blendgen.analysis.mount import estimate_mount
+
+    fixed, seq = st.fixed, st.seq
     # the recording's focal length
-    fx, why_fx = focal_consensus(per) if fit_focal else (None, "")
-    if fit_focal:
+    fx, why_fx = focal_consensus(per) if st.fit_focal else (None, "")
+    if st.fit_focal:
         log.info("focal length: %s", why_fx)
-    cam = camera if fx is None else Camera(camera.width, camera.height, fx, fx * camera.fy / camera.fx,
-                                           camera.cx, camera.cy, list(camera.dist))
-    angles = _smooth(per, frame_ids, t_of, seq, rec, fixed)
+    cam = st.camera if fx is None else Camera(st.camera.width, st.camera.height, fx, fx * st.camera.fy / st.camera.fx,
+                                              st.camera.cx, st.camera.cy, list(st.camera.dist))
     imu = any(a[n + "_src"] and "imu" in a[n + "_src"] for a in angles.values() for n in ("pitch", "roll"))
     # the mount: stills jointly (pitch and roll per frame shrink to the camera's), video with
     # its smoothed angles given (frames without one take the recording's median)
     cues = {}
-    for fid in frame_ids:
-        c, a = per[fid], angles[fid]
+    for fid, c in per.items():
+        a = angles[fid]
         if seq or imu:
             c = FrameCues(**{**c.__dict__, "pitch": a["pitch"], "roll": a["roll"],
                              "pitch_std": a["pitch_std"], "roll_std": a["roll_std"]})
         cues[fid] = c
+    median = {}
     if seq or imu:
         for name, std_name in (("pitch", "pitch_std"), ("roll", "roll_std")):
             have = [getattr(c, name) for c in cues.values() if getattr(c, name) is not None]
+            median[name] = float(np.median(have)) if have else 0.0
             for fid, c in cues.items():
                 if getattr(c, name) is None or not math.isfinite(getattr(c, std_name)):
-                    setattr(c, name, float(np.median(have)) if have else 0.0)
+                    setattr(c, name, median[name])
                     setattr(c, std_name, float("inf"))
         if seq and fixed["camera_height_m"] is None:
-            hood = next((h for h in hoods.values() if h is not None), None)  # the hood does not move
-            cues.update(_cues_elsewhere(rec, frame_ids, hood, cfg, fit_focal, fixed["roll_deg"] or 0.0, lane_w,
-                                        progress))
-    mount = estimate_mount(cues, cam.K, sequence=seq or imu, fixed=fixed, lane_width_m=lane_known)
-    out = {}
-    for fid in frame_ids:
-        fc, a = per[fid], angles[fid]
-        est = CameraEstimate(height_m=mount.height_m, pitch_deg=mount.frame_pitch[fid], roll_deg=mount.frame_roll[fid],
-                             fx=fx, yaw_deg=fc.yaw, confidence=a["confidence"], reasons=list(fc.reasons),
-                             height_std_rel=round(mount.height_std_log, 4))
-        if fx is not None:
-            est.source["fx"] = "vanishing_point"
+            cues.update(elsewhere)
+    mount = estimate_mount(cues, cam.K, sequence=seq or imu, fixed=fixed, lane_width_m=st.lane_known)
+    have = {n: any(x[n + "_src"] for x in angles.values()) for n in ("pitch", "roll")}
+    return RecordingCamera(fx=fx, seq=seq, imu=imu, fixed=fixed, median=median, have=have, mount=mount,
+                           cues={} if seq or imu else dict(per), lane_known=st.lane_known)
+
+
+def camera_of_frame(fid: str, fc: FrameCues, a: dict, rc: RecordingCamera, camera: Camera
+                    ) -> tuple[CameraEstimate, list | None]:
+    """One frame's estimate and horizon from its cues `fc`, its angles `a` (`_smooth`), the
+    recording-wide part and the recording's `camera`. A still the mount was not fitted on (a long
+    job's, outside the sample) gets its pitch and roll from the mount fitted again with it added."""
+    from blendgen.analysis.mount import estimate_mount
+
+    mount, seq, imu = rc.mount, rc.seq, rc.imu
+    if seq or imu:  # the mount fit takes the frame's angles as given (the recording's median where none)
+        pf = {}
         for name, std_name in (("pitch", "pitch_std"), ("roll", "roll_std")):
-            if seq or imu:
-                src, std = a[name + "_src"], a[std_name]
-                if src is None:
-                    have = any(x[name + "_src"] for x in angles.values())
-                    src, std = ("recording_median", FRAME_FALLBACK_STD_DEG) if have else ("default", DEFAULT_STD_DEG)
-                    est.reasons.append(f"{name}: no estimate in this frame, the recording's median" if have else
-                                       f"{name}: nothing to estimate it from, assumed {getattr(est, name + '_deg'):g} deg")
-                    est.confidence = 0.0 if src == "default" else min(est.confidence, 0.3)
-            else:
-                src = mount.source[name]
-                std = (mount.frame_pitch_std if name == "pitch" else mount.frame_roll_std)[fid]
-                if src == "mount" and not (mount.cues["vanishing_points"] or mount.cues.get("car_width")):
-                    src, std = "default", DEFAULT_STD_DEG
-                    est.reasons.append(f"{name}: nothing to estimate it from in any frame of this camera")
-                    est.confidence = 0.0
-            est.source[name] = src
-            setattr(est, std_name + "_deg", round(float(std), 3))
-        est.source["height"] = mount.source["height"]
-        est.reasons += mount.reasons
-        if est.source["pitch"] == "user" and est.source["roll"] == "user":
-            est.confidence = 1.0
-        for r in est.reasons:
-            log.info("%s: %s", fid, r)
-        U = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)[2]
-        out[fid] = (est, horizon_line(cam, U))
-    return out
+            v = a[name]
+            pf[name] = rc.median[name] if v is None or not math.isfinite(a[std_name]) else v
+        frame_p, frame_r = pf["pitch"], pf["roll"]   # what the fit took (mount.frame_pitch of its frames)
+        frame_std = {}
+    else:
+        if fid not in mount.frame_pitch:
+            mount = estimate_mount({**rc.cues, fid: fc}, rc.camera(camera).K, sequence=False, fixed=rc.fixed,
+                                   lane_width_m=rc.lane_known)
+        frame_p, frame_r = mount.frame_pitch[fid], mount.frame_roll[fid]
+        frame_std = {"pitch": mount.frame_pitch_std[fid], "roll": mount.frame_roll_std[fid]}
+    est = CameraEstimate(height_m=rc.mount.height_m, pitch_deg=frame_p, roll_deg=frame_r, fx=rc.fx, yaw_deg=fc.yaw,
+                         confidence=a["confidence"], reasons=list(fc.reasons),
+                         height_std_rel=round(rc.mount.height_std_log, 4))
+    if rc.fx is not None:
+        est.source["fx"] = "vanishing_point"
+    for name, std_name in (("pitch", "pitch_std"), ("roll", "roll_std")):
+        if seq or imu:
+            src, std = a[name + "_src"], a[std_name]
+            if src is None:
+                have = rc.have[name]
+                src, std = ("recording_median", FRAME_FALLBACK_STD_DEG) if have else ("default", DEFAULT_STD_DEG)
+                est.reasons.append(f"{name}: no estimate in this frame, the recording's median" if have else
+                                   f"{name}: nothing to estimate it from, assumed {getattr(est, name + '_deg'):g} deg")
+                est.confidence = 0.0 if src == "default" else min(est.confidence, 0.3)
+        else:
+            src = mount.source[name]
+            std = frame_std[name]
+            if src == "mount" and not (mount.cues["vanishing_points"] or mount.cues.get("car_width")):
+                src, std = "default", DEFAULT_STD_DEG
+                est.reasons.append(f"{name}: nothing to estimate it from in any frame of this camera")
+                est.confidence = 0.0
+        est.source[name] = src
+        setattr(est, std_name + "_deg", round(float(std), 3))
+    est.source["height"] = rc.mount.source["height"]
+    est.reasons += rc.mount.reasons
+    if est.source["pitch"] == "user" and est.source["roll"] == "user":
+        est.confidence = 1.0
+    for r in est.reasons:
+        log.info("%s: %s", fid, r)
+    U = road_axes(math.radians(est.pitch_deg), math.radians(est.roll_deg), 0.0)[2]
+    return est, horizon_line(rc.camera(camera), U)

@@ -163,10 +163,142 @@ def _gnss_steps(rec, times: np.ndarray) -> np.ndarray | None:
     return np.hypot(np.diff(x), np.diff(y))
 
 
-def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False) -> Track:
-    """Poses and the per-step record; see the module doc."""
+@dataclass
+class PairMotion:
+    """What two consecutive frames say about the motion between them: the per-frame part of the
+    ego motion, computed for any stretch of a video in parallel (`pair_motions`)."""
+
+    decoded: bool = True              # this frame decoded
+    yaw: float | None = None          # heading change since the previous frame (rad, > 0 left)
+    yaw_src: str = "vo"               # "imu" | "vo"
+    ground: list[float] | None = None  # the road's step [forward, left, response] (None: unreliable)
+    has_prev: bool = False            # the previous frame decoded (a step was looked for)
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class ChainState:
+    """The recording-wide, sequential part: the pose so far and the recent steps (the chain
+    of `chain_step` calls, one per frame in order)."""
+
+    k: int = 0
+    x: float = 0.0
+    y: float = 0.0
+    heading: float = 0.0
+    recent: list = field(default_factory=list)      # the last good steps: constant velocity uses their median
+    last: Step = field(default_factory=lambda: Step(status="first"))
+
+    def to_dict(self) -> dict:
+        return {"k": self.k, "x": self.x, "y": self.y, "heading": self.heading, "recent": self.recent,
+                "last": dict(self.last.__dict__)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ChainState":
+        return cls(d["k"], d["x"], d["y"], d["heading"], [tuple(r) for r in d["recent"]], Step(**d["last"]))
+
+
+def first_near(gray: np.ndarray, camera: Camera, est, hood) -> float:
+    """The nearest road patch start fully in view (the first frame decides it for the video)."""
+    return next((n for n in NEAR_M if bird_eye(gray, camera, est, hood, near=n)[1]), NEAR_M[-1])
+
+
+def pair_motions(rec, frames, ests, hoods, near: float | None = None, *, times=None):
+    """Yield (frame_id, PairMotion, near) for frames [(frame_id, BGR or None), ...] in order; the
+    first one only primes the VO and the previous bird's-eye view (a stretch of a video starts
+    one frame early). `ests`/`hoods`: per frame id; `times`: per frame id (the gyro's interval);
+    `near`: the road patch's start (None: `first_near` of the first frame that decodes)."""
     from blendgen.sync.vo import OrbVo, VoConfig
 
+    camera = rec.camera
+    vo = OrbVo(camera, VoConfig(n_features=VO_FEATURES))
+    prev = None
+    t_prev = None
+    for fid, im in frames:
+        est, hood = _est(ests[fid]), (hoods or {}).get(fid)
+        t = None if times is None else times[fid]
+        if im is None:
+            yield fid, PairMotion(decoded=False), near
+            prev, t_prev = None, t
+            continue
+        gray = cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
+        res = vo.track(gray)
+        if near is None:
+            near = first_near(gray, camera, est, hood)
+        m = PairMotion(has_prev=prev is not None)
+        if prev is not None:
+            vy, m.yaw_src = (_gyro_yaw(rec, t_prev, t, est), "imu") if t is not None else (None, "imu")
+            if vy is None:
+                vy, m.yaw_src = _vo_yaw(res, est), "vo"
+            m.yaw = vy
+            # this frame's road seen along the previous heading: the shift is then the step
+            bev, whole = bird_eye(gray, camera, est, hood, yaw=vy if vy is not None else 0.0, near=near)
+            step = ground_step(prev[0], bev) if whole and prev[1] else None
+            if step is not None and res.status == "ok" and abs(step.forward) < 0.05:
+                step = None     # the image moves with parallax but the road would not: distrust
+            m.ground = None if step is None else [step.forward, step.left, step.response]
+        prev, t_prev = bird_eye(gray, camera, est, hood, near=near), t
+        yield fid, m, near
+
+
+def chain_step(state: ChainState, m: PairMotion, road_yaw: float | None, mount_yaw: float,
+               gnss_step: float | None) -> Step:
+    """Advance the pose by one frame (in place); returns the frame's step. `road_yaw`: the
+    frame's despiked road yaw (`_road_yaw`), `gnss_step`: the GNSS distance since the previous
+    frame, when the recording has GNSS."""
+    k, last = state.k, state.last
+    if not m.decoded:
+        step = Step(last.forward, last.left, last.dyaw, "constant_velocity")
+    else:
+        step = Step(status="first") if k == 0 else Step(last.forward, last.left, last.dyaw, "constant_velocity")
+        if m.has_prev:
+            vy = m.yaw
+            step = None if m.ground is None else Step(m.ground[0], m.ground[1], status="ground", response=m.ground[2])
+            typical = np.median(state.recent, axis=0) if len(state.recent) >= 5 else None
+            if (step is not None and typical is not None
+                    and abs(step.forward - typical[0]) > 0.5 * abs(typical[0]) + 0.2):
+                step = None     # a car cannot change speed that much between two frames
+            if step is None:
+                f_, l_ = typical if typical is not None else (last.forward, last.left)
+                step = Step(float(f_), float(l_), vy if vy is not None else last.dyaw, "constant_velocity")
+            else:
+                state.recent = (state.recent + [(step.forward, step.left)])[-9:]
+                step.dyaw = vy if vy is not None else 0.0
+                step.status = f"ground+{m.yaw_src}" if vy is not None else "ground"
+    if k > 0 and gnss_step is not None:
+        n = math.hypot(step.forward, step.left)
+        direction = (step.forward / n, step.left / n) if n > 1e-6 else (1.0, 0.0)
+        step.forward, step.left = direction[0] * gnss_step, direction[1] * gnss_step
+        step.status += "+gnss"
+    if k > 0:
+        c, s = math.cos(state.heading), math.sin(state.heading)
+        state.x += c * step.forward - s * step.left
+        state.y += s * step.forward + c * step.left
+        # the road's vanishing point holds the heading to the (straight) twin road; the
+        # gyro or VO only carries it over frames without one
+        state.heading = road_yaw - mount_yaw if road_yaw is not None else state.heading + step.dyaw
+        state.last = step
+    elif road_yaw is not None:
+        state.heading = road_yaw - mount_yaw
+    state.k = k + 1
+    return step
+
+
+def chain_pose(state: ChainState, est, mount_yaw: float) -> np.ndarray:
+    """The pose of the frame `chain_step` just advanced to."""
+    return _pose(state.x, state.y, state.heading, _est(est), mount_yaw)
+
+
+def mount_yaw_of(road_yaw: dict) -> float:
+    """The camera's yaw relative to the vehicle: the median of the frames' road yaw."""
+    known = [v for v in road_yaw.values() if v is not None]
+    return float(np.median(known)) if known else 0.0
+
+
+def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False) -> Track:
+    """Poses and the per-step record; see the module doc. In one pass: `pair_motions` (per
+    pair of frames) then `chain_step` (the sequence), as the farm runs them (pipeline.analysis_tasks)."""
     frame_ids = list(frame_ids)
     ests = {f: _est(cameras[f]) for f in frame_ids}
     track = Track()
@@ -175,69 +307,18 @@ def ground_track(rec, frame_ids, cameras, *, hoods=None, progress: bool = False)
             track.poses[f] = _pose(0.0, 0.0, 0.0, ests[f])
             track.steps[f] = Step(status="still")
         return track
-    camera = rec.camera
-    vo = OrbVo(camera, VoConfig(n_features=VO_FEATURES))
     index = {rec.frame_id(i): i for i in range(rec.n_frames)}
     order = sorted(frame_ids, key=index.__getitem__)
     times = np.array([rec.frames_t[index[f]] for f in order])
     road_yaw = _road_yaw(order, ests)
-    known = [v for v in road_yaw.values() if v is not None]
-    mount_yaw = float(np.median(known)) if known else 0.0
+    mount_yaw = mount_yaw_of(road_yaw)
     gnss = _gnss_steps(rec, times)
-    x = y = heading = 0.0
-    prev = near = None
-    recent: list[tuple[float, float]] = []      # the last good steps: constant velocity uses their median
-    last = Step(status="first")
-    for k, (fid, im) in enumerate(read_frames(rec, order, progress=progress, desc="ego motion")):
-        est = ests[fid]
-        hood = (hoods or {}).get(fid)
-        if im is None:
-            step = Step(last.forward, last.left, last.dyaw, "constant_velocity")
-            prev = None
-        else:
-            gray = cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
-            res = vo.track(gray)
-            step = Step(status="first") if k == 0 else Step(last.forward, last.left, last.dyaw, "constant_velocity")
-            if near is None:
-                near = next((n for n in NEAR_M if bird_eye(gray, camera, est, hood, near=n)[1]), NEAR_M[-1])
-            if prev is not None:
-                vy, yaw_src = _gyro_yaw(rec, times[k - 1], times[k], est), "imu"
-                if vy is None:
-                    vy, yaw_src = _vo_yaw(res, est), "vo"
-                dyaw = vy if vy is not None else 0.0
-                # this frame's road seen along the previous heading: the shift is then the step
-                bev, whole = bird_eye(gray, camera, est, hood, yaw=dyaw, near=near)
-                step = ground_step(prev[0], bev) if whole and prev[1] else None
-                if step is not None and res.status == "ok" and abs(step.forward) < 0.05:
-                    step = None     # the image moves with parallax but the road would not: distrust
-                typical = np.median(recent, axis=0) if len(recent) >= 5 else None
-                if (step is not None and typical is not None
-                        and abs(step.forward - typical[0]) > 0.5 * abs(typical[0]) + 0.2):
-                    step = None     # a car cannot change speed that much between two frames
-                if step is None:
-                    f_, l_ = typical if typical is not None else (last.forward, last.left)
-                    step = Step(float(f_), float(l_), vy if vy is not None else last.dyaw, "constant_velocity")
-                else:
-                    recent = (recent + [(step.forward, step.left)])[-9:]
-                    step.dyaw = dyaw
-                    step.status = f"ground+{yaw_src}" if vy is not None else "ground"
-            prev = bird_eye(gray, camera, est, hood, near=near)
-        if k > 0 and gnss is not None:
-            n = math.hypot(step.forward, step.left)
-            direction = (step.forward / n, step.left / n) if n > 1e-6 else (1.0, 0.0)
-            step.forward, step.left = direction[0] * gnss[k - 1], direction[1] * gnss[k - 1]
-            step.status += "+gnss"
-        if k > 0:
-            c, s = math.cos(heading), math.sin(heading)
-            x += c * step.forward - s * step.left
-            y += s * step.forward + c * step.left
-            # the road's vanishing point holds the heading to the (straight) twin road; the
-            # gyro or VO only carries it over frames without one
-            heading = road_yaw[fid] - mount_yaw if road_yaw[fid] is not None else heading + step.dyaw
-            last = step
-        elif road_yaw[fid] is not None:
-            heading = road_yaw[fid] - mount_yaw
-        track.poses[fid] = _pose(x, y, heading, est, mount_yaw)
+    frames = read_frames(rec, order, progress=progress, desc="ego motion")
+    state = ChainState()
+    t_of = dict(zip(order, times.tolist()))
+    for k, (fid, m, _) in enumerate(pair_motions(rec, frames, ests, hoods, times=t_of)):
+        step = chain_step(state, m, road_yaw[fid], mount_yaw, None if gnss is None or k == 0 else float(gnss[k - 1]))
+        track.poses[fid] = chain_pose(state, ests[fid], mount_yaw)
         track.steps[fid] = step
     moved = [f for f in order if track.steps[f].status.startswith("constant_velocity")]
     if moved:

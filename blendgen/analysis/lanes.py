@@ -74,18 +74,28 @@ def lane_lines(image: np.ndarray, road_px: np.ndarray | None, camera: Camera, T_
     return lines, "painted lines at " + ", ".join(f"{l[0]:+.1f} m ({l[2]:.0%})" for l in lines) + f" ({X_REF:g} m ahead)"
 
 
-def ego_lane(lines: list[list[float]], x: float, lane_width_m: float) -> tuple[float, float, np.ndarray] | None:
+def kept_lines(lines: list[list[float]], lane_width_m: float) -> list[list[float]]:
+    """The lines `ego_lane` reads: strongest first; a weaker line within a lane's width of a kept
+    one is a track or crack."""
+    kept = []
+    for l in sorted(lines, key=lambda l: -l[2]):
+        if all(abs(l[0] - k[0]) >= LANE_SPAN[0] * lane_width_m for k in kept):
+            kept.append(l)
+    return kept
+
+
+def ego_lane(lines: list[list[float]], x: float, lane_width_m: float, kept: list | None = None
+             ) -> tuple[float, float, list[float]] | None:
     """(right edge, left edge, every kept line's offset) of the camera's lane `x` metres ahead,
     or None when the lines bound none: no line within a lane's width on either side, or the
-    nearest two a lane's width apart beyond LANE_SPAN. One line alone bounds the lane on its side."""
+    nearest two a lane's width apart beyond LANE_SPAN. One line alone bounds the lane on its side.
+    `kept`: `kept_lines(lines, lane_width_m)` when the caller has it (the planner asks per frame
+    many times)."""
     w = lane_width_m
-    kept = []  # strongest first; a weaker line within a lane's width of a kept one is a track or crack
-    for l in sorted(lines, key=lambda l: -l[2]):
-        if all(abs(l[0] - k[0]) >= LANE_SPAN[0] * w for k in kept):
-            kept.append(l)
-    xc = float(np.clip(x, *RANGE_M)) - X_REF
-    ys = np.array([l[0] + l[1] * xc for l in kept])
-    left, right = np.sort(ys[ys > 0]), np.sort(ys[ys <= 0])[::-1]
+    kept = kept_lines(lines, w) if kept is None else kept
+    xc = min(max(float(x), RANGE_M[0]), RANGE_M[1]) - X_REF
+    ys = [l[0] + l[1] * xc for l in kept]   # plain floats: a handful, asked for many times
+    left, right = sorted(v for v in ys if v > 0), sorted((v for v in ys if v <= 0), reverse=True)
     near_l = left[0] if len(left) and left[0] < LANE_SPAN[1] * w else None
     near_r = right[0] if len(right) and -right[0] < LANE_SPAN[1] * w else None
     if near_l is not None and near_r is not None:
@@ -99,13 +109,13 @@ def ego_lane(lines: list[list[float]], x: float, lane_width_m: float) -> tuple[f
     return None
 
 
-def lane_centres(lines: list[list[float]], x: float, lane_width_m: float, n_max: int = 3
+def lane_centres(lines: list[list[float]], x: float, lane_width_m: float, n_max: int = 3, kept: list | None = None
                  ) -> dict[int, float] | None:
     """Lateral offsets (left > 0) of the lane centres `x` metres ahead, by lane: 0 the ego lane
     (`ego_lane`), +1 the next on the left, -1 on the right, ... up to n_max; a neighbour reaches
     to the next line about a lane's width out, or is as wide as the ego lane. None without an
     ego lane."""
-    ego = ego_lane(lines, x, lane_width_m)
+    ego = ego_lane(lines, x, lane_width_m, kept)
     if ego is None:
         return None
     lo, hi, ys = ego

@@ -4,8 +4,9 @@ The supervisor side (everything imported here) never imports bpy; workers do.
 """
 
 from .books import FarmSummary
+from .graph import Stage
 from .processor import clean_stale_temps
-from .run import run_tasks
+from .run import run_pipeline, run_tasks
 from .seeds import frame_seed
 
-__all__ = ["FarmSummary", "clean_stale_temps", "frame_seed", "run_tasks"]
+__all__ = ["FarmSummary", "Stage", "clean_stale_temps", "frame_seed", "run_pipeline", "run_tasks"]

@@ -265,6 +265,18 @@ class Ledger:
                                  (stage, run_id))
         return [{"item": r["item"], "error": r["error"]} for r in rows]
 
+    def done_items(self, stage: str, run_id: int) -> list[str]:
+        return [r["item"] for r in self.conn.execute(
+            "SELECT item FROM items WHERE stage=? AND run_id=? AND state='done'", (stage, run_id))]
+
+    def task_items(self, task_ids: list[int]) -> list[tuple[int, list[str]]]:
+        if not task_ids:
+            return []
+        rows = self.conn.execute("SELECT task_id, items FROM tasks WHERE task_id BETWEEN ? AND ? ORDER BY task_id",
+                                 (min(task_ids), max(task_ids)))
+        want = set(task_ids)
+        return [(r["task_id"], json.loads(r["items"])) for r in rows if r["task_id"] in want]
+
     def count_items(self, stage: str, run_id: int) -> dict[str, int]:
         rows = self.conn.execute("SELECT state, count(*) AS n FROM items WHERE stage=? AND "
                                  "run_id=? GROUP BY state", (stage, run_id))

@@ -89,14 +89,15 @@ class _Worker:
 
 
 class LocalEngine:
-    def __init__(self, books: Books, processor: str, processor_args: dict, *, workers: int,
-                 recycle_after: int, max_rss_mb: int, item_timeout_s: float | str | None = "auto"):
+    def __init__(self, books: Books, *, workers: int, recycle_after: int, max_rss_mb: int,
+                 item_timeout_s: float | str | None = "auto"):
         self.books = books
+        self.graph = books.graph
         self.item_timeout_s = item_timeout_s
         self.slowest_item_s = 0.0
         self.last_check = time.monotonic()
         self.abandoned: list[subprocess.Popen] = []  # killed workers that did not exit
-        self.processor, self.processor_args = processor, processor_args
+        self.processor = " + ".join(sorted({s.processor for s in books.stages.values()}))
         self.n_slots = workers
         self.recycle_after, self.max_rss_mb = recycle_after, max_rss_mb
         self.sel = selectors.DefaultSelector()
@@ -104,16 +105,22 @@ class LocalEngine:
         self.generation = collections.Counter()
         self.fails_in_row = collections.Counter()
         self.retired: set[int] = set()
-        self.queue: collections.deque[int] = collections.deque()
+        self.queue: collections.deque[int] = collections.deque()  # retries: before any ready task
         self.ever_ready = False
         self.init_failures = 0
         self.last_init_error: tuple[str, str] | None = None
 
     # -- lifecycle -------------------------------------------------------------------------
-    def run(self, task_ids: list[int]) -> None:
-        self.queue.extend(task_ids)
+    def run(self) -> None:
         try:
-            while self.queue or any(w.state == "busy" for w in self.workers.values()):
+            while True:
+                self.books.fail_blocked()
+                busy = any(w.state == "busy" for w in self.workers.values())
+                if not (self.queue or self.graph.n_ready or busy):
+                    if self.graph.waiting:
+                        raise StageError(f"farm: {self.graph.waiting} task(s) wait for items no task will "
+                                         "finish (a pipeline's dependencies are wrong)")
+                    break
                 self._top_up()
                 if not self.workers:
                     self._give_up()
@@ -127,9 +134,10 @@ class LocalEngine:
         self._shutdown()
 
     def _top_up(self) -> None:
-        """Keep min(slots, outstanding tasks) workers alive."""
+        """Keep min(slots, outstanding tasks) workers alive (a pipeline's waiting tasks count:
+        their inputs are on the way)."""
         busy = sum(w.state == "busy" for w in self.workers.values())
-        want = min(self.n_slots, len(self.queue) + busy)
+        want = min(self.n_slots, len(self.queue) + self.graph.n_ready + busy + self.graph.waiting)
         for slot in range(self.n_slots):
             if len(self.workers) >= want:
                 break
@@ -156,9 +164,8 @@ class LocalEngine:
         self.sel.register(from_r, selectors.EVENT_READ, w)
         self.books.ledger.worker_started(self.books.run_id, name, os.uname().nodename,
                                          proc.pid, log)
-        self.books.summary.workers_started += 1
-        self._send(w, {"op": "init", "processor": self.processor,
-                       "processor_args": self.processor_args, "log": log})
+        self.books.stats.workers_started += 1
+        self._send(w, {"op": "init", "processors": self.books.processors(), "log": log})
 
     def _send(self, w: _Worker, msg: dict) -> bool:
         try:
@@ -170,12 +177,11 @@ class LocalEngine:
     # -- scheduling ------------------------------------------------------------------------
     def _dispatch(self) -> None:
         for w in list(self.workers.values()):
-            if w.state != "idle" or not self.queue:
+            if w.state != "idle" or not (self.queue or self.graph.n_ready):
                 continue
             tid = self._pick(w)
             if tid is None:
                 continue
-            self.queue.remove(tid)
             attempt, items, log = self.books.claim(tid, w.name)
             if not items:  # every item finished meanwhile (e.g. done just before a crash)
                 self.books.on_task_done(tid)
@@ -183,18 +189,20 @@ class LocalEngine:
             w.state, w.task, w.attempt, w.items_left, w.error = "busy", tid, attempt, items, None
             w.since = time.monotonic()
             # a failed send means it just died: _poll sees the exit and re-queues the task
-            self._send(w, {"op": "task", "task": tid, "attempt": attempt, "items": items,
-                           "log": log})
+            self._send(w, {"op": "task", "task": tid, "stage": self.books.stage_of(tid), "attempt": attempt,
+                           "items": items, "log": log})
 
     def _pick(self, w: _Worker) -> int | None:
-        """First queued task this worker did not already fail; a task every live worker has
-        failed may go back to one of them (retry elsewhere when there is an elsewhere)."""
+        """First retried, else first ready task (by the pipeline's priority) this worker did not
+        already fail; a task every live worker has failed may go back to one of them (retry
+        elsewhere when there is an elsewhere). Ready tasks were never tried: any worker takes them."""
         live = {x.name for x in self.workers.values()}
         for tid in self.queue:
             avoid = set(self.books.ledger.avoid(tid))
             if w.name not in avoid or live <= avoid:
+                self.queue.remove(tid)
                 return tid
-        return None
+        return self.graph.pop()
 
     # -- events ----------------------------------------------------------------------------
     def _item_limit_s(self) -> float | None:
@@ -250,7 +258,7 @@ class LocalEngine:
                         os.close(fd)
                 del self.workers[w.slot]
                 self.abandoned.append(w.proc)  # not waited for: it may never exit
-                self.books.summary.worker_deaths += 1
+                self.books.stats.worker_deaths += 1
                 self.books.ledger.worker_update(self.books.run_id, w.name, state="exited", exit="killed, did not exit")
                 self._task_failed(w.task, w, w.hung + f"; it did not exit {STOP_GRACE_S:.0f} s after SIGKILL (left "
                                                       f"behind, pid {w.proc.pid})")
@@ -292,7 +300,7 @@ class LocalEngine:
             self.books.on_item(w.task, w.attempt, w.name, ev)
             with contextlib.suppress(ValueError):
                 w.items_left.remove(ev["item"])
-            if not ev.get("skipped"):
+            if not ev.get("skipped") and self.books.stages[self.books.stage_of(w.task)].recycle:
                 w.processed += 1
         elif kind == "item_failed" and ev.get("task") == w.task:
             self.books.on_item_failed(w.task, w.name, ev)
@@ -309,11 +317,12 @@ class LocalEngine:
                 self.books.ledger.worker_update(self.books.run_id, w.name, items=0)
             else:
                 self._task_failed(tid, w, w.error or "unknown error")
-            if self.queue and (w.processed >= self.recycle_after or w.rss_mb > self.max_rss_mb):
+            if (self.queue or self.graph.n_ready or self.graph.waiting) and (
+                    w.processed >= self.recycle_after or w.rss_mb > self.max_rss_mb):
                 why = (f"{w.processed} items" if w.processed >= self.recycle_after
                        else f"RSS {w.rss_mb:.0f} MB > {self.max_rss_mb} MB")
                 self._stop(w, f"recycled after {why}")
-                self.books.summary.recycled += 1
+                self.books.stats.recycled += 1
 
     def _task_failed(self, tid: int, w: _Worker, error: str) -> None:
         final = self.books.on_task_failed(tid, w.name, error)
@@ -323,7 +332,7 @@ class LocalEngine:
         self.books.ledger.worker_update(self.books.run_id, w.name, failed=True)
         if self.fails_in_row[w.slot] >= SLOT_MAX_FAILURES_IN_ROW and w.slot not in self.retired:
             self.retired.add(w.slot)
-            self.books.summary.retired.append(f"slot w{w.slot} (last: {w.name})")
+            self.books.stats.retired.append(f"slot w{w.slot} (last: {w.name})")
             if w.state == "idle":
                 self._stop(w, "retired: failed repeatedly")
 
@@ -350,7 +359,7 @@ class LocalEngine:
                                         exit=None if planned else w.hung or how)
         if planned:
             return
-        self.books.summary.worker_deaths += 1
+        self.books.stats.worker_deaths += 1
         if w.task is not None:
             where = f" during item {w.items_left[0]}" if w.items_left else ""
             self._task_failed(w.task, w, w.hung or f"worker {w.name} died ({how}){where}; "
@@ -360,7 +369,7 @@ class LocalEngine:
             self.fails_in_row[w.slot] += 1
             if self.fails_in_row[w.slot] >= SLOT_MAX_FAILURES_IN_ROW:
                 self.retired.add(w.slot)
-                self.books.summary.retired.append(f"slot w{w.slot} (last: {w.name}, {how})")
+                self.books.stats.retired.append(f"slot w{w.slot} (last: {w.name}, {how})")
 
     def _give_up(self) -> None:
         """No worker can run: fail what is left, or say why workers cannot start."""
@@ -371,10 +380,12 @@ class LocalEngine:
         if not self.ever_ready:
             raise StageError(f"farm stage {self.books.stage}: workers died before starting; "
                              f"see {self.books.log_dir}")
-        while self.queue:
-            tid = self.queue.popleft()
-            self.books.ledger.claim(tid, "-", "", 0)
-            self.books.ledger.task_failed(tid, "-", "no healthy worker left", 0)
+        left = list(self.queue) + [t for t in iter(self.graph.pop, None)]
+        self.queue.clear()
+        for tid in left:
+            self.books.graph_fail(tid, "no healthy worker left")
+        for tid in self.graph.waiting_tasks():
+            self.books.graph_fail(tid, "no healthy worker left")
 
     def _shutdown(self) -> None:
         for w in list(self.workers.values()):

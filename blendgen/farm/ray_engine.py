@@ -118,20 +118,20 @@ def ray_task(processor: str, processor_args: dict, items: list[str], log_path: s
 
 
 class RayEngine:
-    def __init__(self, books: Books, processor: str, processor_args: dict, *, workers: int,
-                 chunk: int, recycle_after: int, address: str | None, item_timeout_s: float | str | None = "auto"):
+    def __init__(self, books: Books, *, workers: int, recycle_after: int, address: str | None,
+                 item_timeout_s: float | str | None = "auto"):
         self.books = books
+        self.graph = books.graph
         self.item_timeout_s = item_timeout_s
-        self.processor, self.processor_args = processor, processor_args
+        self.processor = " + ".join(sorted({s.processor for s in books.stages.values()}))
         self.workers, self.recycle_after, self.address = workers, recycle_after, address
-        self.chunk = chunk
         self.any_ok = False
         self.init_failures = 0
         self.node_fails: collections.Counter = collections.Counter()
         self.banned: set[str] = set()
         self._rr = 0
 
-    def run(self, task_ids: list[int]) -> None:
+    def run(self) -> None:
         try:
             import ray
         except ImportError:
@@ -140,7 +140,7 @@ class RayEngine:
         if started_here:
             self._init(ray)
         try:
-            self._loop(ray, task_ids)
+            self._loop(ray)
         finally:
             if started_here:
                 ray.shutdown()
@@ -168,13 +168,16 @@ class RayEngine:
             raise UserError(f"cannot connect to the Ray cluster at {self.address!r}: {e}",
                             where="farm.address") from e
 
-    def _remote(self, ray):
+    def _remote(self, ray, stage) -> object:
+        """The Ray function of a stage: a stage that renders (`recycle`) asks for the GPU and
+        ends its process after `recycle_after` items' worth of tasks (Blender's memory); the
+        others (frame analysis, planning) need one CPU and no GPU."""
         gpus_here = ray.cluster_resources().get("GPU", 0) > 0
-        num_gpus = float(os.environ.get("BLENDGEN_RAY_NUM_GPUS", 1 if gpus_here else 0))
-        num_cpus = float(os.environ.get("BLENDGEN_RAY_NUM_CPUS", 1))
+        num_gpus = float(os.environ.get("BLENDGEN_RAY_NUM_GPUS", 1 if gpus_here else 0)) if stage.recycle else 0
+        num_cpus = float(os.environ.get("BLENDGEN_RAY_NUM_CPUS", 1)) if stage.recycle else 1
         # max_calls counts tasks; recycle_after counts items
         return ray.remote(num_cpus=num_cpus, num_gpus=num_gpus,
-                          max_calls=max(1, math.ceil(self.recycle_after / self.chunk)),
+                          max_calls=max(1, math.ceil(self.recycle_after / stage.chunk)) if stage.recycle else 0,
                           max_retries=max(0, self.books.max_attempts - 1),
                           retry_exceptions=False)(ray_task)
 
@@ -198,26 +201,34 @@ class RayEngine:
         return {"scheduling_strategy": NodeAffinitySchedulingStrategy(
             pick[self._rr % len(pick)], soft=True)}
 
-    def _loop(self, ray, task_ids: list[int]) -> None:
-        fn = self._remote(ray)
+    def _loop(self, ray) -> None:
+        fns = {name: self._remote(ray, st) for name, st in self.books.stages.items()}
+        specs = self.books.processors()
         cpus = int(ray.cluster_resources().get("CPU", self.workers))
         cap = 2 * max(self.workers, cpus)  # enough queued for every slot, few to re-place
-        pending = collections.deque(task_ids)
+        pending: collections.deque[int] = collections.deque()  # retries, before any ready task
         inflight: dict = {}
         try:
-            while pending or inflight:
-                while pending and len(inflight) < cap:
-                    tid = pending.popleft()
+            while True:
+                self.books.fail_blocked()
+                while (pending or self.graph.n_ready) and len(inflight) < cap:
+                    tid = pending.popleft() if pending else self.graph.pop()
                     attempt, items, log = self.books.claim(tid, "ray")
                     if not items:
                         self.books.on_task_done(tid)
                         continue
-                    ref = fn.options(**self._options(ray, tid)).remote(
-                        self.processor, self.processor_args, items, log, self.item_timeout_s)
+                    stage = self.books.stage_of(tid)
+                    ref = fns[stage].options(**self._options(ray, tid)).remote(
+                        specs[stage]["processor"], specs[stage]["processor_args"], items, log, self.item_timeout_s)
                     inflight[ref] = (tid, attempt)
                 self.books.flush(force=False)
                 if not inflight:
-                    continue
+                    if pending or self.graph.n_ready:
+                        continue
+                    if self.graph.waiting:
+                        raise StageError(f"farm: {self.graph.waiting} task(s) wait for items no task will "
+                                         "finish (a pipeline's dependencies are wrong)")
+                    break
                 ready, _ = ray.wait(list(inflight), num_returns=1, timeout=1.0)
                 for ref in ready:
                     tid, attempt = inflight.pop(ref)
@@ -266,5 +277,5 @@ class RayEngine:
         self.node_fails[node] += 1
         if self.node_fails[node] >= NODE_MAX_FAILURES_IN_ROW and res["node"] not in self.banned:
             self.banned.add(res["node"])
-            self.books.summary.retired.append(node)
+            self.books.stats.retired.append(node)
         return final

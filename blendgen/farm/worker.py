@@ -82,8 +82,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with redirect_output(init["log"]):
         t0 = time.perf_counter()
+        procs = {}
         try:
-            proc = load_processor(init["processor"], init["processor_args"])
+            # one per stage of the run (a pipeline's stages share the workers), built once
+            for stage, spec in init["processors"].items():
+                procs[stage] = load_processor(spec["processor"], spec["processor_args"])
         except Exception as e:
             traceback.print_exc()
             ch.send({"ev": "init_error", "error": f"{type(e).__name__}: {e}"[:2000]})
@@ -101,14 +104,15 @@ def main(argv: list[str] | None = None) -> int:
                 ch.send(ev)
 
             with redirect_output(msg["log"]):
-                print(f"[blendgen.farm] task {task} attempt {msg.get('attempt')} on pid "
+                print(f"[blendgen.farm] task {task} ({msg['stage']}) attempt {msg.get('attempt')} on pid "
                       f"{os.getpid()}: {len(msg['items'])} items", flush=True)
-                ok = run_items(proc, msg["items"], emit)
+                ok = run_items(procs[msg["stage"]], msg["items"], emit)
             ch.send({"ev": "task_end", "task": task, "ok": ok, "rss_mb": rss_mb()})
-        try:
-            close_processor(proc)
-        except Exception:
-            traceback.print_exc()
+        for proc in procs.values():
+            try:
+                close_processor(proc)
+            except Exception:
+                traceback.print_exc()
     return 0
 
 

@@ -110,7 +110,7 @@ def cmd_status(args) -> int:
         raise UserError("not a blendgen job folder (no job.resolved.yaml)", where=str(args.out))
     stages = ["sync", "analysis", "plan", "export"] if folder.stage_done("analysis") else ["sync", "plan", "export"]
     print(f"{args.out}: " + ", ".join(f"{s} {'done' if folder.stage_done(s) else 'not done'}" for s in stages))
-    line = folder.progress_line()  # sync, analysis or plan, which run in the job's own process
+    line = folder.progress_line()  # sync, which runs in the job's own process (the rest: the ledger)
     if line:
         print(line)
     from blendgen.farm.ledger import ledger_path

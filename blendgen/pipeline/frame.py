@@ -49,7 +49,7 @@ class FrameProcessor:
         self.job = parse_job(job, source=str(Path(out_dir) / "job.resolved.yaml"))
         self.folder = JobFolder(Path(out_dir))
         self.rec = read_recording(self.job.recording_dir)
-        self.plans = load_plans(self.folder.plan)
+        self._plans = None  # read at the first frame: in a pipeline the plan is made after the workers start
         self.georef = self._georef()
         w, h = self.job.render.resolution or (self.rec.camera.width, self.rec.camera.height)
         self.camera = self.rec.camera.scaled(w, h)
@@ -64,6 +64,22 @@ class FrameProcessor:
         if real.shape[:2] != (self.camera.height, self.camera.width):
             real = cv2.resize(real, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
         return real
+
+    @property
+    def plans(self):
+        """frame id -> FramePlan: from the plan windows (OUT/plan/, one window file at a time), or
+        from OUT/plan.jsonl."""
+        if self._plans is None:
+            from blendgen.pipeline.plan_tasks import FramePlans, plan_dir
+
+            if plan_dir(self.folder.root).is_dir():
+                fr = self.job.frames
+                index = np.arange(self.rec.n_frames)[fr.start:fr.stop:fr.step]
+                self._plans = FramePlans(self.folder.root, np.asarray(self.rec.frames_t, float)[index],
+                                         self.job.inject.sequences, [self.rec.frame_id(int(i)) for i in index])
+            else:
+                self._plans = load_plans(self.folder.plan)
+        return self._plans
 
     def _georef(self):
         if self.job.twin_path is None:

@@ -27,7 +27,8 @@ STAGES = ("record", "sync", "analysis", "plan", "frames", "export", "report")
 
 class Runner:
     def __init__(self, job: Job, *, engine: str | None = None, workers: int | None = None,
-                 chunk: int | None = None, address: str | None = None, progress: bool = True):
+                 chunk: int | None = None, address: str | None = None, progress: bool = True,
+                 until: str | None = None):
         self.job = job
         self.folder = JobFolder(job.out_dir)
         farm = job.farm
@@ -36,6 +37,8 @@ class Runner:
                          max_rss_mb=farm.max_rss_mb, item_timeout_s=farm.item_timeout_s,
                          address=address or farm.address)
         self.progress = progress
+        self.until = until  # "plan": stop when every frame is planned (benchmarks)
+        self.pipeline_summaries: dict = {}
         self.times: dict[str, float] = {}
         self.skipped: list[str] = []
         self.warnings: list[str] = []
@@ -142,76 +145,64 @@ class Runner:
                             f"recording's {len(poses)}", where="job")
         return sel
 
-    def analysis(self, rec, poses) -> tuple[list, bool]:
-        """Ground-plane jobs: camera, hood, road and real road users of every selected frame.
-        Returns the poses plans use (the analysed camera over the road) and whether it ran."""
-        from blendgen.analysis.stage import run_analysis
-
-        gp = self.job.ground_plane
-        if gp is None or not gp.analysis:
-            self.skipped.append("analysis")
-            self._say("analysis", "not needed (twin job)" if gp is None else "off (ground_plane.analysis: false)")
-            return poses, False
-        ids = [fid for fid, _, _ in self._selected(poses)]
-        if self.folder.stage_done("analysis") and self.folder.stage_info("analysis").get("frames") == ids:
-            self.skipped.append("analysis")
-            self._say("analysis", f"analyses exist ({self.folder.analysis})")
-            return poses, True  # read back from poses.csv, which holds the analysed poses
-        self._say("analysis", f"{len(ids)} frames: camera, hood, road, real road users -> {self.folder.analysis}")
-        with self.folder.progress("analysis", len(ids)) as p:
-            run_analysis(rec, ids, self.folder.analysis, gp, progress=self.progress,
-                         detector_model=self.job.path(gp.detector) if gp.detector else None, on_progress=p)
-        poses = self._write_analysis_poses(poses, set(ids))
-        self.folder.mark_stage("analysis", {"frames": ids})
-        return poses, True
-
-    def _write_analysis_poses(self, poses, ids: set[str]) -> list:
-        """poses.csv/.tum hold what plans and renders use: the analysed frames' camera over
-        the ground plane (ego motion for video), the fixed pose for the others."""
-        from blendgen.analysis.stage import read_analysis
-        from blendgen.sync.pipeline import SyncResult, write_poses
-
-        out, quality = [], []
-        for fid, t, T in poses:
-            a = read_analysis(self.folder.analysis, fid) if fid in ids else None
-            out.append((fid, t, np.asarray(a.T_world_cam) if a is not None and a.T_world_cam else T))
-            quality.append({"vo_status": "none", "vo_inliers": 0, "vo_parallax_px": 0.0,
-                            "flags": ["ground_plane"] + (["analysis"] if a is not None else [])})
-        write_poses(self.folder.root, SyncResult(out, np.zeros((len(out), 6)), quality))
-        return out
-
-    def plan(self, rec, poses, analysed: bool = False) -> list[str]:
-        from blendgen.farm.seeds import frame_seed
-        from blendgen.scene.planner import plan_sequence, unplaced_warnings
+    # ------------------------------------------------------------------ the farm pipeline
+    def pipeline(self, rec, poses) -> list[str]:
+        """Frame analysis (ground-plane jobs), planning and rendering as one pipeline of farm
+        tasks (pipeline.stages): each task starts as soon as what it needs is done, so the first
+        frames are rendered while the rest of the recording is still analysed. Returns the job's
+        frame ids."""
+        from blendgen.farm import run_pipeline
+        from blendgen.pipeline.stages import PipelineSpec
 
         job = self.job
-        sel = self._selected(poses)
-        ids = [fid for fid, _, _ in sel]
-        if self.folder.stage_done("plan"):
-            self.skipped.append("plan")
-            self._say("plan", f"plan exists ({self.folder.plan})")
-            self.warnings = self.folder.stage_info("plan").get("warnings", [])
-            return ids
-        w, h = job.render.resolution or (rec.camera.width, rec.camera.height)
-        camera = rec.camera.scaled(w, h)
-        real = None
-        if analysed:  # the real frames' constraints: road users, road, hood
-            from blendgen.scene.real_scene import load_real_scene
+        ids = [fid for fid, _, _ in self._selected(poses)]
+        spec = PipelineSpec(job, rec, ids, self.folder)
+        gp = job.ground_plane
+        if spec.analysed:
+            self._say("analysis", f"{len(ids)} frames on the farm: {', '.join(spec.analysis_stages)} -> "
+                                  f"{self.folder.analysis}")
+        else:
+            self._say("analysis", "not needed (twin job)" if gp is None else "off (ground_plane.analysis: false)")
+            self.skipped.append("analysis")
+        assets = self.assets()  # before the workers start: planning draws from OUT/assets.json
+        self._say("plan", f"{len(spec.windows)} plan window(s) on the farm -> {self.folder.root / 'plan'}")
+        left = [] if self.until == "plan" else [i for i in ids if not self.folder.frame_done(i, job.export.save_exr)]
+        if self.until != "plan":
+            self._say("frames", f"{len(ids) - len(left)} of {len(ids)} done; rendering {len(left)} on "
+                                f"{self.farm['workers']} {self.farm['engine']} worker(s) as their plans are made")
+        stages = spec.stages(self.job.resolved(), with_frames=self.until != "plan", redo=left, chunk=self.farm["chunk"])
+        del assets
+        f = self.farm
+        t0 = time.perf_counter()
+        self.pipeline_summaries = run_pipeline(
+            self.folder.root, stages, engine=f["engine"], workers=f["workers"], max_attempts=f["max_attempts"],
+            recycle_after=f["recycle_after"], max_rss_mb=f["max_rss_mb"], item_timeout_s=f["item_timeout_s"],
+            address=f["address"], progress=self.progress, seed=job.seed, name="pipeline")
+        self.times["pipeline"] = round(time.perf_counter() - t0, 3)
+        sums = self.pipeline_summaries
+        for name, group in (("analysis", spec.analysis_stages), ("plan", ("plan", "plan_file")), ("frames", ("frames",))):
+            group = [g for g in group if g in sums]
+            if not group:
+                continue
+            if all(sums[g].already_done == sums[g].total for g in group):
+                self.skipped.append(name)
+            spans = [sums[g] for g in group if sums[g].first_start_s is not None]
+            if spans:  # the stages overlap: each one's span from its first task to its last item
+                self.times[f"{name}_span"] = round(max(x.last_done_s or 0 for x in spans)
+                                                   - min(x.first_start_s for x in spans), 3)
+        bad = [x for g, x in sums.items() if g != "frames" and not x.ok]
+        if bad:
+            raise StageError("; ".join(x.text() for x in bad) + f"\nsee `blendgen status {self.folder.root}`")
+        if spec.analysed:  # poses.csv: the analysed poses (the pipeline's poses_file task wrote them)
+            self.folder.mark_stage("analysis", {"frames": len(ids)})
+        from blendgen.pipeline.plan_tasks import plan_dir, unplaced_warnings
 
-            real = load_real_scene(self.folder.analysis, ids, camera)
-        # the layout's stream starts from (seed, first frame id): a job starting at another frame
-        # gets its own layout, not the same one shifted (README: seed + frame id)
-        assets = self.assets()
-        with self.folder.progress("plan", len(sel)) as p:
-            plans = plan_sequence(self.twin, camera, sel, job.inject, frame_seed(job.seed, ids[0]),
-                                  assets=assets, real=real, on_progress=p)
-        n_obj = sum(len(p.objects) for p in plans)
-        self.warnings = unplaced_warnings(plans, job.inject)
-        self._say("plan", f"{len(plans)} frames, {n_obj} objects")
+        stats = json.loads((plan_dir(self.folder.root) / "stats.json").read_text())
+        self.warnings = unplaced_warnings(stats, job.inject, len(ids))
+        if not self.folder.stage_done("plan"):
+            self.folder.mark_stage("plan", {"frames": len(ids), "objects": stats["objects"], "warnings": self.warnings})
         for w in self.warnings:
             print(f"  WARNING: {w}", flush=True)
-        atomic.write_text(self.folder.plan, "".join(json.dumps(p.to_dict()) + "\n" for p in plans))
-        self.folder.mark_stage("plan", {"frames": len(plans), "objects": n_obj, "warnings": self.warnings})
         return ids
 
     def assets(self):
@@ -235,17 +226,6 @@ class Runner:
                             where="inject.assets")
         atomic.write_json(self.folder.root / CATALOG_NAME, {"version": 1, "assets": results}, indent=1)
         return AssetSampler(results, self.job.inject.asset_share)
-
-    def frames(self, ids: list[str]):
-        left = [i for i in ids if not self.folder.frame_done(i, self.job.export.save_exr)]
-        self._say("frames", f"{len(ids) - len(left)} of {len(ids)} done; rendering {len(left)} "
-                               f"on {self.farm['workers']} {self.farm['engine']} worker(s)")
-        if not left:
-            self.skipped.append("frames")
-            return None
-        # frames whose files were deleted are rendered again, whatever the ledger says
-        return self._farm("frames", ids, "blendgen.pipeline.frame:FrameProcessor",
-                          {"job": self.job.resolved(), "out_dir": str(self.folder.root)}, redo=left)
 
     def export(self, ids: list[str]) -> dict:
         from blendgen.labels.export import export_labels
@@ -326,9 +306,14 @@ class Runner:
         timed("record", self.record)
         rec = getattr(self, "_rec", None) or read_recording(self.job.recording_dir, require_frames=True)
         poses = timed("sync", self.sync, rec)
-        poses, analysed = timed("analysis", self.analysis, rec, poses)
-        ids = timed("plan", self.plan, rec, poses, analysed)
-        farm_summary = timed("frames", self.frames, ids)
+        ids = self.pipeline(rec, poses)
+        if self.until == "plan":
+            self.times["total"] = round(time.perf_counter() - t_all, 3)
+            return {"job": self.job.name, "frames": {"total": len(ids)}, "seconds_per_stage": self.times,
+                    "skipped_stages": self.skipped, "pipeline": self._stage_report()}
+        farm_summary = self.pipeline_summaries["frames"]
+        if farm_summary.already_done == farm_summary.total:
+            farm_summary = None
         export = timed("export", self.export, ids)
         self.times["total"] = round(time.perf_counter() - t_all, 3)
         summary = self._summary(ids, farm_summary, export)  # written first: the report shows it
@@ -362,12 +347,20 @@ class Runner:
             "labels_per_source": source_counts(insts),
             "seconds_per_stage": self.times, "skipped_stages": self.skipped, "warnings": self.warnings,
             "throughput": self._throughput(farm_summary),
+            "pipeline": self._stage_report(),
             "outputs": {"labels": str(self.folder.labels), "report": str(self.folder.root / "report" / "index.md"),
                         "manifest": str(self.folder.manifest), "frames": str(self.folder.root / "frames")},
             "export": export,
         }
         atomic.write_json(self.folder.summary, summary, indent=2)
         return summary
+
+    def _stage_report(self) -> dict:
+        """Per farm stage of the pipeline: items, how many this run did, when its first task
+        started and its last item finished (seconds after the pipeline started)."""
+        return {n: {"total": x.total, "processed": x.processed, "already_done": x.already_done,
+                    "first_start_s": x.first_start_s, "first_done_s": x.first_done_s, "last_done_s": x.last_done_s}
+                for n, x in self.pipeline_summaries.items()}
 
     def _throughput(self, farm_summary) -> dict:
         """Frames/min of the frame work alone (sync, analysis, plan, frames, export): what a real

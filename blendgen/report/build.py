@@ -212,7 +212,8 @@ def read_manifest(path: Path) -> list[dict]:
 STAGE_TITLES = {"record": "Recording synthesis (`record`: Cycles renders the synthetic recording's own "
                           "frames; a real recording skips it)",
                 "frames": "Frame work (`frames`: render + post + labels of each augmented frame)"}
-FRAME_WORK = ("sync", "analysis", "plan", "frames", "export")  # what a real recording costs; `record` is not part of it
+# what a real recording costs; `record` is not part of it; `pipeline`: analysis, plan and frames on the farm, overlapping
+FRAME_WORK = ("sync", "analysis", "plan", "frames", "pipeline", "export")
 
 
 def _timing_section(rep: Path, out_dir: Path) -> list[str]:

@@ -144,6 +144,7 @@ class Planner:
         self.ego = _Ego(self.poses, twin)
         self.times = self.ego.t
         self.K = len(self.poses)
+        self.n_plan = self.K  # frames planned (a plan window's later frames only carry its tracks on)
         self.tracks: list[Track] = []
         self.next_id = 1
         classes = {c: w for c, w in inject.classes.items() if w > 0}
@@ -234,7 +235,15 @@ class Planner:
                 if why:
                     self.reason = why
                     return True
+        why = self.extra_conflict(tr)
+        if why:
+            self.reason = why
+            return True
         return False
+
+    def extra_conflict(self, tr: Track) -> str | None:
+        """A subclass's own rule (plan windows, scene.windows): why the track may not be, or None."""
+        return None
 
     # ------------------------------------------------------------ trajectories
     def _limit(self, k0: int, xy: np.ndarray) -> int:
@@ -281,7 +290,7 @@ class Planner:
             yaw = yaw + np.arctan2(left_rate, max(speed, 0.5))
         return self._road_track(cls, variant, dims, k0, xy[:m], wrap_angle(yaw[:m]), scenario)
 
-    def _real_lanes(self, k, rg, index, direction, s):
+    def _real_lanes(self, k, rg, index, direction, s, cd=None, xy=None):
         """Frame k's real lanes where a vehicle of twin lane (index, direction) is at arc length
         s: (n, y, centres, w) = the twin lane's number from the twin's ego lane (0 the camera's,
         +1 left), its centre's world y, the world y of each real lane's centre by number
@@ -291,8 +300,10 @@ class Planner:
         ego = self.ego.lane[k] if self.real is not None else None
         if ego is None or self.twin.roads[ego.road] is not rg:
             return None
-        cd = float(rg.lane_d(index, direction, np.array([s]))[0])
-        x, y = rg.line.offset_point(np.array([s]), np.array([cd]))[0]
+        if cd is None:  # `cd`, `xy`: the lane centre's offset and point at s when the caller has them
+            cd = float(rg.lane_d(index, direction, np.array([s]))[0])
+            xy = rg.line.offset_point(np.array([s]), np.array([cd]))[0]
+        x, y = xy
         centres = self.real.lane_centres(k, self.ego.T[k], float(x), ego.width)
         return None if centres is None else (int(round((cd - ego.center_d) / ego.width)), float(y), centres,
                                              ego.width)
@@ -309,7 +320,15 @@ class Planner:
         without any the nearest frame's with lines (video only: stills do not share a world)."""
         if self.real is None:
             return 0.0
-        rows = [self._real_lanes(k0 + i, rg, index, direction, float(si)) for i, si in enumerate(s)]
+        s = np.asarray(s, float)
+        # the lane geometry of every frame in one pass (the planner asks for thousands of frames per spawn)
+        geo = None
+        if rg is not None:
+            cd = rg.lane_d(index, direction, s)
+            geo = (cd, rg.line.offset_point(s, cd))
+        rows = [self._real_lanes(k0 + i, rg, index, direction, float(si), *(() if geo is None else
+                                                                              (float(geo[0][i]), geo[1][i])))
+                for i, si in enumerate(s)]
         ref = next((r for r in rows if r is not None), None)
         if ref is None:
             near = np.argsort(np.abs(self.times - self.times[k0]))[:LANE_BORROW_FRAMES] if self.inject.sequences else []
@@ -856,7 +875,7 @@ class Planner:
         last_staged = {s: -1e9 for s in self.inject.scenarios}
         retry_at = {s: -1e9 for s in self.inject.scenarios}
         plans = []
-        for k, (frame_id, t, T) in enumerate(self.poses):
+        for k, (frame_id, t, T) in enumerate(self.poses[:self.n_plan]):
             if on_progress is not None:
                 on_progress(k)
             if not self.inject.sequences:

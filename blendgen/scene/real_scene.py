@@ -17,7 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from blendgen.analysis.lanes import lane_centres
+from blendgen.analysis.lanes import kept_lines, lane_centres
 from blendgen.analysis.model import FrameAnalysis
 from blendgen.analysis.road import BAND, ROAD  # noqa: F401 - the planner takes them from here
 from blendgen.geometry import Camera
@@ -52,6 +52,7 @@ class RealScene:
         self.frames = frames
         self.camera = camera
         self._has: dict[tuple[int, int], bool] = {}  # the planner asks on every spawn
+        self._kept: dict[tuple[int, float], list] = {}
 
     def _pixels(self, rf: RealFrame, T, pts3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Analysis-resolution pixels of world points and whether each lies inside the image."""
@@ -143,7 +144,10 @@ class RealScene:
         analysis found (`analysis.lanes`), or None where they bound no ego lane."""
         rf = self.frames[k] if k < len(self.frames) else None
         T = np.asarray(T, float)
-        centres = None if rf is None else lane_centres(rf.fa.lane_lines, x_world - float(T[0, 3]), lane_width_m)
+        if rf is not None and (k, lane_width_m) not in self._kept:  # per frame: the planner asks many times
+            self._kept[k, lane_width_m] = kept_lines(rf.fa.lane_lines, lane_width_m)
+        centres = None if rf is None else lane_centres(rf.fa.lane_lines, x_world - float(T[0, 3]), lane_width_m,
+                                                       kept=self._kept[k, lane_width_m])
         # the ground-plane twin's road runs along +x
         return None if centres is None else {n: float(T[1, 3]) + c for n, c in centres.items()}
 

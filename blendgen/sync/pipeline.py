@@ -1002,9 +1002,12 @@ def _check_finite(result: SyncResult) -> None:
 def write_poses(out_dir: Path, result: SyncResult) -> None:
     lines = [",".join(POSES_COLUMNS)]
     tum = []
+    last = (None, None)  # a ground-plane job's frames share one pose object: one quaternion
     for (fid, t, T), c, q in zip(result.poses, result.cov, result.quality):
         x, y, z = T[:3, 3]
-        qw, qx, qy, qz = matrix_to_quat(T[:3, :3])
+        if T is not last[0]:
+            last = (T, matrix_to_quat(T[:3, :3]))
+        qw, qx, qy, qz = last[1]
         lines.append(",".join([f"{t:.6f}", f"{x:.6f}", f"{y:.6f}", f"{z:.6f}", f"{qw:.9f}", f"{qx:.9f}",
                                f"{qy:.9f}", f"{qz:.9f}", *(f"{v:.6g}" for v in c), q["vo_status"],
                                str(q["vo_inliers"]), f"{q['vo_parallax_px']:.2f}", "|".join(q["flags"]), fid]))

@@ -91,7 +91,7 @@ def run(quick: bool):
                 export_t[fmt].append(np.median(ts))
                 rows.append((f"export {fmt}", f"{n} frames", np.median(ts) * 1e3))
     if MODEL.exists():
-        from blendgen.eval.detector import YoloxDetector
+        from blendgen.detection.detector import YoloxDetector
 
         det = YoloxDetector(MODEL)
         imgs = sorted((ROOT.parent / "shared/data/real/udacity_highway_images").glob("*.jpg"))

@@ -285,8 +285,8 @@ def main() -> None:
         print(" | ".join(f"{k} {v:.3f}" for k, v in split.items()) + f" | total {sum(split.values()):.3f} CPU s/frame")
         return
     from blendgen import CLASSES as CLASS_IDS
-    from blendgen.analysis.objects import BUNDLED_MODEL
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import BUNDLED_MODEL
+    from blendgen.detection.detector import YoloxDetector
 
     det = YoloxDetector(BUNDLED_MODEL, category_ids=set(CLASS_IDS.values()))  # as `blendgen realism`: all 7 classes
     results, rows = {}, []

@@ -34,7 +34,7 @@ so their differences are paired: bootstrap over frames (objects in a frame are n
 independent), 2000 resamples, 95 % percentile intervals.
 
 Scores: an injected object is found when a detection of its class with score >= 0.3 has
-IoU >= 0.5 with its box (COCO matching, blendgen/eval/metrics.py); real objects that the
+IoU >= 0.5 with its box (COCO matching, blendgen/detection/metrics.py); real objects that the
 detector finds in the untouched background (score >= 0.05) are ignore regions. Mean
 confidence = mean over objects of the matched detection's score (0 when none).
 
@@ -72,7 +72,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
-from blendgen.eval.metrics import evaluate  # noqa: E402
+from blendgen.detection.metrics import evaluate  # noqa: E402
 from blendgen.job.schema import Post  # noqa: E402
 from blendgen.scene.planner import NO_PLACE  # noqa: E402
 
@@ -355,7 +355,7 @@ def make_assets(folder: Path) -> Path:
 
 def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
     """Detector results per object, for every post variant of the set's renders."""
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
     from blendgen.farm.seeds import frame_seed
     from blendgen.labels.export import find_frame_labels
     from blendgen.labels.frame_labels import read_frame_labels

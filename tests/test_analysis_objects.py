@@ -12,6 +12,7 @@ import pytest
 
 from blendgen.analysis import objects, stage
 from blendgen.analysis.model import CameraEstimate, FrameAnalysis, RealObject
+from blendgen.detection.detector import BUNDLED_MODEL, BUNDLED_SHA256
 from blendgen.errors import UserError
 from blendgen.geometry import Camera
 from blendgen.job.schema import GroundPlane, Inject, parse_job
@@ -34,9 +35,9 @@ def detector():
 
 
 def test_bundled_detector_is_the_released_yolox_nano():
-    assert hashlib.sha256(objects.BUNDLED_MODEL.read_bytes()).hexdigest() == objects.BUNDLED_SHA256
-    assert "Apache License" in (objects.BUNDLED_MODEL.parent / "LICENSE").read_text()
-    assert "Megvii" in (objects.BUNDLED_MODEL.parent / "NOTICE").read_text()
+    assert hashlib.sha256(BUNDLED_MODEL.read_bytes()).hexdigest() == BUNDLED_SHA256
+    assert "Apache License" in (BUNDLED_MODEL.parent / "LICENSE").read_text()
+    assert "Megvii" in (BUNDLED_MODEL.parent / "NOTICE").read_text()
 
 
 def test_job_detector_must_be_an_onnx_file(tmp_path):

@@ -58,7 +58,7 @@ def _user(args):
 
 def _car_boxes(rec, frame_ids, model: Path, progress: bool) -> dict[str, list]:
     from blendgen.analysis.camera import read_frames
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
 
     det = YoloxDetector(model, score_min=0.4, category_ids={3})      # COCO 3: car
     return {fid: [d["bbox"] for d in det(im)] for fid, im in read_frames(rec, frame_ids, progress=progress,

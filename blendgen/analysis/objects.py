@@ -8,8 +8,9 @@ hood hides its contact point, so its footprint also reaches a typical length tow
 camera. Boxes whose bottom edge lies at or above the horizon get a distance from their
 height and no footprint.
 
-The detector is YOLOX-Nano (Apache-2.0), shipped inside the package (models/ with its
-LICENSE and NOTICE); a job may name another YOLOX-format ONNX model. Nothing is downloaded.
+The detector is YOLOX-Nano (Apache-2.0), shipped inside the package
+(`detection.detector.BUNDLED_MODEL`); a job may name another YOLOX-format ONNX model.
+Nothing is downloaded.
 """
 
 from __future__ import annotations
@@ -23,12 +24,10 @@ from blendgen import CLASSES
 from blendgen.analysis.ground import camera_pose, horizon_v, to_ground
 from blendgen.analysis.model import CameraEstimate, RealObject
 from blendgen.errors import UserError
-from blendgen.eval.detector import YoloxDetector
+from blendgen.detection.detector import BUNDLED_MODEL, BUNDLED_SHA256, YoloxDetector
 from blendgen.geometry import Camera
 from blendgen.scene.catalog import TYPICAL_DIMS
 
-BUNDLED_MODEL = Path(__file__).with_name("models") / "yolox_nano.onnx"
-BUNDLED_SHA256 = "c789161ed43c8269fcd4e67c67eeeb4e80c622da2eb296a20bc6007bd18a0b7d"
 OBSTACLE_CLASSES = ("person", "bicycle", "car", "motorcycle", "bus", "truck")
 # Low on purpose: a missed real car is an object we may place inside it; a false one
 # only costs a placement.

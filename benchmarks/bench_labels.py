@@ -21,9 +21,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
+from blendgen.frame_labels import write_frame_labels  # noqa: E402
 from blendgen.geometry import Camera, R_world_cam_from_ypr, invert_pose, make_pose  # noqa: E402
 from blendgen.labels.export import export_labels  # noqa: E402
-from blendgen.labels.frame_labels import write_frame_labels  # noqa: E402
 from blendgen.labels.instances import extract_instances  # noqa: E402
 from blendgen.scene.plan import FramePlan, PlacedObject  # noqa: E402
 

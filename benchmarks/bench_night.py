@@ -38,8 +38,7 @@ DOC = ROOT / "docs" / "benchmarks" / "night.md"
 
 def score(outs: list[Path], det) -> list[dict]:
     """One row per injected object: frame, class, height, {"v": score of its match or 0}."""
-    from blendgen.labels.export import find_frame_labels
-    from blendgen.labels.frame_labels import read_frame_labels
+    from blendgen.frame_labels import find_frame_labels, read_frame_labels
     from blendgen.recording.folder import read_frame, read_recording
 
     rows = []

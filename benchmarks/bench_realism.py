@@ -357,8 +357,7 @@ def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
     """Detector results per object, for every post variant of the set's renders."""
     from blendgen.detection.detector import YoloxDetector
     from blendgen.farm.seeds import frame_seed
-    from blendgen.labels.export import find_frame_labels
-    from blendgen.labels.frame_labels import read_frame_labels
+    from blendgen.frame_labels import find_frame_labels, read_frame_labels
     from blendgen.post.composite import composite_frame
     from blendgen.post.illumination import estimate_illumination
     from blendgen.recording.folder import read_frame, read_recording

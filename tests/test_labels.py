@@ -8,8 +8,8 @@ from pycocotools.coco import COCO
 
 from blendgen import CLASSES
 from blendgen.errors import UserError
-from blendgen.labels.export import export_labels, find_frame_labels
-from blendgen.labels.frame_labels import read_frame_labels, write_frame_labels
+from blendgen.frame_labels import find_frame_labels, read_frame_labels, write_frame_labels
+from blendgen.labels.export import export_labels
 from blendgen.labels.instances import decode_mask, extract_instances
 from blendgen.labels.kitti import DEVKIT_TYPES, KITTI_TYPES, parse_label_line
 from blendgen.labels.yolo import NAMES

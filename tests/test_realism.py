@@ -163,9 +163,9 @@ def test_detector_finds_cars_on_real_photos():
 def _make_out(tmp, photos, inject_size=200):
     """An OUT over real photos: a real car photo crop pasted as the 'injected' object, and a
     recording folder so that background='auto' can find the real frames."""
-    from blendgen.labels.frame_labels import write_frame_labels
-    from blendgen.labels.instances import encode_mask
+    from blendgen.frame_labels import write_frame_labels
     from blendgen.geometry import Camera
+    from blendgen.labels.instances import encode_mask
     from blendgen.recording.folder import write_calib, write_frames_csv
 
     out, rec = tmp / "out", tmp / "rec"

@@ -23,8 +23,8 @@ import numpy as np
 from blendgen import CLASSES
 from blendgen.analysis.ground import camera_pose, horizon_v, to_ground
 from blendgen.analysis.model import CameraEstimate, RealObject
-from blendgen.errors import UserError
 from blendgen.detection.detector import BUNDLED_MODEL, BUNDLED_SHA256, YoloxDetector
+from blendgen.errors import UserError
 from blendgen.geometry import Camera
 from blendgen.scene.catalog import TYPICAL_DIMS
 

@@ -22,10 +22,9 @@ import cv2
 import numpy as np
 
 from blendgen import CLASSES, atomic
-from blendgen.errors import UserError
 from blendgen.detection.metrics import AREA_RANGES, evaluate
-from blendgen.labels.export import find_frame_labels
-from blendgen.labels.frame_labels import read_frame_labels
+from blendgen.errors import UserError
+from blendgen.frame_labels import find_frame_labels, read_frame_labels
 
 NAMES = {cid: name for name, cid in CLASSES.items()}
 METRICS = ("precision", "recall", "f1", "ap")

@@ -92,7 +92,7 @@ class FrameProcessor:
         return self.folder.frame_done(frame_id, self.job.export.save_exr)
 
     def process(self, frame_id: str) -> dict:
-        from blendgen.labels.frame_labels import write_frame_labels
+        from blendgen.frame_labels import write_frame_labels
         from blendgen.labels.instances import extract_instances
         from blendgen.post.composite import composite_frame
         from blendgen.post.illumination import estimate_illumination

@@ -321,8 +321,8 @@ class Runner:
         return summary
 
     def _summary(self, ids, farm_summary, export) -> dict:
+        from blendgen.frame_labels import all_instances, read_frame_labels
         from blendgen.labels.export import source_counts
-        from blendgen.labels.frame_labels import all_instances, read_frame_labels
 
         done = [i for i in ids if self.folder.frame_done(i, self.job.export.save_exr)]
         per_class: Counter = Counter()

@@ -11,8 +11,7 @@ import numpy as np
 
 from blendgen import CLASSES, atomic
 from blendgen.errors import UserError
-from blendgen.labels.export import find_frame_labels
-from blendgen.labels.frame_labels import all_instances, read_frame_labels
+from blendgen.frame_labels import all_instances, find_frame_labels, read_frame_labels
 from blendgen.report.draw import CLASS_BGR, contact_sheet, draw_labels
 
 SHEET_FRAMES = 8

@@ -287,7 +287,7 @@ def library_catalog(assets: list[dict], env) -> list[dict]:
     cache = TMP / "thirdparty_catalog.json"
     if cache.is_file() and json.loads(cache.read_text())["sources"] == assets:
         return json.loads(cache.read_text())["assets"]
-    code = ("import json, sys; from pathlib import Path; from blendgen.scene.assets import discover; "
+    code = ("import json, sys; from pathlib import Path; from blendgen.job.assets import discover; "
             "from blendgen.render.assets import inspect; import bpy\n"
             "out = []\n"
             "for r in discover([(Path(a.pop('path')), a) for a in json.loads(sys.argv[1])]):\n"
@@ -307,7 +307,7 @@ def same_plans(proc_dir: Path, out_dir: Path, catalog: list[dict], wait_s: float
     procedural run's sync, analysis and plan, where every object of a class the library has
     (pedestrians, not riders) becomes a library asset (drawn uniformly per object, seeded by
     frame and id) at the same place, heading and time; `blendgen run` then renders it."""
-    from blendgen.scene.assets import asset_variant
+    from blendgen.job.assets import asset_variant
 
     if (out_dir / ".blendgen" / "plan.done").is_file():
         return

@@ -17,10 +17,10 @@ from blendgen.errors import UserError
 from blendgen.geometry import Camera
 from blendgen.job.schema import GroundPlane, Inject, parse_job
 from blendgen.labels.instances import extract_instances
+from blendgen.plan import FramePlan, PlacedObject
 from blendgen.post.composite import apply_occluder
 from blendgen.recording.importers import import_recording
 from blendgen.scene.ground_plane import GroundPlaneTwin
-from blendgen.scene.plan import FramePlan, PlacedObject
 from blendgen.scene.planner import plan_sequence, unplaced_warnings
 from blendgen.scene.real_scene import RealFrame, RealScene
 

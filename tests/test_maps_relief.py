@@ -12,7 +12,7 @@ import pytest
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 from blendgen.job.schema import Inject
 from blendgen.labels.instances import box3d_cam
-from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.plan import FramePlan, PlacedObject
 from blendgen.scene.planner import Planner
 from blendgen.scene.twin import load_twin
 

@@ -10,10 +10,10 @@ import pytest
 
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 from blendgen.job.schema import SCENARIOS, Inject
+from blendgen.plan import FramePlan
 from blendgen.scene.catalog import SPEED
 from blendgen.scene.geom2d import convex_overlap
 from blendgen.scene.ground_plane import GroundPlaneTwin
-from blendgen.scene.plan import FramePlan
 from blendgen.scene.planner import EGO_FRONT_OF_CAM, EGO_LENGTH, EGO_WIDTH, footprints, plan_sequence
 from blendgen.scene.twin import load_twin
 

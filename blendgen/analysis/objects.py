@@ -3,7 +3,7 @@
 Each person, bicycle, car, motorcycle, bus and truck the detector finds becomes a ground
 polygon: the bottom edge of its box (where it touches the road) back-projected through the
 camera estimate, widened to the class's typical width and extended away from the camera by
-its typical length (`scene.catalog.TYPICAL_DIMS`). A box cut off by the image bottom or the
+its typical length (`dimensions.TYPICAL_DIMS`). A box cut off by the image bottom or the
 hood hides its contact point, so its footprint also reaches a typical length toward the
 camera. Boxes whose bottom edge lies at or above the horizon get a distance from their
 height and no footprint.
@@ -24,9 +24,9 @@ from blendgen import CLASSES
 from blendgen.analysis.ground import camera_pose, horizon_v, to_ground
 from blendgen.analysis.model import CameraEstimate, RealObject
 from blendgen.detection.detector import BUNDLED_MODEL, BUNDLED_SHA256, YoloxDetector
+from blendgen.dimensions import TYPICAL_DIMS
 from blendgen.errors import UserError
 from blendgen.geometry import Camera
-from blendgen.scene.catalog import TYPICAL_DIMS
 
 OBSTACLE_CLASSES = ("person", "bicycle", "car", "motorcycle", "bus", "truck")
 # Low on purpose: a missed real car is an object we may place inside it; a false one

@@ -20,8 +20,8 @@ from blendgen.farm.processor import clean_stale_temps
 from blendgen.farm.seeds import frame_seed
 from blendgen.job.schema import parse_job
 from blendgen.pipeline.outputs import JobFolder
+from blendgen.plan import SCENERY_ID, FramePlan
 from blendgen.recording.folder import read_frame, read_recording
-from blendgen.scene.plan import SCENERY_ID, FramePlan
 
 
 def render_outputs(job) -> set[str]:

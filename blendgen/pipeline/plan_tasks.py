@@ -60,7 +60,7 @@ class PlanWindowTask:
 
     @cached_property
     def assets(self):
-        from blendgen.scene.assets import CATALOG_NAME, AssetSampler
+        from blendgen.job.assets import CATALOG_NAME, AssetSampler
 
         if not self.job.inject.assets:
             return None

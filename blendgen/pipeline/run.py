@@ -208,7 +208,7 @@ class Runner:
     def assets(self):
         """Import and measure every library asset once in a farm worker (resumable), write
         OUT/assets.json, and stop with every bad asset named before anything is planned."""
-        from blendgen.scene.assets import CATALOG_NAME, AssetSampler, discover, result_path
+        from blendgen.job.assets import CATALOG_NAME, AssetSampler, discover, result_path
 
         if not self.job.inject.assets:
             return None

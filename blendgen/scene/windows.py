@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from blendgen import atomic
-from blendgen.scene.plan import SCENERY_ID, FramePlan, PlacedObject
+from blendgen.plan import SCENERY_ID, FramePlan, PlacedObject
 from blendgen.scene.planner import Planner, Track
 from blendgen.scene.real_scene import RealFrame, RealScene
 from blendgen.scene.riders import split_rider

@@ -42,7 +42,7 @@ from blendgen.job.schema import SCENARIOS, Inject  # noqa: E402
 from blendgen.plan import PlacedObject  # noqa: E402
 from blendgen.scene.catalog import sample_variant  # noqa: E402
 from blendgen.scene.planner import plan_sequence  # noqa: E402
-from blendgen.scene.twin import load_twin  # noqa: E402
+from blendgen.twin.model import load_twin  # noqa: E402
 
 TWINS = ROOT / "assets_procedural" / "twins"
 TILES = {  # class -> list of variant overrides (kind, rider, state)

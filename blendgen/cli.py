@@ -17,7 +17,7 @@ COMMAND_MODULES = [
     "blendgen.eval.command",            # realism
     "blendgen.train.command",           # train-check (torch, an optional extra, imported when it runs)
     "blendgen.report.command",          # report
-    "blendgen.scene.map_import",        # twin import / show
+    "blendgen.twin.command",            # twin import / show
     "blendgen.analysis.calibrate",      # calibrate
     "blendgen.render.gpu_kernels",      # gpu-kernels
 ]

@@ -290,7 +290,7 @@ def test_real_twin_and_objects(tmp_path):
     twin_path = BUILTIN_TWINS_DIR / "demo_town.yaml"
     if not twin_path.is_file():
         pytest.skip(f"needs {twin_path}")
-    from blendgen.scene.twin import load_twin
+    from blendgen.twin.model import load_twin
 
     route = load_twin(twin_path).ego_route(30.0, 1)
     fwd = (route[5] - route[0]) / np.linalg.norm(route[5] - route[0])

@@ -84,7 +84,7 @@ class FrameProcessor:
     def _georef(self):
         if self.job.twin_path is None:
             return None
-        from blendgen.scene.twin import load_twin
+        from blendgen.twin.model import load_twin
 
         return load_twin(self.job.twin_path).georef
 

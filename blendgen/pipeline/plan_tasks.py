@@ -29,7 +29,7 @@ def plan_dir(out_dir: Path) -> Path:
 
 def job_twin(job):
     if job.twin_path is not None:
-        from blendgen.scene.twin import load_twin
+        from blendgen.twin.model import load_twin
 
         return load_twin(job.twin_path)
     from blendgen.scene.ground_plane import GroundPlaneTwin

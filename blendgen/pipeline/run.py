@@ -50,7 +50,7 @@ class Runner:
     @functools.cached_property
     def twin(self):
         if self.job.twin_path is not None:
-            from blendgen.scene.twin import load_twin
+            from blendgen.twin.model import load_twin
 
             return load_twin(self.job.twin_path)
         from blendgen.scene.ground_plane import GroundPlaneTwin

@@ -258,7 +258,7 @@ class RenderSession:
     def _build_twin(self, twin_path: Path):
         try:
             from assets_procedural.twin_builder import build_twin
-            from blendgen.scene.twin import load_twin
+            from blendgen.twin.model import load_twin
         except ImportError as e:
             raise StageError(f"cannot build the twin {twin_path}: {e}") from None
         if not twin_path.is_file():

@@ -21,13 +21,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from blendgen.geom2d import convex_overlap, point_in_convex, wrap_angle
 from blendgen.geometry import Camera, yaw_of_camera
 from blendgen.plan import SCENERY_ID, FramePlan, PlacedObject
 from blendgen.scene.catalog import SPEED, sample_variant
-from blendgen.scene.geom2d import convex_overlap, point_in_convex, wrap_angle
 from blendgen.scene.real_scene import BAND, ROAD, ROAD_EDGE
 from blendgen.scene.riders import split_rider
-from blendgen.scene.twin import Twin
+from blendgen.twin.model import Twin
 
 # The ego vehicle's footprint relative to the camera (dashcam behind the windscreen).
 EGO_LENGTH, EGO_WIDTH = 4.6, 1.85

@@ -20,8 +20,8 @@ import numpy as np
 from blendgen.analysis.lanes import kept_lines, lane_centres
 from blendgen.analysis.model import FrameAnalysis
 from blendgen.analysis.road import BAND, ROAD  # noqa: F401 - the planner takes them from here
+from blendgen.geom2d import convex_overlap
 from blendgen.geometry import Camera
-from blendgen.scene.geom2d import convex_overlap
 
 WHEELED = ("car", "bus", "truck", "motorcycle", "bicycle")
 ROAD_EDGE = -1             # sample_ground: road pixels within EDGE_PX of its left or right edge

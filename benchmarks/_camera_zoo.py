@@ -108,10 +108,10 @@ def per_frame(rig: Rig, rec, detector, cross_px: int | None = None) -> dict:
     candidates (and their consensus), the detector's road users, the camera cues; with CPU s."""
     import time
 
-    from blendgen.analysis import hood as hood_mod
-    from blendgen.analysis import objects
+    from blendgen.analysis import hood as hood_mod, objects
     from blendgen.analysis.camera import frame_cues, read_frames
-    from blendgen.analysis.stage import hood_mask, not_ego
+    from blendgen.analysis.stage import not_ego
+    from blendgen.frame_analysis import hood_mask
 
     ids = [rec.frame_id(i) for i in range(rec.n_frames)]
     old = hood_mod.CROSS_PX

@@ -173,7 +173,7 @@ def ego_strip(out: Path) -> float | None:
     Returns the median step (m/frame)."""
     from blendgen.analysis.calibrate import calibrate
     from blendgen.analysis.egomotion import ground_track
-    from blendgen.analysis.model import CameraEstimate
+    from blendgen.frame_analysis import CameraEstimate
     from blendgen.recording.folder import read_frame, read_recording
     from blendgen.recording.importers.video import import_video
 
@@ -247,12 +247,12 @@ def zoo(args) -> None:
 
     from _camera_zoo import (CROSS_GRID, GRID, TMP, camera_metrics, hood_only, import_rig, leave_one_rig_out,
                              load_rigs, objective, per_frame)
-    from blendgen.analysis import mount as mount_mod
-    from blendgen.analysis import objects
+    from blendgen.analysis import mount as mount_mod, objects
     from blendgen.analysis.camera import estimate_frame, read_frames
-    from blendgen.analysis.stage import read_road_mask, run_analysis
+    from blendgen.analysis.stage import run_analysis
+    from blendgen.frame_analysis import read_road_mask
     from blendgen.job.schema import GroundPlane
-    from blendgen.recording.folder import read_recording, read_frame
+    from blendgen.recording.folder import read_frame, read_recording
     from blendgen.report.draw import contact_sheet
 
     rigs = load_rigs(args.rigs or None)

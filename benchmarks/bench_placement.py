@@ -38,8 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import atomic  # noqa: E402
-from blendgen.analysis.road import BAND, ROAD  # noqa: E402
-from blendgen.analysis.stage import hood_mask, read_analysis, read_road_mask  # noqa: E402
+from blendgen.frame_analysis import BAND, ROAD  # noqa: E402
+from blendgen.frame_analysis import hood_mask, read_analysis, read_road_mask  # noqa: E402
 from blendgen.frame_labels import read_frame_labels  # noqa: E402
 from blendgen.job.schema import parse_job  # noqa: E402
 from blendgen.pipeline.frame import load_plans  # noqa: E402

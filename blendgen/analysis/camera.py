@@ -38,8 +38,8 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from blendgen.analysis.model import CameraEstimate
 from blendgen.analysis.mount import FrameCues, Mount, focal_consensus
+from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera, R_world_cam_from_ypr
 
 log = logging.getLogger(__name__)
@@ -541,8 +541,9 @@ def _lane_cue(bgr: np.ndarray, camera: Camera, fc: FrameCamera, hood, boxes, lan
     """The ego lane's two painted lines (analysis.lanes) as two undistorted pinhole pixels each,
     found with the frame's own pitch, roll and road direction and a provisional 1.5 m height
     (the mount reduction measures their spacing again at its own angles), or None."""
-    from blendgen.analysis import ground, lanes, road
-    from blendgen.analysis.model import CameraEstimate
+    from blendgen import ground, lane_geometry
+    from blendgen.analysis import lanes, road
+    from blendgen.frame_analysis import CameraEstimate
 
     if fc.pitch is None:
         return None
@@ -556,18 +557,18 @@ def _lane_cue(bgr: np.ndarray, camera: Camera, fc: FrameCamera, hood, boxes, lan
         hmask = hmask > 0
     road_px, _ = road.estimate_road(bgr, ground.horizon(camera, T), hmask, boxes)
     lines, _ = lanes.lane_lines(bgr, road_px, camera, T)
-    ego = lanes.ego_lane(lines, lanes.X_REF, lane_width_m)
+    ego = lane_geometry.ego_lane(lines, lane_geometry.X_REF, lane_width_m)
     if ego is None:
         return None
     lo, hi, _ = ego
     pair = [ln for ln in lines if min(abs(ln[0] - lo), abs(ln[0] - hi)) < 1e-6]
     if len(pair) != 2:  # one side was a lane width beyond a single line, not paint
         return None
-    xs = np.array([lanes.RANGE_M[0] + 1.0, 20.0])
+    xs = np.array([lane_geometry.RANGE_M[0] + 1.0, 20.0])
     Rcw, t = T[:3, :3].T, T[:3, 3]
     out = []
     for y10, slope, _ in pair:
-        P = np.column_stack([xs, y10 + slope * (xs - lanes.X_REF), np.zeros(2)])
+        P = np.column_stack([xs, y10 + slope * (xs - lane_geometry.X_REF), np.zeros(2)])
         Xc = (P - t) @ Rcw.T
         uv = (Xc @ camera.K.T)[:, :2] / Xc[:, 2:3]
         out.append(uv.tolist())

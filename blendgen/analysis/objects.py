@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from blendgen import CLASSES
-from blendgen.analysis.ground import camera_pose, horizon_v, to_ground
-from blendgen.analysis.model import CameraEstimate, RealObject
 from blendgen.detection.detector import BUNDLED_MODEL, BUNDLED_SHA256, YoloxDetector
 from blendgen.dimensions import TYPICAL_DIMS
 from blendgen.errors import UserError
+from blendgen.frame_analysis import CameraEstimate, RealObject
 from blendgen.geometry import Camera
+from blendgen.ground import camera_pose, horizon_v, to_ground
 
 OBSTACLE_CLASSES = ("person", "bicycle", "car", "motorcycle", "bus", "truck")
 # Low on purpose: a missed real car is an object we may place inside it; a false one

@@ -108,7 +108,7 @@ class FrameProcessor:
         fa, real_boxes = self._analysis(frame_id)
         illum = None
         if job.post.illumination == "auto":
-            from blendgen.analysis.model import RealObject
+            from blendgen.frame_analysis import RealObject
 
             # the real road users' shadows give the sun's azimuth when time/position do not
             users = [RealObject(b["cls"], 0.0, b["box"], o.footprint)
@@ -139,7 +139,7 @@ class FrameProcessor:
 
         t2 = time.perf_counter()
         if fa is not None and fa.hood:  # the real hood hides whatever is behind it
-            from blendgen.analysis.stage import hood_mask
+            from blendgen.frame_analysis import hood_mask
             from blendgen.post.composite import apply_occluder
 
             sx, sy = self.camera.width / fa.width, self.camera.height / fa.height
@@ -221,7 +221,7 @@ class FrameProcessor:
 
     def _analysis(self, frame_id: str):
         """The frame's analysis (ground-plane jobs) and its real boxes at the render resolution."""
-        from blendgen.analysis.stage import read_analysis
+        from blendgen.frame_analysis import read_analysis
 
         fa = read_analysis(self.folder.analysis, frame_id)
         if fa is None:

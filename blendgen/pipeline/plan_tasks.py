@@ -77,7 +77,7 @@ class PlanWindowTask:
         return W.window_path(self.dir, int(item[1:])).is_file()
 
     def process(self, item: str) -> dict:
-        from blendgen.analysis.stage import read_analysis
+        from blendgen.frame_analysis import read_analysis
 
         t0 = time.process_time()
         win = self.windows[int(item[1:])]

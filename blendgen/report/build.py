@@ -85,7 +85,7 @@ def _analysis_section(out_dir: Path, rep: Path) -> list[str]:
     over the real frame, so a person can check the analysis the planner trusted at a glance."""
     import yaml
 
-    from blendgen.analysis.stage import read_analysis, read_road_mask
+    from blendgen.frame_analysis import read_analysis, read_road_mask
     from blendgen.recording.folder import read_frame, read_recording
     from blendgen.report.draw import draw_analysis
 

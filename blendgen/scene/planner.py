@@ -21,11 +21,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from blendgen.frame_analysis import BAND, ROAD
 from blendgen.geom2d import convex_overlap, point_in_convex, wrap_angle
 from blendgen.geometry import Camera, yaw_of_camera
 from blendgen.plan import SCENERY_ID, FramePlan, PlacedObject
 from blendgen.scene.catalog import SPEED, sample_variant
-from blendgen.scene.real_scene import BAND, ROAD, ROAD_EDGE
+from blendgen.scene.real_scene import ROAD_EDGE
 from blendgen.scene.riders import split_rider
 from blendgen.twin.model import Twin
 

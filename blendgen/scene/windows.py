@@ -273,14 +273,14 @@ class LazyRealFrame(RealFrame):
     @property
     def road(self):
         if not self._road_read:
-            from blendgen.analysis.stage import read_road_mask
+            from blendgen.frame_analysis import read_road_mask
 
             self._road, self._road_read = read_road_mask(self.folder, self.fa), True
         return self._road
 
     @property
     def hood(self):
-        from blendgen.analysis.stage import hood_mask
+        from blendgen.frame_analysis import hood_mask
 
         if not self.fa.hood:
             return None

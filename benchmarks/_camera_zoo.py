@@ -109,9 +109,10 @@ def per_frame(rig: Rig, rec, detector, cross_px: int | None = None) -> dict:
     import time
 
     from blendgen.analysis import hood as hood_mod, objects
-    from blendgen.analysis.camera import frame_cues, read_frames
+    from blendgen.analysis.camera import frame_cues
     from blendgen.analysis.stage import not_ego
     from blendgen.frame_analysis import hood_mask
+    from blendgen.recording.frames import read_frames
 
     ids = [rec.frame_id(i) for i in range(rec.n_frames)]
     old = hood_mod.CROSS_PX

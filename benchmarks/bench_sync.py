@@ -171,6 +171,7 @@ def comma(quick: bool):
         return None
     import pymap3d
 
+    from blendgen.analysis.lane_direction import still_camera_yaw
     from blendgen.geometry import pose_from_xyz_quat
     from blendgen.recording.folder import read_recording
     from blendgen.recording.importers.comma2k19 import groundtruth_georef, import_comma2k19
@@ -178,7 +179,7 @@ def comma(quick: bool):
 
     out = {}
     with tempfile.TemporaryDirectory() as d:
-        rec = read_recording(import_comma2k19(seg, Path(d) / "rec", show_progress=False))
+        rec = read_recording(import_comma2k19(seg, Path(d) / "rec", camera_yaw=still_camera_yaw, show_progress=False))
         georef = groundtruth_georef(rec)
         c0 = time.process_time()
         res_o = run_sync(rec, Sync(), Path(d) / "out", georef=georef, progress=False)

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1] / "blendgen"
 LAYERS: list[tuple[str, set[str]]] = [
     ("foundation", {"blendgen", "errors", "atomic", "validation", "geometry", "so3", "farm",
                     "job", "recording", "twin", "plan", "frame_analysis", "frame_labels",
-                    "ground", "lane_geometry", "vo", "detection", "dimensions"}),
+                    "ground", "lane_geometry", "vo", "detection", "dimensions", "geom2d"}),
     ("stages", {"sync", "analysis", "scene", "post", "labels", "train", "eval"}),
     ("render/report", {"render", "report"}),
     ("pipeline", {"pipeline"}),

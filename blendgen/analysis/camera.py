@@ -41,6 +41,7 @@ from scipy.optimize import least_squares
 from blendgen.analysis.mount import FrameCues, Mount, focal_consensus
 from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera, R_world_cam_from_ypr
+from blendgen.recording.frames import frame_indices, is_sequence, read_frames
 
 log = logging.getLogger(__name__)
 
@@ -446,46 +447,6 @@ def _import_note(rec, key: str) -> str:
 def focal_was_guessed(rec) -> bool:
     """The importer assumed a field of view instead of reading a calibration."""
     return _import_note(rec, "camera_calibration").startswith("assumed")
-
-
-def is_sequence(rec) -> bool:
-    """Frames in temporal order (a video, or image frames that are not a set of stills)."""
-    return rec.video is not None or (rec.extra.get("import") or {}).get("format") != "images"
-
-
-def frame_indices(rec, frame_ids) -> list[int]:
-    from blendgen.errors import UserError
-
-    index = {rec.frame_id(i): i for i in range(rec.n_frames)}
-    bad = [f for f in frame_ids if f not in index]
-    if bad:
-        raise UserError(f"frame id(s) {bad[:3]} are not in the recording ({rec.n_frames} frames, "
-                        f"f000000..{rec.frame_id(max(rec.n_frames - 1, 0))})", where=str(rec.root))
-    return [index[f] for f in frame_ids]
-
-
-def read_frames(rec, frame_ids, *, progress: bool = False, desc: str = "frames"):
-    """Yield (frame_id, BGR) for the given ids in recording order (videos decode sequentially)."""
-    from blendgen.recording.folder import iter_frames, read_frame
-
-    idx = sorted(set(frame_indices(rec, frame_ids)))
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(idx), desc=desc, unit="frame")
-    if rec.video is not None and len(idx) > 1:
-        want = set(idx)
-        gen = ((i, im) for i, im in iter_frames(rec, skip_bad=True) if i in want)
-    else:
-        gen = ((i, read_frame(rec, i)) for i in idx)
-    for i, im in gen:
-        if bar is not None:
-            bar.update(1)
-        yield rec.frame_id(i), im
-        if i >= idx[-1]:
-            break
-    if bar is not None:
-        bar.close()
 
 
 def imu_usable(rec) -> bool:

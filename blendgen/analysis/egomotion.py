@@ -41,8 +41,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from blendgen.analysis.camera import imu_usable, is_sequence, read_frames, road_axes
+from blendgen.analysis.camera import imu_usable, road_axes
+
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
+from blendgen.recording.frames import is_sequence, read_frames
 
 log = logging.getLogger(__name__)
 

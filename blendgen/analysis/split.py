@@ -34,10 +34,11 @@ import numpy as np
 from blendgen import ground
 from blendgen.analysis import objects
 from blendgen.analysis.camera import (HEIGHT_SAMPLE_FRAMES, SMOOTH_S, CameraSettings, RecordingCamera, _smooth,
-                                      camera_of_frame, is_sequence, recording_camera)
+                                      camera_of_frame, recording_camera)
 from blendgen.analysis.mount import FrameCues, Mount
 from blendgen.frame_analysis import CameraEstimate, RealObject
 from blendgen.geometry import Camera
+from blendgen.recording.frames import is_sequence
 
 N_SAMPLE = 48       # frames of the job that give the recording-wide values
 SEEK_GAP = 48       # video: frames further apart than this are reached by seeking, not decoding on

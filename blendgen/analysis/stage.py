@@ -135,8 +135,9 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
     `gp`: the job's ground_plane section (numbers fix values, "auto" estimates them).
     `on_progress(frames_done, phase)`: called as the phases go (pipeline.outputs.StageProgress)."""
     report = on_progress or (lambda done, phase: None)
-    from blendgen.analysis.camera import estimate_cameras, is_sequence, read_frames
+    from blendgen.analysis.camera import estimate_cameras
     from blendgen.analysis.hood import find_hood
+    from blendgen.recording.frames import is_sequence, read_frames
 
     folder = Path(folder)
     todo = [f for f in frame_ids if not (folder / f"{f}.json").is_file()]

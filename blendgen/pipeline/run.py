@@ -69,8 +69,8 @@ class Runner:
             self.skipped.append("record")
             self._say("record", f"synthetic recording already made ({root})")
             return
+        from blendgen.pipeline.synthetic import clear_sky_lighting, write_sensor_data
         from blendgen.recording.folder import write_frames_csv
-        from blendgen.recording.synthetic import clear_sky_lighting, write_sensor_data
 
         twin = self.twin
         s = job.synthetic
@@ -82,7 +82,7 @@ class Runner:
         ids = [rec.frame_id(i) for i in range(len(frame_t))]
         render = job.render.model_dump()
         render["resolution"] = None
-        summary = self._farm("record", ids, "blendgen.recording.synthetic:BackgroundRenderer",
+        summary = self._farm("record", ids, "blendgen.pipeline.synthetic:BackgroundRenderer",
                              {"recording_dir": str(root), "twin_path": str(job.twin_path), "render": render,
                               "samples": s.samples, "lighting": lighting})
         if summary.failed or summary.failed_items:

@@ -108,7 +108,8 @@ def per_frame(rig: Rig, rec, detector, cross_px: int | None = None) -> dict:
     candidates (and their consensus), the detector's road users, the camera cues; with CPU s."""
     import time
 
-    from blendgen.analysis import hood as hood_mod, objects
+    from blendgen.analysis import hood as hood_mod
+    from blendgen.analysis import objects
     from blendgen.analysis.camera import frame_cues
     from blendgen.analysis.stage import not_ego
     from blendgen.frame_analysis import hood_mask

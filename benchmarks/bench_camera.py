@@ -247,7 +247,8 @@ def zoo(args) -> None:
 
     from _camera_zoo import (CROSS_GRID, GRID, TMP, camera_metrics, hood_only, import_rig, leave_one_rig_out,
                              load_rigs, objective, per_frame)
-    from blendgen.analysis import mount as mount_mod, objects
+    from blendgen.analysis import mount as mount_mod
+    from blendgen.analysis import objects
     from blendgen.analysis.camera import estimate_frame
     from blendgen.analysis.stage import run_analysis
     from blendgen.frame_analysis import read_road_mask

@@ -27,7 +27,9 @@ from blendgen.atomic import atomic_path
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import Camera
 from blendgen.plan import SCENERY_ID, FramePlan, PlacedObject
-from blendgen.render import effects as fx, environment as plate_env, passes as passes_mod
+from blendgen.render import effects as fx
+from blendgen.render import environment as plate_env
+from blendgen.render import passes as passes_mod
 from blendgen.render.exr import empty_passes, read_passes, write_passes
 from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
 from blendgen.render.raster import rasterize_mask

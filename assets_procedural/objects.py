@@ -17,8 +17,8 @@ import bpy
 
 from assets_procedural import materials as M
 from assets_procedural.shapes import LAMP_COLORS, build_shape, traffic_light_pole
+from blendgen.plan import PlacedObject
 from blendgen.scene.catalog import helmet_colour, sample_variant
-from blendgen.scene.plan import PlacedObject
 
 # seat backs to headrests (shares of the height) where they differ from a car's: a bus's passengers
 SEATS = {"bus": (0.40, 0.50)}

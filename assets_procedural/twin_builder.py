@@ -19,7 +19,7 @@ from assets_procedural import materials as M
 from assets_procedural.meshkit import MeshBuilder, box, cylinder, ellipsoid, rot_z, tube, xf
 from assets_procedural.shapes import LAMP_COLORS, build_shape, traffic_light_pole
 from blendgen.scene.catalog import sample_variant
-from blendgen.scene.twin import SIGNAL_POLE_M, RoadGeom, Twin, load_twin
+from blendgen.twin.model import SIGNAL_POLE_M, RoadGeom, Twin, load_twin
 
 MARK_Z = 0.006   # markings float this far above the asphalt
 STEP = 1.0

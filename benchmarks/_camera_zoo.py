@@ -110,8 +110,10 @@ def per_frame(rig: Rig, rec, detector, cross_px: int | None = None) -> dict:
 
     from blendgen.analysis import hood as hood_mod
     from blendgen.analysis import objects
-    from blendgen.analysis.camera import frame_cues, read_frames
-    from blendgen.analysis.stage import hood_mask, not_ego
+    from blendgen.analysis.camera import frame_cues
+    from blendgen.analysis.stage import not_ego
+    from blendgen.frame_analysis import hood_mask
+    from blendgen.recording.frames import read_frames
 
     ids = [rec.frame_id(i) for i in range(rec.n_frames)]
     old = hood_mod.CROSS_PX

@@ -17,7 +17,7 @@ sys.path.insert(0, str(ROOT))
 
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
 from blendgen.job.schema import Render  # noqa: E402
-from blendgen.scene.plan import FramePlan, PlacedObject  # noqa: E402
+from blendgen.plan import FramePlan, PlacedObject  # noqa: E402
 
 SUN = {"sun_direction": [0.45, -0.35, 0.82], "sun_strength": 3.0, "sun_color": [1.0, 0.97, 0.92],
        "sun_angle_deg": 0.53, "sky_color": [0.5, 0.6, 0.8], "sky_strength": 1.0, "sun_visible": True}

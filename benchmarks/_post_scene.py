@@ -136,8 +136,8 @@ def built_object(o):
 
         sys.path.insert(0, str(ROOT))
         from assets_procedural.objects import build_object
+        from blendgen.plan import PlacedObject
         from blendgen.scene.catalog import sample_variant
-        from blendgen.scene.plan import PlacedObject
     except Exception as e:  # the stand-ins below still give a real render
         print(f"build_object unavailable ({e}); using stand-ins", flush=True)
         return None

@@ -173,7 +173,7 @@ def ego_strip(out: Path) -> float | None:
     Returns the median step (m/frame)."""
     from blendgen.analysis.calibrate import calibrate
     from blendgen.analysis.egomotion import ground_track
-    from blendgen.analysis.model import CameraEstimate
+    from blendgen.frame_analysis import CameraEstimate
     from blendgen.recording.folder import read_frame, read_recording
     from blendgen.recording.importers.video import import_video
 
@@ -249,10 +249,12 @@ def zoo(args) -> None:
                              load_rigs, objective, per_frame)
     from blendgen.analysis import mount as mount_mod
     from blendgen.analysis import objects
-    from blendgen.analysis.camera import estimate_frame, read_frames
-    from blendgen.analysis.stage import read_road_mask, run_analysis
+    from blendgen.analysis.camera import estimate_frame
+    from blendgen.analysis.stage import run_analysis
+    from blendgen.frame_analysis import read_road_mask
     from blendgen.job.schema import GroundPlane
-    from blendgen.recording.folder import read_recording, read_frame
+    from blendgen.recording.folder import read_frame, read_recording
+    from blendgen.recording.frames import read_frames
     from blendgen.report.draw import contact_sheet
 
     rigs = load_rigs(args.rigs or None)

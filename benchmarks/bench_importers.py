@@ -27,6 +27,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 DATA = ROOT.parent / "shared" / "data" / "real"
 
+from blendgen.analysis.lane_direction import still_camera_yaw  # noqa: E402
 from blendgen.recording.folder import read_recording  # noqa: E402
 from blendgen.recording.importers import import_recording  # noqa: E402
 
@@ -52,7 +53,8 @@ def fixtures(tmp: Path, quick: bool) -> list[tuple[str, str, Path, dict, str]]:
     except ImportError:
         pass
     if (DATA / "comma2k19_example1_segment40").exists():
-        out.append(("comma2k19", "comma2k19", DATA / "comma2k19_example1_segment40", {}, "real, 60 s"))
+        out.append(("comma2k19", "comma2k19", DATA / "comma2k19_example1_segment40",
+                    {"camera_yaw": still_camera_yaw}, "real, 60 s"))  # as `blendgen import`
     if (DATA / "gopro_karma.mp4").exists():
         out.append(("gopro", "gopro", DATA / "gopro_karma.mp4", {}, "real, 12 s, 362 frames"))
     return out

@@ -21,11 +21,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
+from blendgen.frame_labels import write_frame_labels  # noqa: E402
 from blendgen.geometry import Camera, R_world_cam_from_ypr, invert_pose, make_pose  # noqa: E402
 from blendgen.labels.export import export_labels  # noqa: E402
-from blendgen.labels.frame_labels import write_frame_labels  # noqa: E402
 from blendgen.labels.instances import extract_instances  # noqa: E402
-from blendgen.scene.plan import FramePlan, PlacedObject  # noqa: E402
+from blendgen.plan import FramePlan, PlacedObject  # noqa: E402
 
 DIMS = {"person": (0.5, 0.6, 1.75), "bicycle": (1.8, 0.6, 1.1), "car": (4.5, 1.8, 1.5),
         "motorcycle": (2.1, 0.8, 1.3), "bus": (12.0, 2.5, 3.2), "truck": (8.0, 2.5, 3.5),
@@ -91,7 +91,7 @@ def run(quick: bool):
                 export_t[fmt].append(np.median(ts))
                 rows.append((f"export {fmt}", f"{n} frames", np.median(ts) * 1e3))
     if MODEL.exists():
-        from blendgen.eval.detector import YoloxDetector
+        from blendgen.detection.detector import YoloxDetector
 
         det = YoloxDetector(MODEL)
         imgs = sorted((ROOT.parent / "shared/data/real/udacity_highway_images").glob("*.jpg"))

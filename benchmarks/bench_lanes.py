@@ -28,11 +28,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen.analysis.lanes import lane_lines  # noqa: E402
-from blendgen.analysis.stage import read_road_mask  # noqa: E402
+from blendgen.frame_analysis import read_road_mask  # noqa: E402
 from blendgen.job.schema import load_job  # noqa: E402
 from blendgen.recording.folder import read_frame, read_recording  # noqa: E402
-from blendgen.scene.ground_plane import GroundPlaneTwin  # noqa: E402
 from blendgen.scene import planner  # noqa: E402
+from blendgen.scene.ground_plane import GroundPlaneTwin  # noqa: E402
 from blendgen.scene.planner import plan_sequence  # noqa: E402
 from blendgen.scene.real_scene import load_real_scene  # noqa: E402
 

@@ -19,9 +19,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import atomic  # noqa: E402
-from blendgen.scene.geom2d import Polyline  # noqa: E402
-from blendgen.scene.map_import import plot_twin  # noqa: E402
-from blendgen.scene.twin import load_twin  # noqa: E402
+from blendgen.geom2d import Polyline  # noqa: E402
+from blendgen.twin.command import plot_twin  # noqa: E402
+from blendgen.twin.model import load_twin  # noqa: E402
 from tests.test_maps_opendrive import ALL, _independent_lane_points  # noqa: E402
 from tests import test_maps_relief as R  # noqa: E402
 

@@ -31,15 +31,14 @@ from bench_realism import (BG_SCORE, IOU_THR, MODEL, NAMES, SCORE_THR, boot_ci, 
                            recall_stat)
 
 from blendgen import CLASSES, atomic  # noqa: E402
-from blendgen.eval.metrics import evaluate  # noqa: E402
+from blendgen.detection.metrics import evaluate  # noqa: E402
 
 DOC = ROOT / "docs" / "benchmarks" / "night.md"
 
 
 def score(outs: list[Path], det) -> list[dict]:
     """One row per injected object: frame, class, height, {"v": score of its match or 0}."""
-    from blendgen.labels.export import find_frame_labels
-    from blendgen.labels.frame_labels import read_frame_labels
+    from blendgen.frame_labels import find_frame_labels, read_frame_labels
     from blendgen.recording.folder import read_frame, read_recording
 
     rows = []
@@ -76,7 +75,7 @@ def main() -> None:
     ap.add_argument("--doc", type=Path, default=DOC, help="where the table goes (default %(default)s)")
     ap.add_argument("--title", default="Night recall (BDD night street, YOLOX-Nano)")
     args = ap.parse_args()
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
 
     det = YoloxDetector(MODEL, category_ids=set(CLASSES.values()))
     b, a = score(args.before, det), score(args.after, det)

@@ -6,7 +6,7 @@
         [--md docs/benchmarks/objects_realism.md]
 
 A ground truth counts as found when a detection of its class with score >= 0.3 matches it at
-IoU >= 0.5 (COCO's greedy matching, blendgen.eval.metrics.match_image).
+IoU >= 0.5 (COCO's greedy matching, blendgen.detection.metrics.match_image).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
-from blendgen.eval.metrics import match_image  # noqa: E402
+from blendgen.detection.metrics import match_image  # noqa: E402
 
 NAME = {v: k for k, v in CLASSES.items()}
 

@@ -2,9 +2,9 @@
 
     .venv/bin/python benchmarks/bench_own_vs_library.py
 
-- detection AP: blendgen.eval.metrics.evaluate vs pycocotools' COCOeval (same detections);
+- detection AP: blendgen.detection.metrics.evaluate vs pycocotools' COCOeval (same detections);
 - ATE / RPE: blendgen.sync.metrics.trajectory_errors vs evo (APE / RPE, SE(3) alignment);
-- SO(3): blendgen.sync.so3.exp/log vs scipy.spatial.transform.Rotation, one call at a time
+- SO(3): blendgen.so3.exp/log vs scipy.spatial.transform.Rotation, one call at a time
   (the error-state filter calls them once per IMU sample);
 - MP4 boxes: blendgen.recording.importers.mp4 reads the GoPro GPMF track (no dependency in
   blendgen's list reads data tracks: OpenCV decodes only video).
@@ -41,7 +41,7 @@ def cpu(fn, repeat=1):
 def bench_ap():
     from test_realism import CATS, _cocoeval, _fixture
 
-    from blendgen.eval.metrics import evaluate
+    from blendgen.detection.metrics import evaluate
 
     gts, dts = _fixture(3, n_images=400)
     t_ours, ours = cpu(lambda: evaluate(gts, dts, CATS))
@@ -103,7 +103,7 @@ def bench_ate():
 def bench_so3():
     from scipy.spatial.transform import Rotation
 
-    from blendgen.sync import so3
+    from blendgen import so3
 
     rng = np.random.default_rng(1)
     ws = np.concatenate([rng.normal(0, 1, (3000, 3)), rng.normal(0, 1e-9, (500, 3)),

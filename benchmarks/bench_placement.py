@@ -38,10 +38,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import atomic  # noqa: E402
-from blendgen.analysis.road import BAND, ROAD  # noqa: E402
-from blendgen.analysis.stage import hood_mask, read_analysis, read_road_mask  # noqa: E402
+from blendgen.frame_analysis import BAND, ROAD  # noqa: E402
+from blendgen.frame_analysis import hood_mask, read_analysis, read_road_mask  # noqa: E402
+from blendgen.frame_labels import read_frame_labels  # noqa: E402
 from blendgen.job.schema import parse_job  # noqa: E402
-from blendgen.labels.frame_labels import read_frame_labels  # noqa: E402
 from blendgen.pipeline.frame import load_plans  # noqa: E402
 from blendgen.pipeline.run import Runner  # noqa: E402
 from blendgen.recording.folder import read_frame, read_recording  # noqa: E402
@@ -285,8 +285,7 @@ def main() -> None:
         print(" | ".join(f"{k} {v:.3f}" for k, v in split.items()) + f" | total {sum(split.values()):.3f} CPU s/frame")
         return
     from blendgen import CLASSES as CLASS_IDS
-    from blendgen.analysis.objects import BUNDLED_MODEL
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import BUNDLED_MODEL, YoloxDetector
 
     det = YoloxDetector(BUNDLED_MODEL, category_ids=set(CLASS_IDS.values()))  # as `blendgen realism`: all 7 classes
     results, rows = {}, []

@@ -27,7 +27,7 @@ from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E
 from blendgen.job.schema import SCENARIOS, Inject  # noqa: E402
 from blendgen.scene.ground_plane import GroundPlaneTwin  # noqa: E402
 from blendgen.scene.planner import plan_sequence  # noqa: E402
-from blendgen.scene.twin import load_twin  # noqa: E402
+from blendgen.twin.model import load_twin  # noqa: E402
 
 CLASSES = {"car": 3, "person": 3, "bicycle": 1, "motorcycle": 1, "bus": 1, "truck": 1, "traffic light": 1}
 

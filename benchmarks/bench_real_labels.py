@@ -3,7 +3,7 @@
 `labels.real: detector` turns the frame analysis' detections (score >= 0.25) into labels at or
 above a score threshold and into ignore regions below it (blendgen/labels/real_objects.py).
 This measures, against human boxes, how often a detection in each score band is right (a box
-of the same class with IoU >= 0.5; COCO greedy matching, blendgen/eval/metrics.py), and what
+of the same class with IoU >= 0.5; COCO greedy matching, blendgen/detection/metrics.py), and what
 share of the human boxes the detections at each threshold recover:
 
 - DDAD (dashcam views, 2 vehicles, 6 frames 1936x1216, dgp 2-D boxes; CC BY-NC-SA: evaluation
@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
 from blendgen.analysis.objects import OBSTACLE_CLASSES, SCORE_MIN, load_detector  # noqa: E402
-from blendgen.eval.metrics import match_image  # noqa: E402
+from blendgen.detection.metrics import match_image  # noqa: E402
 from blendgen.labels.real_objects import DETECTOR_LABEL_SCORE  # noqa: E402
 from blendgen.recording.labels import labelled_folder  # noqa: E402
 

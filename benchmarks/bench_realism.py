@@ -34,7 +34,7 @@ so their differences are paired: bootstrap over frames (objects in a frame are n
 independent), 2000 resamples, 95 % percentile intervals.
 
 Scores: an injected object is found when a detection of its class with score >= 0.3 has
-IoU >= 0.5 with its box (COCO matching, blendgen/eval/metrics.py); real objects that the
+IoU >= 0.5 with its box (COCO matching, blendgen/detection/metrics.py); real objects that the
 detector finds in the untouched background (score >= 0.05) are ignore regions. Mean
 confidence = mean over objects of the matched detection's score (0 when none).
 
@@ -72,7 +72,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES, atomic  # noqa: E402
-from blendgen.eval.metrics import evaluate  # noqa: E402
+from blendgen.detection.metrics import evaluate  # noqa: E402
 from blendgen.job.schema import Post  # noqa: E402
 from blendgen.scene.planner import NO_PLACE  # noqa: E402
 
@@ -287,7 +287,7 @@ def library_catalog(assets: list[dict], env) -> list[dict]:
     cache = TMP / "thirdparty_catalog.json"
     if cache.is_file() and json.loads(cache.read_text())["sources"] == assets:
         return json.loads(cache.read_text())["assets"]
-    code = ("import json, sys; from pathlib import Path; from blendgen.scene.assets import discover; "
+    code = ("import json, sys; from pathlib import Path; from blendgen.job.assets import discover; "
             "from blendgen.render.assets import inspect; import bpy\n"
             "out = []\n"
             "for r in discover([(Path(a.pop('path')), a) for a in json.loads(sys.argv[1])]):\n"
@@ -307,7 +307,7 @@ def same_plans(proc_dir: Path, out_dir: Path, catalog: list[dict], wait_s: float
     procedural run's sync, analysis and plan, where every object of a class the library has
     (pedestrians, not riders) becomes a library asset (drawn uniformly per object, seeded by
     frame and id) at the same place, heading and time; `blendgen run` then renders it."""
-    from blendgen.scene.assets import asset_variant
+    from blendgen.job.assets import asset_variant
 
     if (out_dir / ".blendgen" / "plan.done").is_file():
         return
@@ -355,10 +355,9 @@ def make_assets(folder: Path) -> Path:
 
 def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
     """Detector results per object, for every post variant of the set's renders."""
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
     from blendgen.farm.seeds import frame_seed
-    from blendgen.labels.export import find_frame_labels
-    from blendgen.labels.frame_labels import read_frame_labels
+    from blendgen.frame_labels import find_frame_labels, read_frame_labels
     from blendgen.post.composite import composite_frame
     from blendgen.post.illumination import estimate_illumination
     from blendgen.recording.folder import read_frame, read_recording

@@ -56,8 +56,8 @@ sys.path.insert(0, str(ROOT))
 from blendgen.atomic import write_text  # noqa: E402
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
 from blendgen.job.schema import Render  # noqa: E402
+from blendgen.plan import FramePlan, PlacedObject  # noqa: E402
 from blendgen.render.exr import read_passes  # noqa: E402
-from blendgen.scene.plan import FramePlan, PlacedObject  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 DOC = ROOT / "docs" / "benchmarks" / "render_fair.md"

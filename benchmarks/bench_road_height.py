@@ -70,11 +70,12 @@ def comma() -> None:
     if not seg.exists():
         print("  comma2k19 not found: skipped")
         return
+    from blendgen.analysis.lane_direction import still_camera_yaw
     from blendgen.recording.folder import read_recording
     from blendgen.recording.importers.comma2k19 import groundtruth_georef, import_comma2k19
 
     with tempfile.TemporaryDirectory() as d:
-        rec = read_recording(import_comma2k19(seg, Path(d) / "rec", show_progress=False))
+        rec = read_recording(import_comma2k19(seg, Path(d) / "rec", camera_yaw=still_camera_yaw, show_progress=False))
         georef = groundtruth_georef(rec)
         c0 = time.process_time()
         res = run_sync(rec, Sync(), Path(d) / "out", georef=georef, progress=False)

@@ -30,8 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blendgen import CLASSES  # noqa: E402
-from blendgen.eval.detector import YoloxDetector  # noqa: E402
-from blendgen.eval.metrics import match_image  # noqa: E402
+from blendgen.detection.detector import YoloxDetector  # noqa: E402
+from blendgen.detection.metrics import match_image  # noqa: E402
 
 
 def found(det, image, gt, cid) -> bool:

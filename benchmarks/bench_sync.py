@@ -128,7 +128,7 @@ def vo_throughput(quick: bool):
     import cv2
 
     from blendgen.geometry import Camera, R_world_cam_from_ypr
-    from blendgen.sync.vo import VoConfig, make_vo
+    from blendgen.vo import VoConfig, make_vo
 
     cv2.setNumThreads(1)
     cam = Camera.from_hfov(960, 540, 70.0)
@@ -171,6 +171,7 @@ def comma(quick: bool):
         return None
     import pymap3d
 
+    from blendgen.analysis.lane_direction import still_camera_yaw
     from blendgen.geometry import pose_from_xyz_quat
     from blendgen.recording.folder import read_recording
     from blendgen.recording.importers.comma2k19 import groundtruth_georef, import_comma2k19
@@ -178,7 +179,7 @@ def comma(quick: bool):
 
     out = {}
     with tempfile.TemporaryDirectory() as d:
-        rec = read_recording(import_comma2k19(seg, Path(d) / "rec", show_progress=False))
+        rec = read_recording(import_comma2k19(seg, Path(d) / "rec", camera_yaw=still_camera_yaw, show_progress=False))
         georef = groundtruth_georef(rec)
         c0 = time.process_time()
         res_o = run_sync(rec, Sync(), Path(d) / "out", georef=georef, progress=False)
@@ -388,11 +389,11 @@ def karma_lens_check(rec, src) -> list[dict]:
     end: a near-pinhole lens leaves most pairs rotation-only, whose fit takes the drone's
     translation for rotation, and the gain then moves with the feature set more than its
     standard error says."""
+    from blendgen import so3
     from blendgen.recording.folder import iter_frames
     from blendgen.recording.importers import gopro_lens
-    from blendgen.sync import so3
-    from blendgen.sync.vo import VoConfig, make_vo
     from blendgen.sync.vo_trust import gyro_rotations
+    from blendgen.vo import VoConfig, make_vo
 
     frames = [img for _, img in iter_frames(rec)]
     t = rec.frames_t
@@ -458,7 +459,7 @@ def stabilised(quick: bool):
     """A shaky drive (1 deg, 1-6 Hz) whose frames a simulated stabiliser warped (K C K^-1, the
     body orientation smoothed over 0.3 s): camera orientation against the *image* orientation."""
     import blendgen.sync.pipeline as pl
-    from blendgen.sync import so3
+    from blendgen import so3
     from blendgen.sync.vo_trust import TrustReport
 
     dur = 12.0

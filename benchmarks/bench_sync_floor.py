@@ -37,9 +37,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import blendgen.sync.pipeline as pl  # noqa: E402
+from blendgen import so3  # noqa: E402
 from blendgen.geometry import Camera  # noqa: E402
 from blendgen.job.schema import Sync  # noqa: E402
-from blendgen.sync import calibration, so3  # noqa: E402
+from blendgen.sync import calibration  # noqa: E402
 from blendgen.sync.metrics import gt_poses, trajectory_errors  # noqa: E402
 from blendgen.sync.simulate import GEOREF, StreetScene, synthetic_recording  # noqa: E402
 from blendgen.sync.threads import single_thread_blas  # noqa: E402
@@ -141,7 +142,7 @@ def main() -> None:
     if args.nhc_lat_std is not None:
         pl.NHC_LAT_STD = args.nhc_lat_std
     if args.vo_before:
-        from blendgen.sync import vo
+        from blendgen import vo
 
         vo.orb_level_to_full = lambda pts, octave, sf, shape: pts + 0.5 * (sf ** np.asarray(octave, float) - 1.0)[:, None]
         pl._vo_config = lambda settings, rec, *_: vo.VoConfig(n_features=int(settings.orb_features),

@@ -23,9 +23,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from blendgen import so3  # noqa: E402
 from blendgen.job.schema import Sync  # noqa: E402
 from blendgen.recording.model import ImuNoise  # noqa: E402
-from blendgen.sync import so3  # noqa: E402
 from blendgen.sync.metrics import gt_poses, trajectory_errors  # noqa: E402
 from blendgen.sync.pipeline import run_sync  # noqa: E402
 from blendgen.sync.simulate import GEOREF, HARD_GNSS_STD, HARD_IMU, ImuErrors, synthetic_recording  # noqa: E402

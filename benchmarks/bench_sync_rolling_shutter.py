@@ -29,8 +29,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from blendgen import so3  # noqa: E402
 from blendgen.job.schema import Sync  # noqa: E402
-from blendgen.sync import pipeline, so3  # noqa: E402
+from blendgen.sync import pipeline  # noqa: E402
 from blendgen.sync.metrics import gt_poses, trajectory_errors  # noqa: E402
 from blendgen.sync.simulate import GEOREF, StreetScene, hard_recording, synthetic_recording  # noqa: E402
 

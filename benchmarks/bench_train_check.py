@@ -233,7 +233,7 @@ def training_samples(set_name: str, recs: dict, *, real_labels: bool):
 
 def run_arm(arm: str, samples, test, cats, args) -> list:
     """Per seed: match records of the fine-tuned model on the test set (cached per arm and seed)."""
-    from blendgen.analysis.objects import BUNDLED_MODEL
+    from blendgen.detection.detector import BUNDLED_MODEL
     from blendgen.train.check import fine_tune, predict, subset
     from blendgen.train.evaluate import cocoeval_ap50, match_records
     from blendgen.train.yolox import load_onnx

@@ -30,10 +30,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from blendgen import so3  # noqa: E402
 from blendgen.geometry import Camera, invert_pose  # noqa: E402
-from blendgen.sync import so3  # noqa: E402
 from blendgen.sync.simulate import StreetScene, default_T_cam_imu, make_trajectory  # noqa: E402
-from blendgen.sync.vo import VoConfig, make_vo  # noqa: E402
+from blendgen.vo import VoConfig, make_vo  # noqa: E402
 
 
 def sequence(scene, width, height, fps, n, t0=2.0):
@@ -99,7 +99,7 @@ def solve_pair_ms(cam, imgs, reps: int = 5) -> tuple[float, int]:
     """CPU ms per call of the two-view solve (`vo.solve_pair`) on the default KLT's pairs of
     `imgs`, the pairs recorded once and solved again (min over `reps` passes): the part of a
     frame the front end's settings do not change."""
-    from blendgen.sync import vo as vo_mod
+    from blendgen import vo as vo_mod
 
     pairs, solve = [], vo_mod.solve_pair
 

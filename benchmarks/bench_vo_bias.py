@@ -36,11 +36,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from blendgen import so3  # noqa: E402
 from blendgen.geometry import Camera  # noqa: E402
-from blendgen.sync import so3  # noqa: E402
 from blendgen.sync.metrics import gt_poses  # noqa: E402
 from blendgen.sync.simulate import StreetScene, synthetic_recording  # noqa: E402
-from blendgen.sync.vo import VoConfig, VoResult, make_vo, solve_pair  # noqa: E402
+from blendgen.vo import VoConfig, VoResult, make_vo, solve_pair  # noqa: E402
 
 
 def pair_errors(results, gt):
@@ -131,7 +131,7 @@ def flow_errors(images, cam, gt, scene, old_mapping=False):
     """ORB matches of each pair: the frame-2 keypoint minus where the frame-1 keypoint's scene
     point truly projects in frame 2 (px), with the two octaves; and solve_pair on the matched
     frame-1 keypoints with exact frame-2 positions (the estimator on ORB's feature layout)."""
-    from blendgen.sync import vo as vo_mod
+    from blendgen import vo as vo_mod
 
     vo = vo_mod.OrbVo(cam, VoConfig(method="orb"))
     vo_mod_orig = vo_mod.orb_level_to_full
@@ -218,7 +218,7 @@ def main() -> None:
         report(f"frames, {args.method}, true K", run_frames(rec.extra["images"], cam, args.method), gt,
                time.process_time() - c0)
         if "old" in parts:
-            from blendgen.sync import vo as vo_mod
+            from blendgen import vo as vo_mod
 
             keep = vo_mod.orb_level_to_full
             vo_mod.orb_level_to_full = OLD_MAPPING

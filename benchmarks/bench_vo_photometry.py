@@ -39,7 +39,7 @@ from bench_vo_bias import pair_errors  # noqa: E402
 
 from blendgen.sync.metrics import gt_poses  # noqa: E402
 from blendgen.sync.simulate import PHOTOMETRY_PARTS, StreetScene, _camera_look, synthetic_recording  # noqa: E402
-from blendgen.sync.vo import VoConfig, make_vo  # noqa: E402
+from blendgen.vo import VoConfig, make_vo  # noqa: E402
 
 
 def photometry(images, parts, seed: int):
@@ -126,8 +126,9 @@ def full_sync(kind: str, seed: int, fps: float, norms, methods=("klt",)) -> None
     import dataclasses
     import tempfile
 
+    from blendgen import so3
     from blendgen.job.schema import Sync
-    from blendgen.sync import pipeline, so3
+    from blendgen.sync import pipeline
     from blendgen.sync.metrics import trajectory_errors
     from blendgen.sync.simulate import GEOREF, hard_recording
 
@@ -184,7 +185,7 @@ def main() -> None:
         full_sync(args.sync, args.seed, args.fps, args.norm.split(","), args.method.split(","))
         return
     if args.sigmas is not None:
-        import blendgen.sync.vo as vo_mod
+        import blendgen.vo as vo_mod
 
         vo_mod.GAIN_SIGMAS = args.sigmas
     if args.timing:

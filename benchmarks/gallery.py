@@ -39,10 +39,10 @@ from assets_procedural.twin_builder import build_twin  # noqa: E402
 from blendgen import atomic  # noqa: E402
 from blendgen.geometry import CV_TO_BLENDER, Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
 from blendgen.job.schema import SCENARIOS, Inject  # noqa: E402
+from blendgen.plan import PlacedObject  # noqa: E402
 from blendgen.scene.catalog import sample_variant  # noqa: E402
-from blendgen.scene.plan import PlacedObject  # noqa: E402
 from blendgen.scene.planner import plan_sequence  # noqa: E402
-from blendgen.scene.twin import load_twin  # noqa: E402
+from blendgen.twin.model import load_twin  # noqa: E402
 
 TWINS = ROOT / "assets_procedural" / "twins"
 TILES = {  # class -> list of variant overrides (kind, rider, state)

@@ -104,7 +104,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=ROOT / "benchmarks" / "results" / "tmp" / "realism")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args()
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
     from blendgen.recording.folder import read_frame, read_recording
 
     cache = args.cache.resolve()

@@ -193,8 +193,8 @@ def make_procedural_library(out: Path, per_class: int = 3, classes=None, seed: i
 
     from assets_procedural.objects import build_object
     from blendgen import CLASSES
+    from blendgen.plan import PlacedObject
     from blendgen.scene.catalog import sample_variant, shape_extent
-    from blendgen.scene.plan import PlacedObject
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -13,11 +13,11 @@ from blendgen.errors import StageError, UserError
 COMMAND_MODULES = [
     "blendgen.pipeline.commands",       # run, validate, status
     "blendgen.sync.command",            # sync
-    "blendgen.recording.importers.command",  # import
+    "blendgen.pipeline.import_command", # import
     "blendgen.eval.command",            # realism
     "blendgen.train.command",           # train-check (torch, an optional extra, imported when it runs)
     "blendgen.report.command",          # report
-    "blendgen.scene.map_import",        # twin import / show
+    "blendgen.twin.command",            # twin import / show
     "blendgen.analysis.calibrate",      # calibrate
     "blendgen.render.gpu_kernels",      # gpu-kernels
 ]

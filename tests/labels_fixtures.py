@@ -7,7 +7,7 @@ import numpy as np
 
 from blendgen.geometry import Camera, R_world_cam_from_ypr, invert_pose, make_pose
 from blendgen.labels.instances import encode_mask
-from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.plan import FramePlan, PlacedObject
 
 W, H = 160, 90
 CAMERA = Camera.from_hfov(W, H, 90.0)

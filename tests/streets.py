@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from blendgen.analysis.ground import camera_pose
-from blendgen.analysis.model import CameraEstimate
+from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera
+from blendgen.ground import camera_pose
 
 ASPHALT, GRASS, SKY = (92, 95, 96), (60, 110, 70), (200, 170, 150)
 YELLOW, WHITE = (40, 190, 220), (225, 228, 230)

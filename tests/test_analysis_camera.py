@@ -248,9 +248,9 @@ def test_video_camera_height_does_not_depend_on_the_jobs_frames(tmp_path):
         / "real" / "udacity_solidWhiteRight.mp4"
     if not p.is_file():
         pytest.skip(f"needs {p}")
-    from blendgen.analysis.camera import read_frames
     from blendgen.analysis.objects import load_detector, road_users
     from blendgen.recording.folder import read_recording
+    from blendgen.recording.frames import read_frames
     from blendgen.recording.importers.video import import_video
 
     rec = read_recording(import_video(p, tmp_path / "rec", show_progress=False, hfov_deg=55.0))

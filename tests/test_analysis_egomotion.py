@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from blendgen.analysis.egomotion import ground_plane_poses, ground_track
-from blendgen.analysis.model import CameraEstimate
+from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera, R_world_cam_from_ypr, invert_pose, make_pose
 from blendgen.recording import folder
 

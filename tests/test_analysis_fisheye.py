@@ -12,8 +12,8 @@ from __future__ import annotations
 import pytest
 from streets import WHITE, YELLOW, street
 
-from blendgen.analysis import objects, road, stage
-from blendgen.analysis.model import CameraEstimate
+from blendgen.analysis import objects, stage
+from blendgen.frame_analysis import ROAD, CameraEstimate
 from blendgen.recording.importers import gopro_lens
 
 LINES = [(1.75, YELLOW, None), (2.05, YELLOW, None), (-1.75, WHITE, None)]  # a double yellow centre line at +1.9 m
@@ -26,7 +26,7 @@ def test_road_through_a_wide_fisheye(pitch, roll, yaw):
     est = CameraEstimate(height_m=1.4, pitch_deg=pitch, roll_deg=roll)
     img, truth = street(cam, est, yaw_deg=yaw, lines=LINES)
     fa, mask = stage.analyse_frame(img, "f000000", cam, est, objects.load_detector())
-    est_road = mask == road.ROAD
+    est_road = mask == ROAD
     iou = (est_road & truth).sum() / (est_road | truth).sum()
     assert iou > 0.97, fa.decisions
     assert fa.road_direction_deg is not None and abs(fa.road_direction_deg - yaw) < 0.6, fa.decisions

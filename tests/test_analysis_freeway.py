@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from streets import WHITE, YELLOW, street
 
-from blendgen.analysis import objects, road, stage
-from blendgen.analysis.model import CameraEstimate
+from blendgen.analysis import objects, stage
+from blendgen.frame_analysis import ROAD, CameraEstimate
 from blendgen.geometry import Camera
 from blendgen.job.schema import GroundPlane, Inject
 from blendgen.scene.ground_plane import GroundPlaneTwin
@@ -54,7 +54,7 @@ def _still(centre_line=False):
 def test_vehicles_keep_off_the_shoulder_and_cyclists_ride_at_its_edge():
     """A two-way road (a still of a divided one gets no cyclists: below)."""
     fa, mask = _still(centre_line=True)
-    assert (mask == road.ROAD)[400:, :150].mean() > 0.5  # the shoulder looks like road: only the line tells
+    assert (mask == ROAD)[400:, :150].mean() > 0.5  # the shoulder looks like road: only the line tells
     real = RealScene([RealFrame(fa, mask, None)], CAM)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-2.0, analysis=True))
     T = np.asarray(fa.T_world_cam)

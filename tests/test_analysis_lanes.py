@@ -15,10 +15,11 @@ import pytest
 from streets import WHITE, YELLOW, street
 
 from blendgen.analysis import objects, stage
-from blendgen.analysis.lanes import lane_centres, lane_lines
-from blendgen.analysis.model import CameraEstimate
+from blendgen.analysis.lanes import lane_lines
+from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera
 from blendgen.job.schema import GroundPlane, Inject
+from blendgen.lane_geometry import lane_centres
 from blendgen.scene.ground_plane import GroundPlaneTwin
 from blendgen.scene.planner import plan_sequence
 from blendgen.scene.real_scene import RealFrame, RealScene

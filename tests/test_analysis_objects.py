@@ -11,15 +11,16 @@ import numpy as np
 import pytest
 
 from blendgen.analysis import objects, stage
-from blendgen.analysis.model import CameraEstimate, FrameAnalysis, RealObject
+from blendgen.detection.detector import BUNDLED_MODEL, BUNDLED_SHA256
 from blendgen.errors import UserError
+from blendgen.frame_analysis import CameraEstimate, FrameAnalysis, RealObject, hood_mask
 from blendgen.geometry import Camera
 from blendgen.job.schema import GroundPlane, Inject, parse_job
 from blendgen.labels.instances import extract_instances
+from blendgen.plan import FramePlan, PlacedObject
 from blendgen.post.composite import apply_occluder
 from blendgen.recording.importers import import_recording
 from blendgen.scene.ground_plane import GroundPlaneTwin
-from blendgen.scene.plan import FramePlan, PlacedObject
 from blendgen.scene.planner import plan_sequence, unplaced_warnings
 from blendgen.scene.real_scene import RealFrame, RealScene
 
@@ -34,9 +35,9 @@ def detector():
 
 
 def test_bundled_detector_is_the_released_yolox_nano():
-    assert hashlib.sha256(objects.BUNDLED_MODEL.read_bytes()).hexdigest() == objects.BUNDLED_SHA256
-    assert "Apache License" in (objects.BUNDLED_MODEL.parent / "LICENSE").read_text()
-    assert "Megvii" in (objects.BUNDLED_MODEL.parent / "NOTICE").read_text()
+    assert hashlib.sha256(BUNDLED_MODEL.read_bytes()).hexdigest() == BUNDLED_SHA256
+    assert "Apache License" in (BUNDLED_MODEL.parent / "LICENSE").read_text()
+    assert "Megvii" in (BUNDLED_MODEL.parent / "NOTICE").read_text()
 
 
 def test_job_detector_must_be_an_onnx_file(tmp_path):
@@ -91,7 +92,7 @@ def test_bdd_parked_cars_get_no_overlapping_placement(detector):
     fa, mask = stage.analyse_frame(img, "f000000", cam, EST, detector, hood=hood)
     cars = [o for o in fa.real_objects if o.cls == "car"]
     assert len(cars) >= 8 and mask is not None and (mask == 255).mean() > 0.1
-    real = RealScene([RealFrame(fa, mask, stage.hood_mask(fa.hood, 1280, 720))], cam)
+    real = RealScene([RealFrame(fa, mask, hood_mask(fa.hood, 1280, 720))], cam)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-5.0, analysis=True))
     inject = Inject(objects_per_frame=(4, 4), classes={"car": 3, "person": 2, "truck": 1}, distance_m=(6, 35),
                     sequences=False)
@@ -113,7 +114,7 @@ def test_bdd_parked_cars_get_no_overlapping_placement(detector):
                     assert near < r.distance_m, f"{o.cls} stands behind/inside a real {r.cls} at {r.box}"
             bottom = np.round(uv[corners[:, 2] == 0]).astype(int)
             inside = (bottom[:, 0] >= 0) & (bottom[:, 0] < 1280) & (bottom[:, 1] < 720)
-            hood_px = stage.hood_mask(fa.hood, 1280, 720)
+            hood_px = hood_mask(fa.hood, 1280, 720)
             assert not hood_px[bottom[inside, 1], bottom[inside, 0]].any(), f"{o.cls} stands on the hood"
     assert placed >= 8
 
@@ -124,14 +125,14 @@ def test_ground_plane_traffic_light_stands_on_its_own_pole_off_the_road(detector
     if not BDD_DAY.is_file():
         pytest.skip(f"needs {BDD_DAY}")
     from blendgen.analysis.hood import hood_in_still
-    from blendgen.analysis.road import ROAD
+    from blendgen.frame_analysis import ROAD
     from blendgen.render.effects import base_z, object_points
 
     img = cv2.imread(str(BDD_DAY))
     cam = Camera.from_hfov(1280, 720, 60.0)
     hood, _ = hood_in_still(img)
     fa, mask = stage.analyse_frame(img, "f000000", cam, EST, detector, hood=hood)
-    real = RealScene([RealFrame(fa, mask, stage.hood_mask(fa.hood, 1280, 720))], cam)
+    real = RealScene([RealFrame(fa, mask, hood_mask(fa.hood, 1280, 720))], cam)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-5.0, analysis=True))
     inject = Inject(objects_per_frame=(2, 2), classes={"traffic light": 1}, distance_m=(6, 35), sequences=False)
     lights = []

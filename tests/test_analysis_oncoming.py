@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from blendgen.analysis import objects, stage
-from blendgen.analysis.ground import camera_pose
-from blendgen.analysis.model import CameraEstimate
+from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera
+from blendgen.ground import camera_pose
 from blendgen.job.schema import GroundPlane, Inject
 from blendgen.scene.ground_plane import GroundPlaneTwin
 from blendgen.scene.planner import plan_sequence

@@ -15,7 +15,7 @@ import cv2
 import pytest
 import yaml
 
-from blendgen.scene.plan import SCENERY_ID
+from blendgen.plan import SCENERY_ID
 
 pytestmark = [pytest.mark.bpy, pytest.mark.data]
 DATA = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))

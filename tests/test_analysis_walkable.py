@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from blendgen.analysis import objects, road, stage
-from blendgen.analysis.model import CameraEstimate
+from blendgen.frame_analysis import BAND, ROAD, CameraEstimate, hood_mask
 from blendgen.geometry import Camera
 from blendgen.job.schema import GroundPlane, Inject
 from blendgen.scene.ground_plane import GroundPlaneTwin
@@ -84,8 +84,8 @@ def placed_over_seeds(cam, fa, real, ground_plane, cls, distance_m, seeds=12, se
 def test_highway_photo_gets_no_pedestrian():
     """A real highway: the band beside the road is dry grass and an asphalt shoulder."""
     cam, fa, mask = highway_photo()
-    assert mask is not None and (mask == road.ROAD).mean() > 0.1
-    assert not (mask == road.BAND).any(), [d for d in fa.decisions if d["what"] == "walkable"]
+    assert mask is not None and (mask == ROAD).mean() > 0.1
+    assert not (mask == BAND).any(), [d for d in fa.decisions if d["what"] == "walkable"]
     real = RealScene([RealFrame(fa, mask, None)], cam)
     twin = GroundPlaneTwin.from_job(GroundPlane(camera_height_m=1.4, pitch_deg=-1.0, analysis=True))
     inject = Inject(objects_per_frame=(2, 2), classes={"person": 1}, distance_m=(8, 35), sequences=False)
@@ -126,7 +126,7 @@ def test_night_street_pedestrians_stay_out_of_the_oncoming_lane():
     est = CameraEstimate(height_m=1.08, pitch_deg=-1.4, roll_deg=-0.4)  # the dashcam job's estimate
     fa, mask = stage.analyse_frame(img, "f000002", cam, est, objects.load_detector())
     assert fa.centre_line_m is not None and 0.8 < fa.centre_line_m < 2.0, fa.decisions
-    real = RealScene([RealFrame(fa, mask, stage.hood_mask(fa.hood, img.shape[1], img.shape[0]))], cam)
+    real = RealScene([RealFrame(fa, mask, hood_mask(fa.hood, img.shape[1], img.shape[0]))], cam)
     placed = placed_over_seeds(cam, fa, real, GroundPlane(camera_height_m=1.08, pitch_deg=-1.4, analysis=True),
                                "person", (6, 35))
     lats = [o.position[1] - fa.T_world_cam[1][3] for o in placed]

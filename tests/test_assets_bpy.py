@@ -10,9 +10,9 @@ bpy = pytest.importorskip("bpy")
 from assets_procedural.objects import build_object, remove_object  # noqa: E402
 from assets_procedural.twin_builder import build_twin  # noqa: E402
 from blendgen import CLASSES  # noqa: E402
+from blendgen.plan import PlacedObject  # noqa: E402
 from blendgen.scene.catalog import sample_variant  # noqa: E402
-from blendgen.scene.plan import PlacedObject  # noqa: E402
-from blendgen.scene.twin import load_twin  # noqa: E402
+from blendgen.twin.model import load_twin  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 TWINS = Path(__file__).resolve().parents[1] / "assets_procedural" / "twins"

@@ -18,9 +18,9 @@ import yaml
 
 from blendgen.cli import main
 from blendgen.geometry import Camera
+from blendgen.job.assets import AssetSampler, Sidecar, normalisation
 from blendgen.job.schema import Inject
 from blendgen.recording import folder
-from blendgen.scene.assets import AssetSampler, Sidecar, normalisation
 from blendgen.scene.ground_plane import GroundPlaneTwin
 from blendgen.scene.planner import plan_sequence
 
@@ -207,8 +207,8 @@ def test_bad_asset_paths(tmp_path, capsys):
 def test_every_format_imports_with_its_real_dims(library):
     import bpy  # noqa: F401  (this test measures in-process)
 
+    from blendgen.job.assets import asset_variant, discover
     from blendgen.render.assets import AssetLibrary, inspect
-    from blendgen.scene.assets import asset_variant, discover
 
     refs = discover([library])
     assert {r.format for r in refs} == {"gltf", "blend", "obj", "fbx", "usd"}
@@ -237,8 +237,8 @@ def test_procedural_objects_exported_as_glb_keep_their_dims(tmp_path):
     made = json.loads(r.stdout.strip().splitlines()[-1])
     import bpy  # noqa: F401
 
+    from blendgen.job.assets import discover
     from blendgen.render.assets import inspect
-    from blendgen.scene.assets import discover
 
     entries = {Path(ref.file).name: inspect(ref) for ref in discover([tmp_path])}
     assert set(entries) == set(made) and len(made) == 7
@@ -265,9 +265,9 @@ def _tris(me) -> np.ndarray:
 def test_job_renders_gltf_and_blend_assets_with_exact_masks_and_boxes(library, tmp_path):
     import bpy  # noqa: F401
 
+    from blendgen.plan import FramePlan
     from blendgen.render.assets import AssetLibrary
     from blendgen.render.raster import rasterize_mask
-    from blendgen.scene.plan import FramePlan
 
     job = write_job(tmp_path, [str(library / "gltf"), str(library / "blend")])
     r = subprocess.run([sys.executable, "-m", "blendgen.cli", "run", str(job), "--quiet"],
@@ -380,7 +380,7 @@ def _gazebo_model(root: Path, name: str, scale: str = "0.01 0.01 0.01", texture:
 
 
 def test_gazebo_model_gives_unit_up_licence_and_textures_by_model_uri(tmp_path, capsys):
-    from blendgen.scene.assets import discover
+    from blendgen.job.assets import discover
 
     m = _gazebo_model(tmp_path / "models", "bus")
     # no sidecar: the class comes from the job's entry, the rest from model.sdf and LICENSE
@@ -400,7 +400,7 @@ def test_gazebo_model_gives_unit_up_licence_and_textures_by_model_uri(tmp_path, 
 
 
 def test_openmaterial_xoma_gives_class_licence_and_iso_axes(tmp_path):
-    from blendgen.scene.assets import discover
+    from blendgen.job.assets import discover
 
     (tmp_path / "walker.gltf").write_text(_gltf())
     (tmp_path / "walker.xoma").write_text(json.dumps({"metadata": {"objectClass": "human", "license": "MPL-2.0"}}))
@@ -436,8 +436,8 @@ def test_absurd_size_names_the_axes_and_unit_that_fit():
 def test_obj_parts_without_material_get_a_neutral_one(tmp_path):
     import bpy  # noqa: F401
 
+    from blendgen.job.assets import discover
     from blendgen.render.assets import DEFAULT_MATERIAL, _Import
-    from blendgen.scene.assets import discover
 
     # a box of 4.4 x 1.8 x 1.5 m exported without any material (no mtllib, no usemtl)
     v = [(x, y, z) for x in (-2.2, 2.2) for y in (-0.9, 0.9) for z in (0, 1.5)]
@@ -476,8 +476,8 @@ def test_thirdparty_assets_as_they_come_get_real_sizes_and_fronts():
     _need_thirdparty()
     import bpy
 
+    from blendgen.job.assets import discover
     from blendgen.render.assets import inspect
-    from blendgen.scene.assets import discover
 
     got = {}
     for ref in discover([(THIRDPARTY / p, f) for p, f in THIRDPARTY_JOB]):

@@ -10,7 +10,7 @@ from blendgen import atomic
 from blendgen.geometry import (CV_TO_BLENDER, Camera, R_world_cam_from_ypr, invert_pose, make_pose,
                                matrix_to_quat, quat_to_matrix, yaw_of_camera)
 from blendgen.recording.model import ImuNoise
-from blendgen.recording.synthetic import (GRAVITY, T_imu_cam, camera_poses, drive_along, simulate_gnss,
+from blendgen.pipeline.synthetic import (GRAVITY, T_imu_cam, camera_poses, drive_along, simulate_gnss,
                                           simulate_imu)
 
 

@@ -7,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from blendgen.analysis.ground import camera_pose
-from blendgen.analysis.model import CameraEstimate, RealObject
+from blendgen.frame_analysis import CameraEstimate, RealObject
 from blendgen.geometry import Camera
+from blendgen.ground import camera_pose
 from blendgen.post.illumination import enu_from_az_el, estimate_illumination
 from blendgen.post.shadow_direction import sun_azimuth_from_shadows
 

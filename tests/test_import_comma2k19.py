@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from blendgen.analysis.lane_direction import still_camera_yaw
 from blendgen.errors import UserError
 from blendgen.geometry import quat_to_matrix
 from blendgen.recording.folder import read_recording
@@ -21,7 +22,7 @@ def rec(tmp_path_factory):
     if not SEG.exists():
         pytest.skip("needs ../shared/data/real/comma2k19_example1_segment40")
     return read_recording(import_recording("comma2k19", SEG, tmp_path_factory.mktemp("c") / "rec",
-                                           show_progress=False))
+                                           camera_yaw=still_camera_yaw, show_progress=False))
 
 
 def test_streams(rec):
@@ -49,7 +50,8 @@ def test_without_preview_the_note_says_why(tmp_path):
         pytest.skip("needs ../shared/data/real/comma2k19_example1_segment40")
     seg = tmp_path / "seg"
     shutil.copytree(SEG, seg, ignore=shutil.ignore_patterns("preview.png", "raw_can", "radar"))
-    r = read_recording(import_recording("comma2k19", seg, tmp_path / "rec", show_progress=False))
+    r = read_recording(import_recording("comma2k19", seg, tmp_path / "rec", camera_yaw=still_camera_yaw,
+                                        show_progress=False))
     assert "vehicle" not in r.extra
     assert any("preview.png is missing" in n for n in r.extra["import"]["notes"])
 

@@ -8,8 +8,8 @@ from pycocotools.coco import COCO
 
 from blendgen import CLASSES
 from blendgen.errors import UserError
-from blendgen.labels.export import export_labels, find_frame_labels
-from blendgen.labels.frame_labels import read_frame_labels, write_frame_labels
+from blendgen.frame_labels import find_frame_labels, read_frame_labels, write_frame_labels
+from blendgen.labels.export import export_labels
 from blendgen.labels.instances import decode_mask, extract_instances
 from blendgen.labels.kitti import DEVKIT_TYPES, KITTI_TYPES, parse_label_line
 from blendgen.labels.yolo import NAMES
@@ -92,7 +92,7 @@ def test_small_objects_drop_or_ignore():
 
 def test_object_behind_camera_is_stable():
     index, plan, _ = make_frame()
-    from blendgen.scene.plan import PlacedObject
+    from blendgen.plan import PlacedObject
 
     # A long bus reaching from behind the camera into view on the right.
     plan.objects.append(PlacedObject(6, "bus", (0.0, -3.0, 0.0), 0.0, (14.0, 2.5, 3.2)))
@@ -278,8 +278,8 @@ def test_export_rejects_unknown_format_and_missing_image(tmp_path):
 
 def test_ridden_bicycle_gives_a_person_and_a_bicycle_instance():
     from blendgen.labels.kitti import label_line
+    from blendgen.plan import FramePlan, PlacedObject
     from blendgen.scene.catalog import sample_variant
-    from blendgen.scene.plan import FramePlan, PlacedObject
     from blendgen.scene.riders import split_rider
     from labels_fixtures import T_WORLD_CAM
 

@@ -12,8 +12,8 @@ import pytest
 
 from blendgen.cli import main as cli
 from blendgen.errors import UserError
-from blendgen.scene.geom2d import Polyline
-from blendgen.scene.twin import load_twin
+from blendgen.geom2d import Polyline
+from blendgen.twin.model import load_twin
 
 MAPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "maps" / "opendrive"
 if not MAPS.is_dir():

@@ -6,7 +6,7 @@ import pytest
 
 from blendgen.cli import main as cli
 from blendgen.errors import UserError
-from blendgen.scene.twin import load_twin
+from blendgen.twin.model import load_twin
 
 TOWN = """<?xml version="1.0" encoding="UTF-8"?>
 <osm version="0.6" generator="blendgen-test">

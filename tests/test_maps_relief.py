@@ -12,9 +12,9 @@ import pytest
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 from blendgen.job.schema import Inject
 from blendgen.labels.instances import box3d_cam
-from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.plan import FramePlan, PlacedObject
 from blendgen.scene.planner import Planner
-from blendgen.scene.twin import load_twin
+from blendgen.twin.model import load_twin
 
 CAM = Camera.from_hfov(480, 270, 70.0)
 
@@ -167,7 +167,7 @@ def _independent_width_lanes(xml):
 
 
 def test_lane_widths_along_s_and_borders_match_the_records(tmp_path):
-    from blendgen.scene.geom2d import Polyline
+    from blendgen.geom2d import Polyline
 
     f = tmp_path / "widths.xodr"
     f.write_text(WIDTHS)

@@ -9,8 +9,8 @@ import pytest
 
 from blendgen.job.schema import Inject
 from blendgen.scene.planner import plan_sequence
-from blendgen.scene.twin import Twin, load_twin
-from blendgen.scene.twin_schema import TwinSpec
+from blendgen.twin.model import Twin, load_twin
+from blendgen.twin.schema import TwinSpec
 from test_planner import CAM, TWINS, drive
 
 MAPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "maps" / "opendrive"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from blendgen.sync import so3
+from blendgen import so3
 from blendgen.sync.metrics import trajectory_errors
 
 

@@ -61,8 +61,9 @@ def run_until_plan(job_path: Path) -> Path:
 
 def reference(job_path: Path, where: Path):
     """The in-process stages' analyses and plan for the job."""
-    from blendgen.analysis.stage import read_analysis, run_analysis
+    from blendgen.analysis.stage import run_analysis
     from blendgen.farm.seeds import frame_seed
+    from blendgen.frame_analysis import read_analysis
     from blendgen.job.schema import load_job
     from blendgen.recording.folder import read_recording
     from blendgen.scene.ground_plane import GroundPlaneTwin

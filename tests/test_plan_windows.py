@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
+from blendgen.geom2d import convex_overlap
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 from blendgen.job.schema import SCENARIOS, Inject
-from blendgen.scene.geom2d import convex_overlap
 from blendgen.scene.ground_plane import GroundPlaneTwin
 from blendgen.scene.planner import Planner, footprints, plan_sequence
 from blendgen.scene.windows import (frame_plan, plan_in_windows, plan_window, plan_windows, track_from_dict,

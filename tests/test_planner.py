@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from blendgen.geom2d import convex_overlap
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 from blendgen.job.schema import SCENARIOS, Inject
+from blendgen.plan import FramePlan
 from blendgen.scene.catalog import SPEED
-from blendgen.scene.geom2d import convex_overlap
 from blendgen.scene.ground_plane import GroundPlaneTwin
-from blendgen.scene.plan import FramePlan
 from blendgen.scene.planner import EGO_FRONT_OF_CAM, EGO_LENGTH, EGO_WIDTH, footprints, plan_sequence
-from blendgen.scene.twin import load_twin
+from blendgen.twin.model import load_twin
 
 TWINS = Path(__file__).resolve().parents[1] / "assets_procedural" / "twins"
 CAM = Camera.from_hfov(480, 270, 70.0)

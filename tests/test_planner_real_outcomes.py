@@ -12,8 +12,8 @@ import pytest
 from streets import WHITE, YELLOW, street
 
 from blendgen import CLASSES
-from blendgen.analysis import objects, road, stage
-from blendgen.analysis.model import CameraEstimate
+from blendgen.analysis import objects, stage
+from blendgen.frame_analysis import BAND, ROAD, CameraEstimate, hood_mask
 from blendgen.geometry import Camera
 from blendgen.job.schema import GroundPlane, Inject
 from blendgen.scene.ground_plane import GroundPlaneTwin
@@ -31,7 +31,7 @@ def base():
     """A two-way street with a yellow centre line, grass verges, analysed by the real stage."""
     img, _ = street(CAM, EST, road=(-3.8, 5.5), lines=[(-3.6, WHITE, None), (1.8, YELLOW, None)])
     fa, mask = stage.analyse_frame(img, "f000000", CAM, EST, objects.load_detector())
-    assert mask is not None and (mask == road.ROAD).any()
+    assert mask is not None and (mask == ROAD).any()
     return fa, mask
 
 
@@ -48,11 +48,11 @@ def outcome(name: str, fa, mask) -> RealFrame | None:
         mask, fa.road_mask = None, None
         if name == "all_hood":
             fa.hood = [[0, 0], [CAM.width - 1, 0], [CAM.width - 1, CAM.height - 1], [0, CAM.height - 1]]
-            hood = stage.hood_mask(fa.hood, CAM.width, CAM.height)
+            hood = hood_mask(fa.hood, CAM.width, CAM.height)
     elif name == "no_horizon":
         fa.horizon = None
     elif name == "no_band":
-        mask[mask == road.BAND] = 0
+        mask[mask == BAND] = 0
     elif name == "uncertain_camera":
         fa.placement_max_m = 15.0
         fa.decisions.append({"what": "placement_max_m", "value": 15.0, "reason": "pitch +-1.0 deg (test)"})

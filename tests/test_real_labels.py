@@ -13,8 +13,8 @@ import pytest
 from pycocotools.coco import COCO
 
 from blendgen.errors import UserError
-from blendgen.labels.export import export_labels, find_frame_labels
-from blendgen.labels.frame_labels import read_frame_labels, write_frame_labels
+from blendgen.frame_labels import find_frame_labels, read_frame_labels, write_frame_labels
+from blendgen.labels.export import export_labels
 from blendgen.labels.instances import extract_instances
 from blendgen.labels.kitti import parse_label_line
 from blendgen.labels.real_objects import detector_boxes, real_instances

@@ -11,7 +11,7 @@ from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
 from blendgen import CLASSES
-from blendgen.eval.metrics import evaluate
+from blendgen.detection.metrics import evaluate
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MODEL = DATA / "models" / "yolox_nano.onnx"
@@ -67,7 +67,7 @@ def _cocoeval(gts, dts, score_thr=None):
 
 @pytest.mark.parametrize("area", ["small", "medium", "large"])
 def test_metrics_match_cocoeval_by_size(area):
-    from blendgen.eval.metrics import AREA_RANGES
+    from blendgen.detection.metrics import AREA_RANGES
 
     gts, dts = _fixture(5, n_images=20)
     for g in gts:  # COCO sizes gts by their (mask) area, not the box
@@ -145,7 +145,7 @@ def test_detector_finds_cars_on_real_photos():
     photo = PHOTOS / "solidYellowCurve.jpg"
     if not photo.exists():
         pytest.skip(f"needs {photo}")
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
 
     det = YoloxDetector(MODEL)
     img = cv2.imread(str(photo))
@@ -163,9 +163,9 @@ def test_detector_finds_cars_on_real_photos():
 def _make_out(tmp, photos, inject_size=200):
     """An OUT over real photos: a real car photo crop pasted as the 'injected' object, and a
     recording folder so that background='auto' can find the real frames."""
-    from blendgen.labels.frame_labels import write_frame_labels
-    from blendgen.labels.instances import encode_mask
+    from blendgen.frame_labels import write_frame_labels
     from blendgen.geometry import Camera
+    from blendgen.labels.instances import encode_mask
     from blendgen.recording.folder import write_calib, write_frames_csv
 
     out, rec = tmp / "out", tmp / "rec"

@@ -10,8 +10,8 @@ pytest.importorskip("bpy")
 
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
 from blendgen.job.schema import Render  # noqa: E402
+from blendgen.plan import FramePlan, PlacedObject  # noqa: E402
 from blendgen.render.exr import read_passes  # noqa: E402
-from blendgen.scene.plan import FramePlan, PlacedObject  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -290,7 +290,7 @@ def test_real_twin_and_objects(tmp_path):
     twin_path = BUILTIN_TWINS_DIR / "demo_town.yaml"
     if not twin_path.is_file():
         pytest.skip(f"needs {twin_path}")
-    from blendgen.scene.twin import load_twin
+    from blendgen.twin.model import load_twin
 
     route = load_twin(twin_path).ego_route(30.0, 1)
     fwd = (route[5] - route[0]) / np.linalg.norm(route[5] - route[0])
@@ -328,9 +328,9 @@ def test_signal_pole_is_composited_but_not_labelled(tmp_path):
     (composited), the labels box the head only, and the amodal count is the head's."""
     pytest.importorskip("assets_procedural.objects")
     from blendgen.labels.instances import extract_instances
+    from blendgen.plan import SCENERY_ID
     from blendgen.render.session import RenderSession
     from blendgen.scene.catalog import sample_variant
-    from blendgen.scene.plan import SCENERY_ID
 
     variant, dims = sample_variant("traffic light", np.random.default_rng(3))
     variant["pole"] = True

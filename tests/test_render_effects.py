@@ -9,11 +9,11 @@ import pytest
 from blendgen.errors import UserError
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 from blendgen.job.schema import Render
+from blendgen.plan import FramePlan, PlacedObject
 from blendgen.render import effects as fx
 from blendgen.render.exr import empty_passes, read_passes, write_passes
 from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
 from blendgen.render.raster import fill_triangles, rasterize_mask
-from blendgen.scene.plan import FramePlan, PlacedObject
 
 CAM = Camera.from_hfov(640, 360, 70)
 T = make_pose(R_world_cam_from_ypr(0.0), [0, 0, 1.5])  # looking along +x from 1.5 m

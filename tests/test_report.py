@@ -8,7 +8,7 @@ import numpy as np
 
 from blendgen.atomic import append_line
 from blendgen.cli import main
-from blendgen.labels.frame_labels import write_frame_labels
+from blendgen.frame_labels import write_frame_labels
 from blendgen.labels.instances import extract_instances
 from blendgen.report import build_report
 

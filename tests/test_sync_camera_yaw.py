@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from blendgen import so3
 from blendgen.errors import UserError
 from blendgen.geometry import invert_pose, make_pose
 from blendgen.job.schema import Sync
-from blendgen.sync import calibration, so3
+from blendgen.sync import calibration
 from blendgen.sync.pipeline import run_sync
 from blendgen.sync.simulate import synthetic_recording
 

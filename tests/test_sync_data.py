@@ -21,9 +21,10 @@ pytestmark = pytest.mark.data
 def test_comma2k19_imu_gnss_beats_raw_gnss(tmp_path):
     if not COMMA.exists():
         pytest.skip("needs ../shared/data/real/comma2k19_example1_segment40")
+    from blendgen.analysis.lane_direction import still_camera_yaw
     from blendgen.recording.importers.comma2k19 import groundtruth_georef, import_comma2k19
 
-    rec = read_recording(import_comma2k19(COMMA, tmp_path / "rec", show_progress=False))
+    rec = read_recording(import_comma2k19(COMMA, tmp_path / "rec", camera_yaw=still_camera_yaw, show_progress=False))
     assert rec.n_frames == 0
     georef = groundtruth_georef(rec)
     res = run_sync(rec, Sync(), tmp_path / "out", georef=georef, progress=False)

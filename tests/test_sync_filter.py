@@ -6,9 +6,9 @@ Every case: poses finite, covariance symmetric positive definite, errors within 
 import numpy as np
 import pytest
 
+from blendgen import so3
 from blendgen.geometry import invert_pose
 from blendgen.job.schema import Sync
-from blendgen.sync import so3
 from blendgen.sync.ekf import EkfConfig, ErrorStateEkf
 from blendgen.sync.pipeline import run_sync
 from blendgen.sync.simulate import make_trajectory, simulate_imu, synthetic_recording

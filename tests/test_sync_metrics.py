@@ -41,8 +41,8 @@ def test_sea_horizon_and_its_elevation_under_a_known_camera():
     """A rendered horizon: bright sky over a darker, noisy sea with a foam streak below, seen by a
     camera pitched 2 deg down and rolled 1 deg. The line is found to a fraction of a pixel, and
     the true pose puts it on its horizontal plane; a pose 1 deg off in pitch reads 1 deg."""
+    from blendgen import so3
     from blendgen.geometry import Camera
-    from blendgen.sync import so3
     from blendgen.sync.metrics import horizon_errors, sea_horizon
 
     cam = Camera.from_hfov(854, 480, 94.0)

@@ -6,12 +6,12 @@ import copy
 import numpy as np
 import pytest
 
+from blendgen import so3
 from blendgen.errors import UserError
 from blendgen.job.schema import Sync
 from blendgen.recording import folder
 from blendgen.recording.folder import read_recording
 from blendgen.recording.model import Recording
-from blendgen.sync import so3
 from blendgen.sync.calibration import describe, read_priors
 from blendgen.sync.ekf import N, EkfConfig, ErrorStateEkf
 from blendgen.sync.odometer import initial_scale, means

@@ -8,11 +8,11 @@ import numpy as np
 import pymap3d
 import pytest
 
+from blendgen import so3
 from blendgen.cli import main
 from blendgen.geometry import make_pose
 from blendgen.job.schema import Sync
 from blendgen.recording import folder
-from blendgen.sync import so3
 from blendgen.sync.lut import write_lut
 from blendgen.sync.metrics import gt_poses, trajectory_errors
 from blendgen.sync.pipeline import POSES_COLUMNS, read_poses, run_sync

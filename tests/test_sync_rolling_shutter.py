@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
+from blendgen import so3
 from blendgen.errors import UserError
 from blendgen.geometry import Camera
 from blendgen.recording import folder
 from blendgen.recording.folder import read_recording
-from blendgen.sync import so3
-from blendgen.sync.vo import rs_bearings
+from blendgen.vo import rs_bearings
 
 
 def test_rs_bearings_undo_the_rotation_during_the_readout():
@@ -37,7 +37,7 @@ def test_vo_on_a_shaking_rolling_shutter_drive(method):
     from blendgen.geometry import pose_from_xyz_quat
     from blendgen.sync.pipeline import _rs_spins
     from blendgen.sync.simulate import synthetic_recording
-    from blendgen.sync.vo import VoConfig, make_vo
+    from blendgen.vo import VoConfig, make_vo
 
     cv2.setNumThreads(1)
     rec, _, T_cam_imu = synthetic_recording("drive", 3.0, fps=10, rolling_shutter_s=0.03, shake_deg=0.6, seed=1)

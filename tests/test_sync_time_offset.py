@@ -4,14 +4,14 @@ is recovered, an unobservable one is reported and the calib value kept, calib.ya
 import numpy as np
 import pytest
 
+from blendgen import so3
 from blendgen.errors import UserError
 from blendgen.geometry import Camera, invert_pose
 from blendgen.recording import folder
-from blendgen.sync import so3
 from blendgen.sync.simulate import default_T_cam_imu, make_trajectory, shaken, simulate_imu
 from blendgen.sync.time_offset import MAX_STD_S, describe, estimate_time_offset
-from blendgen.sync.vo import VoResult
 from blendgen.sync.vo_trust import GyroIntegrator
+from blendgen.vo import VoResult
 
 
 def _pairs(kind="drive", shake_deg=1.0, shift=0.025, fps=10.0, dur=20.0, noise_deg=0.03, outliers=0.0, seed=0):

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
+from blendgen import so3
 from blendgen.geometry import Camera, R_world_cam_from_ypr, invert_pose, make_pose
-from blendgen.sync import so3
 from blendgen.sync.simulate import StreetScene
-from blendgen.sync.vo import KltVo, OrbVo, VoConfig, VoResult, make_vo
+from blendgen.vo import KltVo, OrbVo, VoConfig, VoResult, make_vo
 
 CAM = Camera.from_hfov(480, 270, 70.0)
 
@@ -164,8 +164,8 @@ def test_klt_direction_unbiased_under_exposure_flicker(scene):
     gain alternating +-8 % between frames, KLT's direction of travel tilts down by ~1.4 deg
     (docs/sync.md "VO under real-camera photometry"); the default photo_norm "gain" estimates
     the gain change and removes the bias, to what the same frames give without flicker."""
-    from blendgen.sync.simulate import make_trajectory, default_T_cam_imu
-    from blendgen.sync.vo import block_means, frame_gain
+    from blendgen.sync.simulate import default_T_cam_imu, make_trajectory
+    from blendgen.vo import block_means, frame_gain
 
     traj = make_trajectory("drive", 6.0)
     T_bc = invert_pose(default_T_cam_imu())
@@ -204,7 +204,7 @@ def test_rotation_pair_refitted_along_the_direction_of_travel():
     drone clip: 2 deg/s of false pitch rate). Refitted with the direction of travel held fixed
     (vo.refit_along) the rotation is right again; a camera that stood still is right for any
     direction."""
-    from blendgen.sync.vo import refit_along, solve_pair
+    from blendgen.vo import refit_along, solve_pair
 
     rng = np.random.default_rng(3)
     f = 400.0
@@ -234,7 +234,7 @@ def test_readout_estimate_leaves_rotation_pairs_their_refit_subset():
     "rotation" pair needs for refit_along (the Karma clip's horizon: -1.78 deg without it, -0.54
     with)."""
     from blendgen.sync.pipeline import _drop_matches
-    from blendgen.sync.vo import ALONG_POINTS
+    from blendgen.vo import ALONG_POINTS
 
     q = np.random.default_rng(0).normal(size=(500, 3))
     full = (q[:, :2], q[:, :2], q, q)

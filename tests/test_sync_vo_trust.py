@@ -4,10 +4,10 @@ and dropped frames (synthetic, exact ground truth)."""
 import numpy as np
 import pytest
 
-from blendgen.sync import so3
+from blendgen import so3
 from blendgen.sync.ekf import EkfConfig, ErrorStateEkf
-from blendgen.sync.vo import _pair_covariance, _refine_rt
 from blendgen.sync.vo_trust import vo_noise
+from blendgen.vo import _pair_covariance, _refine_rt
 
 
 def _pair(n, baseline, noise_px, f=500.0, seed=0):
@@ -60,7 +60,7 @@ def test_pair_covariance_matches_monte_carlo():
 
 
 def test_vo_noise_has_floors_and_no_constant():
-    from blendgen.sync.vo import VoResult
+    from blendgen.vo import VoResult
 
     r = VoResult("ok", u_dir=np.array([0.0, 0.0, 1.0]))
     r.rot_cov, r.dir_cov = _cov(400, 1.0, 0.3)
@@ -118,7 +118,7 @@ def test_gyro_rotations_match_the_trajectory():
 
 
 def _fake_pairs(ws_gyro, ws_vo):
-    from blendgen.sync.vo import VoResult
+    from blendgen.vo import VoResult
 
     res = [VoResult("first")]
     for w in ws_vo:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blendgen.analysis.objects import BUNDLED_MODEL
+from blendgen.detection.detector import BUNDLED_MODEL
 from blendgen.train.data import Sample
 from blendgen.train.evaluate import bootstrap, cocoeval_ap50, match_records
 from blendgen.train.onnx_weights import read_convs
@@ -81,7 +81,7 @@ def test_train_check_without_torch_says_how_to_get_it(monkeypatch, capsys):
 
 def test_rebuilt_model_matches_the_onnx_and_unfolds_batchnorm():
     torch = pytest.importorskip("torch")
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
     from blendgen.train.yolox import load_onnx, unfold_batchnorm
 
     det = YoloxDetector(BUNDLED_MODEL)

@@ -10,7 +10,7 @@ import pytest
 
 from blendgen.errors import UserError
 from blendgen.scene.ground_plane import GroundPlaneTwin
-from blendgen.scene.twin import load_twin
+from blendgen.twin.model import load_twin
 
 TWINS = Path(__file__).resolve().parents[1] / "assets_procedural" / "twins"
 

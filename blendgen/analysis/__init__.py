@@ -1,2 +1,2 @@
 """Frame analysis for footage without a map: camera, horizon, hood, road and real objects
-from the frames themselves (bpy-free). See `model.py` for the per-frame contract."""
+from the frames themselves (bpy-free). `blendgen.frame_analysis` is the per-frame contract."""

@@ -57,8 +57,8 @@ def _user(args):
 
 
 def _car_boxes(rec, frame_ids, model: Path, progress: bool) -> dict[str, list]:
-    from blendgen.analysis.camera import read_frames
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
+    from blendgen.recording.frames import read_frames
 
     det = YoloxDetector(model, score_min=0.4, category_ids={3})      # COCO 3: car
     return {fid: [d["bbox"] for d in det(im)] for fid, im in read_frames(rec, frame_ids, progress=progress,
@@ -67,10 +67,11 @@ def _car_boxes(rec, frame_ids, model: Path, progress: bool) -> dict[str, list]:
 
 def calibrate(rec, frame_ids, user, *, car_boxes=None, progress: bool = False) -> dict:
     """The document written to ground_plane.yaml."""
-    from blendgen.analysis.camera import estimate_cameras, frame_indices, is_sequence, read_frames
+    from blendgen.analysis.camera import estimate_cameras
     from blendgen.analysis.egomotion import ground_track
     from blendgen.analysis.hood import find_hood
     from blendgen.analysis.lane_direction import LANE_HEADING_STD_DEG, lane_direction
+    from blendgen.recording.frames import frame_indices, is_sequence, read_frames
 
     t0 = time.process_time()
     hoods = find_hood(rec, frame_ids, progress=progress)

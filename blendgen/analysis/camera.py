@@ -38,9 +38,10 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from blendgen.analysis.model import CameraEstimate
 from blendgen.analysis.mount import FrameCues, Mount, focal_consensus
+from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera, R_world_cam_from_ypr
+from blendgen.recording.frames import frame_indices, is_sequence, read_frames
 
 log = logging.getLogger(__name__)
 
@@ -448,46 +449,6 @@ def focal_was_guessed(rec) -> bool:
     return _import_note(rec, "camera_calibration").startswith("assumed")
 
 
-def is_sequence(rec) -> bool:
-    """Frames in temporal order (a video, or image frames that are not a set of stills)."""
-    return rec.video is not None or (rec.extra.get("import") or {}).get("format") != "images"
-
-
-def frame_indices(rec, frame_ids) -> list[int]:
-    from blendgen.errors import UserError
-
-    index = {rec.frame_id(i): i for i in range(rec.n_frames)}
-    bad = [f for f in frame_ids if f not in index]
-    if bad:
-        raise UserError(f"frame id(s) {bad[:3]} are not in the recording ({rec.n_frames} frames, "
-                        f"f000000..{rec.frame_id(max(rec.n_frames - 1, 0))})", where=str(rec.root))
-    return [index[f] for f in frame_ids]
-
-
-def read_frames(rec, frame_ids, *, progress: bool = False, desc: str = "frames"):
-    """Yield (frame_id, BGR) for the given ids in recording order (videos decode sequentially)."""
-    from blendgen.recording.folder import iter_frames, read_frame
-
-    idx = sorted(set(frame_indices(rec, frame_ids)))
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(idx), desc=desc, unit="frame")
-    if rec.video is not None and len(idx) > 1:
-        want = set(idx)
-        gen = ((i, im) for i, im in iter_frames(rec, skip_bad=True) if i in want)
-    else:
-        gen = ((i, read_frame(rec, i)) for i in idx)
-    for i, im in gen:
-        if bar is not None:
-            bar.update(1)
-        yield rec.frame_id(i), im
-        if i >= idx[-1]:
-            break
-    if bar is not None:
-        bar.close()
-
-
 def imu_usable(rec) -> bool:
     """The recording has IMU samples and a T_cam_imu that was given, not assumed."""
     return len(rec.imu) > 0 and not _import_note(rec, "T_cam_imu").startswith("assumed")
@@ -541,8 +502,9 @@ def _lane_cue(bgr: np.ndarray, camera: Camera, fc: FrameCamera, hood, boxes, lan
     """The ego lane's two painted lines (analysis.lanes) as two undistorted pinhole pixels each,
     found with the frame's own pitch, roll and road direction and a provisional 1.5 m height
     (the mount reduction measures their spacing again at its own angles), or None."""
-    from blendgen.analysis import ground, lanes, road
-    from blendgen.analysis.model import CameraEstimate
+    from blendgen import ground, lane_geometry
+    from blendgen.analysis import lanes, road
+    from blendgen.frame_analysis import CameraEstimate
 
     if fc.pitch is None:
         return None
@@ -556,18 +518,18 @@ def _lane_cue(bgr: np.ndarray, camera: Camera, fc: FrameCamera, hood, boxes, lan
         hmask = hmask > 0
     road_px, _ = road.estimate_road(bgr, ground.horizon(camera, T), hmask, boxes)
     lines, _ = lanes.lane_lines(bgr, road_px, camera, T)
-    ego = lanes.ego_lane(lines, lanes.X_REF, lane_width_m)
+    ego = lane_geometry.ego_lane(lines, lane_geometry.X_REF, lane_width_m)
     if ego is None:
         return None
     lo, hi, _ = ego
     pair = [ln for ln in lines if min(abs(ln[0] - lo), abs(ln[0] - hi)) < 1e-6]
     if len(pair) != 2:  # one side was a lane width beyond a single line, not paint
         return None
-    xs = np.array([lanes.RANGE_M[0] + 1.0, 20.0])
+    xs = np.array([lane_geometry.RANGE_M[0] + 1.0, 20.0])
     Rcw, t = T[:3, :3].T, T[:3, 3]
     out = []
     for y10, slope, _ in pair:
-        P = np.column_stack([xs, y10 + slope * (xs - lanes.X_REF), np.zeros(2)])
+        P = np.column_stack([xs, y10 + slope * (xs - lane_geometry.X_REF), np.zeros(2)])
         Xc = (P - t) @ Rcw.T
         uv = (Xc @ camera.K.T)[:, :2] / Xc[:, 2:3]
         out.append(uv.tolist())

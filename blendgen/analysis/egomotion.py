@@ -12,7 +12,7 @@ a fixed pose per frame, with that frame's own height, pitch and roll.
 For a video, between consecutive requested frames (`ground_track`):
   - the heading change between the frames comes from the IMU's gyro when the recording has
     one (rate about the road's up axis, integrated), else from ORB visual odometry
-    (blendgen.sync.vo) over the whole image;
+    (blendgen.vo) over the whole image;
   - the road 12 m long from 5 m ahead (7, 9, 12 when the hood or a narrow field of view
     hides it), +-3 m across, is warped to a bird's-eye view (4 cm/px) with each frame's
     height, pitch and roll, the newer one along the older heading; phase correlation of
@@ -41,8 +41,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from blendgen.analysis.camera import imu_usable, is_sequence, read_frames, road_axes
+from blendgen.analysis.camera import imu_usable, road_axes
+
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
+from blendgen.recording.frames import is_sequence, read_frames
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +211,7 @@ def pair_motions(rec, frames, ests, hoods, near: float | None = None, *, times=N
     first one only primes the VO and the previous bird's-eye view (a stretch of a video starts
     one frame early). `ests`/`hoods`: per frame id; `times`: per frame id (the gyro's interval);
     `near`: the road patch's start (None: `first_near` of the first frame that decodes)."""
-    from blendgen.sync.vo import OrbVo, VoConfig
+    from blendgen.vo import OrbVo, VoConfig
 
     camera = rec.camera
     vo = OrbVo(camera, VoConfig(n_features=VO_FEATURES))

@@ -204,7 +204,7 @@ def hood_in_video(frames: list[np.ndarray]) -> tuple[list[list[float]] | None, s
 
 
 def find_hood(rec, frame_ids, *, progress: bool = False) -> dict[str, list[list[float]] | None]:
-    from blendgen.analysis.camera import frame_indices, is_sequence, read_frames
+    from blendgen.recording.frames import frame_indices, is_sequence, read_frames
 
     frame_ids = list(frame_ids)
     if is_sequence(rec) and len(frame_ids) >= 8:

@@ -231,3 +231,15 @@ def lane_direction(bgr: np.ndarray, camera: Camera, *, hood=None) -> LaneDirecti
     sd = np.sqrt(np.maximum(np.diag(J @ cov @ J.T), 0.0))
     return LaneDirection(float(a[0]), float(a[1]), float(sd[0]), float(sd[1]), (float(vp[0]), float(vp[1])),
                          len(idx))
+
+
+def still_camera_yaw(bgr: np.ndarray, camera: Camera) -> tuple[float | None, float, str]:
+    """The camera's yaw in the vehicle from one still, its hood left out (the comma2k19 importer
+    measures it on a segment's preview frame): (yaw_deg, standard deviation with the lane's own
+    heading error, how), or (None, nan, why not)."""
+    from blendgen.analysis.hood import hood_in_still
+
+    r = lane_direction(bgr, camera, hood=hood_in_still(bgr)[0])
+    if r.yaw_deg is None:
+        return None, float("nan"), r.reason
+    return r.yaw_deg, float(np.hypot(r.yaw_std_deg, LANE_HEADING_STD_DEG)), f"vanishing point of {r.lines} lane markings"

@@ -18,7 +18,7 @@ into one mount. Nothing here reads an image.
       `PERSON_HEIGHT_M`. Each object's box gives the height the camera must have at the frame's
       pitch and roll, so objects at different distances also pin the horizon (near and far
       objects only agree at the right one);
-    * the ego lane's two painted lines (`lanes.ego_lane`): their spacing is a lane width,
+    * the ego lane's two painted lines (`lane_geometry.ego_lane`): their spacing is a lane width,
       `LANE_WIDTH_M` with a spread that admits narrow urban lanes and wide arterials;
     * a weak prior on the height (`HEIGHT_PRIOR_M`), so a frame set with no cue at all still
       gets a value, and an uncertainty that says so.

@@ -3,13 +3,14 @@
 Each person, bicycle, car, motorcycle, bus and truck the detector finds becomes a ground
 polygon: the bottom edge of its box (where it touches the road) back-projected through the
 camera estimate, widened to the class's typical width and extended away from the camera by
-its typical length (`scene.catalog.TYPICAL_DIMS`). A box cut off by the image bottom or the
+its typical length (`dimensions.TYPICAL_DIMS`). A box cut off by the image bottom or the
 hood hides its contact point, so its footprint also reaches a typical length toward the
 camera. Boxes whose bottom edge lies at or above the horizon get a distance from their
 height and no footprint.
 
-The detector is YOLOX-Nano (Apache-2.0), shipped inside the package (models/ with its
-LICENSE and NOTICE); a job may name another YOLOX-format ONNX model. Nothing is downloaded.
+The detector is YOLOX-Nano (Apache-2.0), shipped inside the package
+(`detection.detector.BUNDLED_MODEL`); a job may name another YOLOX-format ONNX model.
+Nothing is downloaded.
 """
 
 from __future__ import annotations
@@ -20,15 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from blendgen import CLASSES
-from blendgen.analysis.ground import camera_pose, horizon_v, to_ground
-from blendgen.analysis.model import CameraEstimate, RealObject
+from blendgen.detection.detector import BUNDLED_MODEL, BUNDLED_SHA256, YoloxDetector
+from blendgen.dimensions import TYPICAL_DIMS
 from blendgen.errors import UserError
-from blendgen.eval.detector import YoloxDetector
+from blendgen.frame_analysis import CameraEstimate, RealObject
 from blendgen.geometry import Camera
-from blendgen.scene.catalog import TYPICAL_DIMS
+from blendgen.ground import camera_pose, horizon_v, to_ground
 
-BUNDLED_MODEL = Path(__file__).with_name("models") / "yolox_nano.onnx"
-BUNDLED_SHA256 = "c789161ed43c8269fcd4e67c67eeeb4e80c622da2eb296a20bc6007bd18a0b7d"
 OBSTACLE_CLASSES = ("person", "bicycle", "car", "motorcycle", "bus", "truck")
 # Low on purpose: a missed real car is an object we may place inside it; a false one
 # only costs a placement.

@@ -27,10 +27,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from blendgen.analysis.ground import horizon_v, rays_world, to_ground
 from blendgen.geometry import Camera
+from blendgen.ground import horizon_v, rays_world, to_ground
 
-ROAD, BAND = 255, 128
 WORK_W = 320            # the estimate runs at this width (then scaled back up)
 BAND_M = 4.0            # band width beside the road
 MAX_MAHAL = 3.5         # colour distance (in seed standard deviations) still counted as road

@@ -31,12 +31,14 @@ from dataclasses import asdict
 
 import numpy as np
 
-from blendgen.analysis import ground, objects
+from blendgen import ground
+from blendgen.analysis import objects
 from blendgen.analysis.camera import (HEIGHT_SAMPLE_FRAMES, SMOOTH_S, CameraSettings, RecordingCamera, _smooth,
-                                      camera_of_frame, is_sequence, recording_camera)
-from blendgen.analysis.model import CameraEstimate, RealObject
+                                      camera_of_frame, recording_camera)
 from blendgen.analysis.mount import FrameCues, Mount
+from blendgen.frame_analysis import CameraEstimate, RealObject
 from blendgen.geometry import Camera
+from blendgen.recording.frames import is_sequence
 
 N_SAMPLE = 48       # frames of the job that give the recording-wide values
 SEEK_GAP = 48       # video: frames further apart than this are reached by seeking, not decoding on
@@ -152,7 +154,8 @@ def frame_cues(image, fid: str, t: float, rec, settings: Settings, detector, hoo
     decision), the real road users off it, `camera.frame_cues`."""
     from blendgen.analysis.camera import frame_cues as camera_cues
     from blendgen.analysis.hood import hood_in_still
-    from blendgen.analysis.stage import hood_mask, not_ego
+    from blendgen.analysis.stage import not_ego
+    from blendgen.frame_analysis import hood_mask
 
     if image is None:
         return {"frame_id": fid, "t": t, "decoded": False, "hood": None, "users": [],

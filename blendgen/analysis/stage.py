@@ -2,7 +2,7 @@
 
 For each frame: camera estimate and horizon, hood, real road users (detector ->
 footprints), road region and bands, road direction, and the camera pose over the road.
-Leaves `OUT/analysis/<frame_id>.json` (model.FrameAnalysis) and `<frame_id>_road.png`
+Leaves `OUT/analysis/<frame_id>.json` (frame_analysis.FrameAnalysis) and `<frame_id>_road.png`
 (255 road, 128 band); a frame whose JSON exists is not analysed again, so an interrupted
 stage resumes where it stopped. Nothing here raises on a hard frame: every quantity that
 cannot be estimated falls back with its reason in `decisions`.
@@ -10,18 +10,16 @@ cannot be estimated falls back with its reason in `decisions`.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from blendgen import atomic
-from blendgen.analysis import ground, lanes, objects, road
-from blendgen.analysis.model import CameraEstimate, FrameAnalysis
+from blendgen import atomic, ground, lane_geometry
+from blendgen.analysis import lanes, objects, road
 from blendgen.analysis.mount import placement_limit
+from blendgen.frame_analysis import BAND, ROAD, CameraEstimate, FrameAnalysis, hood_mask, read_analysis, write_analysis
 from blendgen.geometry import Camera
 
 log = logging.getLogger(__name__)
@@ -38,14 +36,6 @@ def not_ego(users: list, hmask: np.ndarray | None, W: int, H: int) -> tuple[list
         on_hood = hmask is not None and hmask[int(min(y + h / 2, H - 1)), int(min(x + w / 2, W - 1))]
         (dropped if (w > EGO_BOX_MIN_WIDTH * W and y + h >= H - 0.05 * H) or on_hood else kept).append(o)
     return kept, dropped
-
-
-def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
-    if hood is None or len(hood) == 0:
-        return None
-    m = np.zeros((height, width), np.uint8)
-    cv2.fillPoly(m, [np.round(np.asarray(hood)).astype(np.int32)], 1)
-    return m > 0
 
 
 def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraEstimate, detector, *,
@@ -105,7 +95,7 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
         else:
             walk, how = road.walkable(image, road.bands(road_px, camera, T, blocked), road_px)
         decide("walkable", round(float(walk.mean()), 4), how)
-        mask = np.where(road_px, road.ROAD, np.where(walk, road.BAND, 0)).astype(np.uint8)
+        mask = np.where(road_px, ROAD, np.where(walk, BAND, 0)).astype(np.uint8)
     centre = None
     if oncoming == "left":
         centre, how = lane_width_m / 2, "ground_plane.oncoming: left (beyond the ego lane's left edge)"
@@ -117,7 +107,7 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
     edge, how = road.edge_line(image, road_px, camera, T) if road_px is not None else (None, "no road region")
     decisions.append({"what": "edge_line_m", "value": None if edge is None else round(edge, 2), "reason": how})
     lines, how = lanes.lane_lines(image, road_px, camera, T)
-    ego = lanes.ego_lane(lines, lanes.X_REF, lane_width_m)
+    ego = lane_geometry.ego_lane(lines, lane_geometry.X_REF, lane_width_m)
     if ego is not None and abs((ego[1] - ego[0]) / lane_width_m - 1) > LANE_WIDTH_MISFIT:
         # a lane bounded by two lines, measured in the frame's metric (height, pitch): the
         # vehicles follow the paint, but everything virtual is out of scale with the road
@@ -136,24 +126,6 @@ def analyse_frame(image: np.ndarray, frame_id: str, camera: Camera, est: CameraE
     return fa, mask
 
 
-def write_analysis(folder: Path, fa: FrameAnalysis, mask: np.ndarray | None) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    if mask is not None:
-        atomic.write_image(folder / f"{fa.frame_id}_road.png", mask)
-    atomic.write_json(folder / f"{fa.frame_id}.json", fa.to_dict())  # last: marks the frame done
-
-
-def read_analysis(folder: Path, frame_id: str) -> FrameAnalysis | None:
-    p = Path(folder) / f"{frame_id}.json"
-    return FrameAnalysis.from_dict(json.loads(p.read_text())) if p.is_file() else None
-
-
-def read_road_mask(folder: Path, fa: FrameAnalysis) -> np.ndarray | None:
-    if not fa.road_mask:
-        return None
-    return cv2.imread(str(Path(folder) / fa.road_mask), cv2.IMREAD_GRAYSCALE)
-
-
 def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model: Path | None = None,
                  progress: bool = False, on_progress=None) -> dict[str, FrameAnalysis]:
     """Analyse the frames not yet analysed in `folder`; return every frame's analysis.
@@ -163,8 +135,9 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
     `gp`: the job's ground_plane section (numbers fix values, "auto" estimates them).
     `on_progress(frames_done, phase)`: called as the phases go (pipeline.outputs.StageProgress)."""
     report = on_progress or (lambda done, phase: None)
-    from blendgen.analysis.camera import estimate_cameras, is_sequence, read_frames
+    from blendgen.analysis.camera import estimate_cameras
     from blendgen.analysis.hood import find_hood
+    from blendgen.recording.frames import is_sequence, read_frames
 
     folder = Path(folder)
     todo = [f for f in frame_ids if not (folder / f"{f}.json").is_file()]

@@ -22,10 +22,9 @@ import cv2
 import numpy as np
 
 from blendgen import CLASSES, atomic
+from blendgen.detection.metrics import AREA_RANGES, evaluate
 from blendgen.errors import UserError
-from blendgen.eval.metrics import AREA_RANGES, evaluate
-from blendgen.labels.export import find_frame_labels
-from blendgen.labels.frame_labels import read_frame_labels
+from blendgen.frame_labels import find_frame_labels, read_frame_labels
 
 NAMES = {cid: name for name, cid in CLASSES.items()}
 METRICS = ("precision", "recall", "f1", "ap")
@@ -36,7 +35,7 @@ def run_realism(out_dir: Path, detector: Path, *, compare: Path | None = None, i
                 write: bool = True, progress=None) -> dict:
     """Score OUT (and OUT2 with `compare`); writes OUT/eval/realism.{json,md} and, with
     `compare`, OUT/eval/realism_compare.md. Returns {"runs": [result, ...], "table": markdown}."""
-    from blendgen.eval.detector import YoloxDetector
+    from blendgen.detection.detector import YoloxDetector
 
     if background not in ("auto", "none"):
         raise UserError(f"background must be 'auto' or 'none', got {background!r}", where="--background")

@@ -79,7 +79,7 @@ class Sync(Section):
 
 class AssetSource(BaseModel):
     """An `inject.assets` entry with sidecar fields given in the job (checked when the assets
-    are discovered, blendgen.scene.assets.Sidecar): they apply to every asset under `path`
+    are discovered, blendgen.job.assets.Sidecar): they apply to every asset under `path`
     and override the sidecars beside the files, key by key."""
 
     model_config = ConfigDict(extra="allow")
@@ -387,7 +387,7 @@ def _check_files(job: Job, source: str) -> None:
     if job.sync.lut is not None and not job.path(job.sync.lut).is_file():
         raise UserError(f"sync.lut: file {job.path(job.sync.lut)} does not exist", where=source)
     if job.inject.assets:  # sidecars and file headers, without Blender (docs/assets.md)
-        from blendgen.scene.assets import discover
+        from blendgen.job.assets import discover
 
         discover(job.asset_sources)
 

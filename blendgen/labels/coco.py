@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 from blendgen import CLASSES, __version__, atomic
-from blendgen.labels.frame_labels import all_instances
+from blendgen.frame_labels import all_instances
 
 SUPERCATEGORY = {"person": "person", "bicycle": "vehicle", "car": "vehicle", "motorcycle": "vehicle",
                  "bus": "vehicle", "truck": "vehicle", "traffic light": "outdoor"}

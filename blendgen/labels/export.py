@@ -6,8 +6,8 @@ from collections import Counter
 from pathlib import Path
 
 from blendgen.errors import UserError
+from blendgen.frame_labels import all_instances, read_frame_labels
 from blendgen.labels.coco import write_coco
-from blendgen.labels.frame_labels import all_instances, read_frame_labels
 from blendgen.labels.kitti import write_kitti
 from blendgen.labels.yolo import write_yolo
 
@@ -55,8 +55,3 @@ def source_counts(insts: list[dict]) -> dict:
     src = lambda i: i.get("source", "injected")  # noqa: E731
     return {"per_source": dict(sorted(Counter(src(i) for i in insts if not i["ignore"]).items())),
             "ignored_per_source": dict(sorted(Counter(src(i) for i in insts if i["ignore"]).items()))}
-
-
-def find_frame_labels(out_dir: Path) -> list[Path]:
-    """All frames/<id>/labels.json under OUT, sorted."""
-    return sorted(Path(out_dir).glob("frames/*/labels.json"))

@@ -18,7 +18,7 @@ from pycocotools import mask as mask_utils
 from blendgen import CLASSES
 from blendgen.errors import UserError
 from blendgen.geometry import Camera, invert_pose
-from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.plan import FramePlan, PlacedObject
 
 # Points nearer than this (metres, camera z) are clipped before projection: the part of a
 # box behind the camera has no image, and projecting it would flip through infinity.

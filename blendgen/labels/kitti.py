@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from blendgen import atomic
-from blendgen.labels.frame_labels import all_instances
+from blendgen.frame_labels import all_instances
 from blendgen.labels.yolo import link_image
 
 KITTI_TYPES = {  # export.kitti_types -> blendgen class -> KITTI type

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from blendgen import CLASSES, atomic
-from blendgen.labels.frame_labels import all_instances
+from blendgen.frame_labels import all_instances
 from blendgen.labels.instances import decode_mask
 
 IGNORE_GREY = 114

@@ -28,7 +28,7 @@ import numpy as np
 
 from blendgen import atomic
 from blendgen.analysis import split
-from blendgen.analysis.model import FrameAnalysis
+from blendgen.frame_analysis import FrameAnalysis
 from blendgen.job.schema import parse_job
 from blendgen.pipeline.outputs import JobFolder
 from blendgen.recording.folder import read_recording
@@ -215,8 +215,9 @@ class AnalysisTask(AnalysisContext):
         return self.part_path(item).is_file()
 
     def process(self, item: str) -> dict:
-        from blendgen.analysis import ground, road
-        from blendgen.analysis.stage import analyse_frame, write_analysis
+        from blendgen import ground
+        from blendgen.analysis import road
+        from blendgen.analysis.stage import analyse_frame
 
         t0 = time.process_time()
         cue = self.cue(item)

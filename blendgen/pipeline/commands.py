@@ -92,7 +92,7 @@ def cmd_validate(args) -> int:
     if job.inject.assets:
         from collections import Counter
 
-        from blendgen.scene.assets import discover
+        from blendgen.job.assets import discover
 
         n = Counter(r.sidecar["class"] for r in discover(job.asset_sources))
         print(f"  assets: {sum(n.values())} ({', '.join(f'{c} {k}' for c, k in sorted(n.items()))}); "

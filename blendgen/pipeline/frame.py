@@ -20,8 +20,8 @@ from blendgen.farm.processor import clean_stale_temps
 from blendgen.farm.seeds import frame_seed
 from blendgen.job.schema import parse_job
 from blendgen.pipeline.outputs import JobFolder
+from blendgen.plan import SCENERY_ID, FramePlan
 from blendgen.recording.folder import read_frame, read_recording
-from blendgen.scene.plan import SCENERY_ID, FramePlan
 
 
 def render_outputs(job) -> set[str]:
@@ -84,7 +84,7 @@ class FrameProcessor:
     def _georef(self):
         if self.job.twin_path is None:
             return None
-        from blendgen.scene.twin import load_twin
+        from blendgen.twin.model import load_twin
 
         return load_twin(self.job.twin_path).georef
 
@@ -92,7 +92,7 @@ class FrameProcessor:
         return self.folder.frame_done(frame_id, self.job.export.save_exr)
 
     def process(self, frame_id: str) -> dict:
-        from blendgen.labels.frame_labels import write_frame_labels
+        from blendgen.frame_labels import write_frame_labels
         from blendgen.labels.instances import extract_instances
         from blendgen.post.composite import composite_frame
         from blendgen.post.illumination import estimate_illumination
@@ -108,7 +108,7 @@ class FrameProcessor:
         fa, real_boxes = self._analysis(frame_id)
         illum = None
         if job.post.illumination == "auto":
-            from blendgen.analysis.model import RealObject
+            from blendgen.frame_analysis import RealObject
 
             # the real road users' shadows give the sun's azimuth when time/position do not
             users = [RealObject(b["cls"], 0.0, b["box"], o.footprint)
@@ -139,7 +139,7 @@ class FrameProcessor:
 
         t2 = time.perf_counter()
         if fa is not None and fa.hood:  # the real hood hides whatever is behind it
-            from blendgen.analysis.stage import hood_mask
+            from blendgen.frame_analysis import hood_mask
             from blendgen.post.composite import apply_occluder
 
             sx, sy = self.camera.width / fa.width, self.camera.height / fa.height
@@ -221,7 +221,7 @@ class FrameProcessor:
 
     def _analysis(self, frame_id: str):
         """The frame's analysis (ground-plane jobs) and its real boxes at the render resolution."""
-        from blendgen.analysis.stage import read_analysis
+        from blendgen.frame_analysis import read_analysis
 
         fa = read_analysis(self.folder.analysis, frame_id)
         if fa is None:

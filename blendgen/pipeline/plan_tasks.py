@@ -29,7 +29,7 @@ def plan_dir(out_dir: Path) -> Path:
 
 def job_twin(job):
     if job.twin_path is not None:
-        from blendgen.scene.twin import load_twin
+        from blendgen.twin.model import load_twin
 
         return load_twin(job.twin_path)
     from blendgen.scene.ground_plane import GroundPlaneTwin
@@ -60,7 +60,7 @@ class PlanWindowTask:
 
     @cached_property
     def assets(self):
-        from blendgen.scene.assets import CATALOG_NAME, AssetSampler
+        from blendgen.job.assets import CATALOG_NAME, AssetSampler
 
         if not self.job.inject.assets:
             return None
@@ -77,7 +77,7 @@ class PlanWindowTask:
         return W.window_path(self.dir, int(item[1:])).is_file()
 
     def process(self, item: str) -> dict:
-        from blendgen.analysis.stage import read_analysis
+        from blendgen.frame_analysis import read_analysis
 
         t0 = time.process_time()
         win = self.windows[int(item[1:])]

@@ -50,7 +50,7 @@ class Runner:
     @functools.cached_property
     def twin(self):
         if self.job.twin_path is not None:
-            from blendgen.scene.twin import load_twin
+            from blendgen.twin.model import load_twin
 
             return load_twin(self.job.twin_path)
         from blendgen.scene.ground_plane import GroundPlaneTwin
@@ -69,8 +69,8 @@ class Runner:
             self.skipped.append("record")
             self._say("record", f"synthetic recording already made ({root})")
             return
+        from blendgen.pipeline.synthetic import clear_sky_lighting, write_sensor_data
         from blendgen.recording.folder import write_frames_csv
-        from blendgen.recording.synthetic import clear_sky_lighting, write_sensor_data
 
         twin = self.twin
         s = job.synthetic
@@ -82,7 +82,7 @@ class Runner:
         ids = [rec.frame_id(i) for i in range(len(frame_t))]
         render = job.render.model_dump()
         render["resolution"] = None
-        summary = self._farm("record", ids, "blendgen.recording.synthetic:BackgroundRenderer",
+        summary = self._farm("record", ids, "blendgen.pipeline.synthetic:BackgroundRenderer",
                              {"recording_dir": str(root), "twin_path": str(job.twin_path), "render": render,
                               "samples": s.samples, "lighting": lighting})
         if summary.failed or summary.failed_items:
@@ -208,7 +208,7 @@ class Runner:
     def assets(self):
         """Import and measure every library asset once in a farm worker (resumable), write
         OUT/assets.json, and stop with every bad asset named before anything is planned."""
-        from blendgen.scene.assets import CATALOG_NAME, AssetSampler, discover, result_path
+        from blendgen.job.assets import CATALOG_NAME, AssetSampler, discover, result_path
 
         if not self.job.inject.assets:
             return None
@@ -321,8 +321,8 @@ class Runner:
         return summary
 
     def _summary(self, ids, farm_summary, export) -> dict:
+        from blendgen.frame_labels import all_instances, read_frame_labels
         from blendgen.labels.export import source_counts
-        from blendgen.labels.frame_labels import all_instances, read_frame_labels
 
         done = [i for i in ids if self.folder.frame_done(i, self.job.export.save_exr)]
         per_class: Counter = Counter()

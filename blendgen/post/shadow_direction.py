@@ -16,7 +16,7 @@ import math
 import cv2
 import numpy as np
 
-from blendgen.analysis.ground import to_ground
+from blendgen.ground import to_ground
 from blendgen.post.colorspace import LUMA_BGR, srgb_u8_to_linear
 
 CASTERS = ("car", "truck", "bus", "person")  # solid, ground-standing; two-wheelers cast thin shadows

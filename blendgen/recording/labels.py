@@ -40,6 +40,7 @@ SYNONYMS = {"motorbike": "motorcycle", "pedestrian": "person", "people": "person
 # Tram and Misc are no blendgen class, DontCare is KITTI's ignore region.
 KITTI_TYPES = {"car": "car", "van": "car", "truck": "truck", "pedestrian": "person", "person_sitting": "person",
                "cyclist": "ignore", "tram": "ignore", "misc": "ignore", "dontcare": "ignore"}
+IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")  # what a folder of images may hold
 EDGE_TOL_PX = 1.0  # a box may overshoot the image by this much (rounding in the source tool); it is clipped
 
 
@@ -335,7 +336,6 @@ def labelled_folder(images_dir: Path, labels: Path, fmt: str, *, class_map=None)
     YOLO, where a missing label file means no object (Ultralytics' convention)."""
     import cv2
 
-    from blendgen.recording.importers.images import IMAGE_EXTS
 
     images_dir = Path(images_dir)
     if not images_dir.is_dir():

@@ -19,8 +19,8 @@ from mathutils import Matrix
 
 from blendgen import atomic
 from blendgen.errors import UserError
-from blendgen.scene.assets import AssetRef, normalisation, resolve_reference, result_path
-from blendgen.scene.plan import PlacedObject
+from blendgen.job.assets import AssetRef, normalisation, resolve_reference, result_path
+from blendgen.plan import PlacedObject
 
 MESHLIKE = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
 LIB_PREFIX = "blendgen_asset"
@@ -423,7 +423,7 @@ def inspect(ref: AssetRef) -> dict:
 
 class AssetInspector:
     """Farm processor of the `assets` step. Item: the stem of the asset's result file
-    (blendgen.scene.assets.result_path, keyed by its fingerprint, so a changed asset is
+    (blendgen.job.assets.result_path, keyed by its fingerprint, so a changed asset is
     inspected again). A bad asset's result is {"error": ...}: the supervisor reports them
     all before planning."""
 
@@ -455,7 +455,7 @@ class AssetLibrary:
         self.templates: dict[tuple[str, str | None], list[tuple[object, Matrix]]] = {}
 
     def load(self, variant: dict) -> None:
-        """Import what `variant` (from blendgen.scene.assets.asset_variant) needs, if not cached."""
+        """Import what `variant` (from blendgen.job.assets.asset_variant) needs, if not cached."""
         key = (variant["file"], variant.get("node"))
         if key in self.templates:
             return

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from blendgen.geometry import Camera, invert_pose
-from blendgen.scene.plan import FramePlan, PlacedObject
+from blendgen.plan import FramePlan, PlacedObject
 
 OUTPUTS = ("rgba", "index", "depth", "shadow_catcher", "lighting")
 LIGHTING_PASSES = ("diffuse_direct", "diffuse_indirect", "diffuse_color",

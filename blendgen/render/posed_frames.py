@@ -23,7 +23,7 @@ SUN = {"sun_direction": [0.45, -0.35, 0.82], "sun_strength": 3.0, "sun_color": [
 def route_poses(twin_path: Path, specs: list[dict]) -> dict[str, dict]:
     """Camera poses on the twin's lanes: each spec has name, seed (which lane/place), s (metres
     along the route), height_m, pitch_deg, roll_deg and yaw_deg (offset from the lane direction)."""
-    from blendgen.scene.twin import load_twin
+    from blendgen.twin.model import load_twin
 
     twin = load_twin(twin_path)
     out = {}

@@ -26,13 +26,13 @@ from mathutils import Matrix, Vector
 from blendgen.atomic import atomic_path
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import Camera
+from blendgen.plan import SCENERY_ID, FramePlan, PlacedObject
 from blendgen.render import effects as fx
 from blendgen.render import environment as plate_env
 from blendgen.render import passes as passes_mod
 from blendgen.render.exr import empty_passes, read_passes, write_passes
 from blendgen.render.projection import blender_intrinsics, blender_matrix_world, make_canvas
 from blendgen.render.raster import rasterize_mask
-from blendgen.scene.plan import SCENERY_ID, FramePlan, PlacedObject
 
 GROUND_ROLES = {"road", "sidewalk", "marking"}
 HOLDOUT_ROLES = {"structure", "vegetation"}
@@ -260,7 +260,7 @@ class RenderSession:
     def _build_twin(self, twin_path: Path):
         try:
             from assets_procedural.twin_builder import build_twin
-            from blendgen.scene.twin import load_twin
+            from blendgen.twin.model import load_twin
         except ImportError as e:
             raise StageError(f"cannot build the twin {twin_path}: {e}") from None
         if not twin_path.is_file():

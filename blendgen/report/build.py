@@ -11,8 +11,7 @@ import numpy as np
 
 from blendgen import CLASSES, atomic
 from blendgen.errors import UserError
-from blendgen.labels.export import find_frame_labels
-from blendgen.labels.frame_labels import all_instances, read_frame_labels
+from blendgen.frame_labels import all_instances, find_frame_labels, read_frame_labels
 from blendgen.report.draw import CLASS_BGR, contact_sheet, draw_labels
 
 SHEET_FRAMES = 8
@@ -86,7 +85,7 @@ def _analysis_section(out_dir: Path, rep: Path) -> list[str]:
     over the real frame, so a person can check the analysis the planner trusted at a glance."""
     import yaml
 
-    from blendgen.analysis.stage import read_analysis, read_road_mask
+    from blendgen.frame_analysis import read_analysis, read_road_mask
     from blendgen.recording.folder import read_frame, read_recording
     from blendgen.report.draw import draw_analysis
 

@@ -1,1 +1,1 @@
-"""Bpy-free scene side: the twin model, placement and per-frame plans."""
+"""Bpy-free scene side: placement on the twin and the per-frame plans."""

@@ -1,10 +1,10 @@
 """The object catalog (bpy-free): a seeded sampler of builder parameters and real-world
 dimensions per class, so the planner knows each object's box before Blender builds it.
 
-Target sizes are drawn from typical European/North-American ranges per body type; the
-returned dims (length x, width y, height z; metres) are the tight box of the geometry that
-`assets_procedural.shapes` (NumPy, bpy-free) builds for the variant, and
-`assets_procedural.objects.build_object` builds exactly that geometry in Blender.
+Target sizes are drawn from typical European/North-American ranges per body type
+(`blendgen.dimensions`); the returned dims (length x, width y, height z; metres) are the
+tight box of the geometry that `assets_procedural.shapes` (NumPy, bpy-free) builds for the
+variant, and `assets_procedural.objects.build_object` builds exactly that geometry in Blender.
 """
 
 from __future__ import annotations
@@ -14,23 +14,8 @@ import json
 import numpy as np
 
 from blendgen import CLASSES
+from blendgen.dimensions import BUS_BODIES, CAR_BODIES, TRUCK_BODIES
 
-# kind -> (length range, width range, height range)
-CAR_BODIES = {
-    "sedan": ((4.40, 4.90), (1.76, 1.86), (1.40, 1.50)),
-    "hatchback": ((3.80, 4.25), (1.68, 1.78), (1.42, 1.54)),
-    "suv": ((4.50, 4.95), (1.85, 1.98), (1.65, 1.80)),
-    "van": ((4.80, 5.30), (1.90, 2.02), (1.72, 2.00)),
-}
-TRUCK_BODIES = {
-    "box_truck": ((6.5, 8.5), (2.40, 2.50), (3.20, 3.60)),
-    "semi": ((15.0, 16.5), (2.50, 2.55), (3.80, 4.00)),
-    "pickup": ((5.30, 5.90), (1.95, 2.05), (1.80, 1.95)),
-}
-BUS_BODIES = {
-    "city": ((11.5, 12.2), (2.50, 2.55), (3.00, 3.20)),
-    "midi": ((8.5, 9.5), (2.35, 2.45), (2.90, 3.05)),
-}
 # most box bodies and trailers are plain white or aluminium; liveries are a minority
 CARGO_WEIGHTS = {"white": 0.55, "silver": 0.2, "red": 0.08, "blue": 0.08, "yellow": 0.09}
 CAR_PAINTS = {  # linear RGB, roughly the world's car-colour mix
@@ -184,18 +169,3 @@ def shape_extent(cls: str, variant: dict) -> tuple[float, float, float]:
     lo, hi = part_box(cls, variant)
     return tuple(round(float(x), 4) for x in hi - lo)
 
-
-def _mid(ranges) -> tuple[float, float, float]:
-    return tuple(float(np.mean([np.mean(r[i]) for r in ranges])) for i in range(3))
-
-
-# Typical (length, width, height) per class: what a real road user found by a detector is
-# assumed to measure (the mean of the body-type ranges above; riders included).
-TYPICAL_DIMS: dict[str, tuple[float, float, float]] = {
-    "car": _mid(CAR_BODIES.values()),
-    "truck": _mid(TRUCK_BODIES.values()),
-    "bus": _mid(BUS_BODIES.values()),
-    "person": (0.45, 0.55, 1.71),
-    "bicycle": (1.75, 0.61, 1.65),
-    "motorcycle": (2.1, 0.81, 1.55),
-}

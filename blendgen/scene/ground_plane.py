@@ -14,8 +14,8 @@ import numpy as np
 
 from blendgen.errors import UserError
 from blendgen.geometry import R_world_cam_from_ypr, make_pose
-from blendgen.scene.twin import Twin
-from blendgen.scene.twin_schema import TwinSpec
+from blendgen.twin.model import Twin
+from blendgen.twin.schema import TwinSpec
 
 
 class GroundPlaneTwin(Twin):

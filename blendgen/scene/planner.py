@@ -21,13 +21,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from blendgen.frame_analysis import BAND, ROAD
+from blendgen.geom2d import convex_overlap, point_in_convex, wrap_angle
 from blendgen.geometry import Camera, yaw_of_camera
+from blendgen.plan import SCENERY_ID, FramePlan, PlacedObject
 from blendgen.scene.catalog import SPEED, sample_variant
-from blendgen.scene.geom2d import convex_overlap, point_in_convex, wrap_angle
-from blendgen.scene.plan import SCENERY_ID, FramePlan, PlacedObject
+from blendgen.scene.real_scene import ROAD_EDGE
 from blendgen.scene.riders import split_rider
-from blendgen.scene.real_scene import BAND, ROAD, ROAD_EDGE
-from blendgen.scene.twin import Twin
+from blendgen.twin.model import Twin
 
 # The ego vehicle's footprint relative to the camera (dashcam behind the windscreen).
 EGO_LENGTH, EGO_WIDTH = 4.6, 1.85
@@ -133,7 +134,7 @@ class _Ego:
 class Planner:
     def __init__(self, twin: Twin, camera: Camera, poses, inject, seed: int, *, assets=None, real=None):
         self.twin, self.camera, self.inject = twin, camera, inject
-        self.assets = assets  # blendgen.scene.assets.AssetSampler or None
+        self.assets = assets  # blendgen.job.assets.AssetSampler or None
         self.real = real  # scene.real_scene.RealScene: the real frames' road users, road and hood
         self.reason = ""  # why the last candidate was rejected (for the manifest)
         self.rng = np.random.default_rng(seed)

@@ -17,11 +17,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from blendgen.analysis.lanes import kept_lines, lane_centres
-from blendgen.analysis.model import FrameAnalysis
-from blendgen.analysis.road import BAND, ROAD  # noqa: F401 - the planner takes them from here
+from blendgen.frame_analysis import BAND, ROAD, FrameAnalysis
+from blendgen.geom2d import convex_overlap
 from blendgen.geometry import Camera
-from blendgen.scene.geom2d import convex_overlap
+from blendgen.lane_geometry import kept_lines, lane_centres
 
 WHEELED = ("car", "bus", "truck", "motorcycle", "bicycle")
 ROAD_EDGE = -1             # sample_ground: road pixels within EDGE_PX of its left or right edge
@@ -175,7 +174,7 @@ class RealScene:
                       keep=None) -> np.ndarray | None:
         """A ground point (x, y) on frame k's road or band between d0 and d1 metres away (and,
         with `keep`, one of the points (N, 2) for which keep(points) is True)."""
-        from blendgen.analysis.ground import to_ground
+        from blendgen.ground import to_ground
 
         rf = self.frames[k] if k < len(self.frames) else None
         if rf is None or rf.road is None:  # nothing estimated to stand on (RealScene.closed says why)
@@ -228,7 +227,7 @@ def _inset(corners: np.ndarray, f: float = 0.15) -> np.ndarray:
 
 def load_real_scene(analysis_dir, frame_ids: list[str], camera: Camera) -> RealScene:
     """The analysis stage's files for `frame_ids` (a frame without a file gets None)."""
-    from blendgen.analysis.stage import hood_mask, read_analysis, read_road_mask
+    from blendgen.frame_analysis import hood_mask, read_analysis, read_road_mask
 
     frames = []
     for fid in frame_ids:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from blendgen.scene.plan import PlacedObject
+from blendgen.plan import PlacedObject
 
 TWO_WHEELERS = ("bicycle", "motorcycle")
 

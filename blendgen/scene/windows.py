@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from blendgen import atomic
-from blendgen.scene.plan import SCENERY_ID, FramePlan, PlacedObject
+from blendgen.plan import SCENERY_ID, FramePlan, PlacedObject
 from blendgen.scene.planner import Planner, Track
 from blendgen.scene.real_scene import RealFrame, RealScene
 from blendgen.scene.riders import split_rider
@@ -273,14 +273,14 @@ class LazyRealFrame(RealFrame):
     @property
     def road(self):
         if not self._road_read:
-            from blendgen.analysis.stage import read_road_mask
+            from blendgen.frame_analysis import read_road_mask
 
             self._road, self._road_read = read_road_mask(self.folder, self.fa), True
         return self._road
 
     @property
     def hood(self):
-        from blendgen.analysis.stage import hood_mask
+        from blendgen.frame_analysis import hood_mask
 
         if not self.fa.hood:
             return None

@@ -67,7 +67,7 @@ def _run(args: argparse.Namespace) -> int:
     rec = read_recording(args.recording)
     georef, road = (tuple(args.georef) if args.georef else None), None
     if args.twin is not None:
-        from blendgen.scene.twin import load_twin
+        from blendgen.twin.model import load_twin
 
         twin = load_twin(args.twin)
         georef = georef if georef is not None else twin.georef

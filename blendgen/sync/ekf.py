@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from blendgen.sync import so3
+from blendgen import so3
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])
 NC = 24  # core error states (15 navigation + 9 calibration)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from blendgen import so3
 from blendgen.geometry import Camera, pose_from_xyz_quat
-from blendgen.sync import so3
 
 
 def gt_poses(groundtruth: np.ndarray) -> list[np.ndarray]:

@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from blendgen import so3
 from blendgen.geometry import invert_pose, make_pose
-from blendgen.sync import road_height, so3
+from blendgen.sync import road_height
 from blendgen.sync.pipeline import LEVEL_STD, NHC_LAT_STD, NHC_MIN_SPEED, NHC_UP_STD
 
 

@@ -19,20 +19,20 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
-from blendgen import atomic
+from blendgen import atomic, so3
 from blendgen.errors import StageError, UserError
 from blendgen.geometry import invert_pose, make_pose, matrix_to_quat
 from blendgen.recording.model import Recording
-from blendgen.sync import calibration, odometer, road_height, so3
+from blendgen.sync import calibration, odometer, road_height
 from blendgen.sync.ekf import CALIB, NC, EkfConfig, ErrorStateEkf
 from blendgen.sync.latency import LatencyProfile, profile_latency
 from blendgen.sync.lut import Lut
-from blendgen.sync.reanchor import reanchor
 from blendgen.sync.readout import Readout, estimate_readout
+from blendgen.sync.reanchor import reanchor
 from blendgen.sync.threads import single_thread_blas
-from blendgen.sync.vo import VoConfig, VoResult, along_subset, make_vo, refit_along
 from blendgen.sync.time_offset import TimeOffset, estimate_time_offset, not_estimated
 from blendgen.sync.vo_trust import VO_ROT_FLOOR_ASSUMED_LENS, GyroIntegrator, TrustReport, assess, vo_noise
+from blendgen.vo import VoConfig, VoResult, along_subset, make_vo, refit_along
 
 # vehicle-frame constraints (per GNSS fix while moving): lateral slip and vertical (suspension)
 # velocity of a car, and how far from level across a road is (crown, banking)

@@ -28,10 +28,10 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
-from blendgen.sync import so3
+from blendgen import so3
 from blendgen.sync.latency import profile_latency
 from blendgen.sync.time_offset import _huber_nll, _Pairs, _rms_deg, _sigma, profile_jackknife
-from blendgen.sync.vo import _kabsch, _refine_rt, rs_bearings
+from blendgen.vo import _kabsch, _refine_rt, rs_bearings
 
 MAX_S = 0.05          # search [0, MAX_S], and below the frame interval
 STEP_S = 0.005

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from blendgen.sync import so3
+from blendgen import so3
 
 MERGE_M = 1.0
 

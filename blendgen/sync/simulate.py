@@ -23,9 +23,9 @@ import pymap3d
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
+from blendgen import so3
 from blendgen.geometry import Camera, invert_pose, make_pose, pose_to_xyz_quat
 from blendgen.recording.model import ImuNoise, Recording
-from blendgen.sync import so3
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])
 GEOREF = (48.137, 11.575, 520.0)

@@ -19,8 +19,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from blendgen.sync import so3
-from blendgen.sync.vo import VoResult
+from blendgen import so3
+from blendgen.vo import VoResult
 
 # measured on the 60 s synthetic drive (480x270, 5 fps; ORB and KLT): true / predicted std
 # was 2.1-2.4 for the rotation and 2.6-3.2 for the direction (median NEES per dof 2.2-7.5)

@@ -106,7 +106,7 @@ def predict(model, samples: list[Sample], category_ids, size: int = 416, batch: 
     """Detections of `model` (YoloxNano) on each sample's image, in its pixels."""
     import torch
 
-    from blendgen.eval.detector import decode
+    from blendgen.detection.detector import decode
 
     grid, stride = (t.numpy().astype(np.float64) for t in model.grids(size, size))
     out = []

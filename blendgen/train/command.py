@@ -46,7 +46,7 @@ def _run(args) -> int:
         raise UserError("train-check needs PyTorch, which is an optional extra: pip install 'blendgen[train]' "
                         "(the CPU build, torch==2.13.0)") from None
     from blendgen import atomic
-    from blendgen.analysis.objects import BUNDLED_MODEL
+    from blendgen.detection.detector import BUNDLED_MODEL
     from blendgen.recording.labels import labelled_folder
     from blendgen.train.check import train_check
     from blendgen.train.data import from_labelled, load_source

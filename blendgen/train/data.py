@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 
 from blendgen import CLASSES
+from blendgen.detection.detector import COCO80_TO_ID, letterbox
 from blendgen.errors import UserError
-from blendgen.eval.detector import COCO80_TO_ID, letterbox
 
 ID_TO_INDEX = {cid: k for k, cid in enumerate(COCO80_TO_ID)}
 CLASS_OF_ID = {cid: name for name, cid in CLASSES.items()}

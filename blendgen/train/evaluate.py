@@ -1,5 +1,5 @@
 """AP@0.5 per class on a labelled test set: pycocotools' COCOeval for the number, the same
-matching per image (blendgen.eval.metrics, which reproduces COCOeval) for bootstrap intervals
+matching per image (blendgen.detection.metrics, which reproduces COCOeval) for bootstrap intervals
 over test images, across one or several training seeds. No torch here.
 
 Detections for an image come from any detector as [{bbox [x, y, w, h], score, category_id}].
@@ -17,7 +17,7 @@ import warnings
 
 import numpy as np
 
-from blendgen.eval.metrics import interpolated_ap, match_image
+from blendgen.detection.metrics import interpolated_ap, match_image
 
 MAX_DETS = 100
 

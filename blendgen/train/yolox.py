@@ -15,7 +15,7 @@ real images and puts them into the BatchNorm (running mean/var, and gamma/beta c
 that the network computes exactly what the ONNX model computes), so train mode starts from
 the pretrained function.
 
-Output layout as the ONNX export (and blendgen.eval.detector): per anchor point
+Output layout as the ONNX export (and blendgen.detection.detector): per anchor point
 (cx, cy, log w, log h) raw, objectness and 80 class scores through a sigmoid.
 """
 

@@ -52,7 +52,10 @@ def _series(d: Path, ncols: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = False,
-                     show_progress: bool = True) -> Path:
+                     show_progress: bool = True, camera_yaw=None) -> Path:
+    """`camera_yaw(bgr, camera) -> (yaw_deg | None, std_deg, how)` measures the camera's yaw in
+    the car on the segment's preview frame (`blendgen import` passes
+    `analysis.lane_direction.still_camera_yaw`); None: not measured."""
     from pymap3d import ecef2enu, ecef2geodetic
 
     seg = Path(src)
@@ -133,7 +136,7 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
         origin = float(np.median(gv[:, 3] / 1000.0 - tn))
         extra["time_origin_utc"] = datetime.fromtimestamp(origin, tz=timezone.utc).isoformat()
     rate = float(1.0 / np.median(np.diff(tg))) if len(tg) > 1 else 100.0
-    vehicle, why = _camera_yaw(seg / "preview.png")
+    vehicle, why = _camera_yaw(seg / "preview.png", camera_yaw)
     if vehicle:
         extra["vehicle"] = vehicle
     notes.append(why)
@@ -155,25 +158,22 @@ def import_comma2k19(src, dst, *, gnss_source: str = "ublox", force: bool = Fals
 T_CAM_IMU_YAW_STD_DEG = 1.0
 
 
-def _camera_yaw(preview: Path) -> tuple[dict, str]:
-    """calib.yaml `vehicle:` keys with the camera's yaw in the car from the lane markings in the
-    segment's preview frame (blendgen.analysis.lane_direction), and a note for the import."""
+def _camera_yaw(preview: Path, measure) -> tuple[dict, str]:
+    """calib.yaml `vehicle:` keys with the camera's yaw in the car, measured by `measure` on the
+    segment's preview frame, and a note for the import."""
+    if measure is None:
+        return {}, "no camera yaw in the car: not measured at import"
     import cv2
-
-    from blendgen.analysis.hood import hood_in_still
-    from blendgen.analysis.lane_direction import LANE_HEADING_STD_DEG, lane_direction
 
     img = cv2.imread(str(preview)) if preview.is_file() else None
     if img is None:
         return {}, f"no camera yaw in the car: {preview.name} is missing or unreadable"
-    r = lane_direction(img, EON_CAMERA, hood=hood_in_still(img)[0])
-    if r.yaw_deg is None:
-        return {}, f"no camera yaw in the car from {preview.name}: {r.reason}"
-    std = float(np.hypot(r.yaw_std_deg, LANE_HEADING_STD_DEG))
-    return ({"camera_yaw_deg": round(r.yaw_deg, 3), "camera_yaw_std_deg": round(std, 3),
+    yaw, std, how = measure(img, EON_CAMERA)
+    if yaw is None:
+        return {}, f"no camera yaw in the car from {preview.name}: {how}"
+    return ({"camera_yaw_deg": round(yaw, 3), "camera_yaw_std_deg": round(std, 3),
              "T_cam_imu_yaw_std_deg": T_CAM_IMU_YAW_STD_DEG},
-            f"camera yaw in the car {r.yaw_deg:+.2f} +- {std:.2f} deg: vanishing point of {r.lines} lane markings "
-            f"in {preview.name}")
+            f"camera yaw in the car {yaw:+.2f} +- {std:.2f} deg: {how} in {preview.name}")
 
 
 def groundtruth_georef(rec) -> tuple[float, float, float]:

@@ -18,8 +18,7 @@ from blendgen.errors import UserError
 from blendgen.recording import folder
 from blendgen.recording.importers import common
 from blendgen.recording.importers.video import DEFAULT_HFOV_DEG, _load_user_calib
-
-IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+from blendgen.recording.labels import IMAGE_EXTS, parse_class_map, read_labels, write_recording_labels
 
 
 def import_images(src, dst, *, calib=None, hfov_deg: float | None = None, force: bool = False,
@@ -44,8 +43,6 @@ def import_images(src, dst, *, calib=None, hfov_deg: float | None = None, force:
     h, w = size
     frame_labels = None
     if labels is not None:  # read and checked before anything is written
-        from blendgen.recording.labels import parse_class_map, read_labels
-
         if label_format is None:
             raise UserError("--labels needs --label-format coco, yolo or kitti", where=str(labels))
         cmap = parse_class_map(class_map)
@@ -72,8 +69,6 @@ def import_images(src, dst, *, calib=None, hfov_deg: float | None = None, force:
                                      *(f"{n} <- {p.name}" for n, p in zip(names, files))])
     folder.write_calib(dst, camera, None, None, extra={"import": meta})
     if frame_labels is not None:
-        from blendgen.recording.labels import write_recording_labels
-
         write_recording_labels(dst, frame_labels, w, h, {"path": str(Path(labels).resolve()), "format": label_format,
                                                          "class_map": cmap})
     return dst

@@ -4,7 +4,7 @@
 module finds them, reads their sidecars (`<stem>.yaml` beside the file, or `asset.yaml` for
 the whole folder), checks each file's header and the files it references (buffers,
 textures), and turns an asset's measured geometry into its normalised real size and the
-transform that puts it in the object frame of `blendgen.scene.plan` (x forward, y left,
+transform that puts it in the object frame of `blendgen.plan` (x forward, y left,
 z up, origin at the centre of the bottom face). The import and the measuring happen in a
 farm worker (`blendgen.render.assets`); its results form the catalog `OUT/assets.json`
 that the planner draws from.
@@ -42,7 +42,7 @@ FOLDER_SIDECAR = "asset.yaml"
 AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 # Real sizes (length x, width y, height z; metres) an asset of each class may have; the
-# catalog's procedural ranges (blendgen/scene/catalog.py) widened to what real vehicles and
+# catalog's procedural ranges (blendgen/dimensions.py) widened to what real vehicles and
 # people span. KEY_DIM is the size a unit-less asset is scaled by.
 CLASS_DIMS = {
     "car": ((3.0, 5.6), (1.45, 2.1), (1.2, 2.2)),

@@ -512,7 +512,7 @@ def _widths_along(wf: np.ndarray, wb: np.ndarray) -> dict:
 def twin_data(odr: OdrMap) -> dict:
     """The map as twin fields (TwinSpec data): each lane section becomes a road whose
     centre-line is the reference line shifted by the lane offset, sampled every SAMPLE_M."""
-    from blendgen.scene.geom2d import Polyline
+    from blendgen.geom2d import Polyline
 
     georef = map_georef(odr)
     roads, lines, where = [], {}, {}

@@ -14,10 +14,18 @@ pitch > 0 tilts the optical axis up and roll > 0 turns the image clockwise as in
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
+
+from blendgen import atomic
+
 SCHEMA_VERSION = 1
+ROAD, BAND = 255, 128  # the road mask's values: drivable road, the walkable band beside it
 
 
 @dataclass
@@ -73,3 +81,29 @@ class FrameAnalysis:
         d["camera"] = CameraEstimate(**d["camera"])
         d["real_objects"] = [RealObject(**o) for o in d.get("real_objects", [])]
         return cls(**d)
+
+
+def write_analysis(folder: Path, fa: FrameAnalysis, mask: np.ndarray | None) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    if mask is not None:
+        atomic.write_image(folder / f"{fa.frame_id}_road.png", mask)
+    atomic.write_json(folder / f"{fa.frame_id}.json", fa.to_dict())  # last: marks the frame done
+
+
+def read_analysis(folder: Path, frame_id: str) -> FrameAnalysis | None:
+    p = Path(folder) / f"{frame_id}.json"
+    return FrameAnalysis.from_dict(json.loads(p.read_text())) if p.is_file() else None
+
+
+def read_road_mask(folder: Path, fa: FrameAnalysis) -> np.ndarray | None:
+    if not fa.road_mask:
+        return None
+    return cv2.imread(str(Path(folder) / fa.road_mask), cv2.IMREAD_GRAYSCALE)
+
+
+def hood_mask(hood, width: int, height: int) -> np.ndarray | None:
+    if hood is None or len(hood) == 0:
+        return None
+    m = np.zeros((height, width), np.uint8)
+    cv2.fillPoly(m, [np.round(np.asarray(hood)).astype(np.int32)], 1)
+    return m > 0

@@ -72,6 +72,11 @@ def all_instances(doc: dict) -> list[dict]:
     return list(doc["instances"]) + list(doc.get("real") or [])
 
 
+def find_frame_labels(out_dir: Path) -> list[Path]:
+    """All frames/<id>/labels.json under OUT, sorted."""
+    return sorted(Path(out_dir).glob("frames/*/labels.json"))
+
+
 def resolve_image(labels_path: Path, image: str) -> Path:
     """The image is relative to the labels file's folder; OUT-relative paths are accepted too."""
     p = Path(image)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from blendgen.analysis.model import CameraEstimate
+from blendgen.frame_analysis import CameraEstimate
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose
 
 

@@ -16,34 +16,14 @@ import numpy as np
 
 from blendgen import atomic
 from blendgen.errors import UserError
+from blendgen.twin.maps import FORMATS, map_format, map_twin_data
+from blendgen.twin.model import load_twin
 
-FORMATS = {".xodr": "opendrive", ".osm": "osm", ".pbf": "osm"}
 LUT_SPACING_M = 2.0
-
-
-def map_format(path: Path) -> str | None:
-    return FORMATS.get(Path(path).suffix.lower())
-
-
-def map_twin_data(path, fmt: str | None = None) -> dict:
-    """TwinSpec data for a map file (OpenDRIVE or OpenStreetMap)."""
-    path = Path(path)
-    fmt = fmt or map_format(path)
-    if fmt == "opendrive":
-        from blendgen.scene.opendrive import read_opendrive, twin_data
-
-        return twin_data(read_opendrive(path))
-    if fmt == "osm":
-        from blendgen.scene.osm import twin_data_from_osm
-
-        return twin_data_from_osm(path)
-    raise UserError(f"unknown map format {path.suffix!r}; expected .xodr, .osm or .osm.pbf", where=str(path))
 
 
 def import_twin(fmt: str, src: Path, out: Path) -> dict:
     """Write the twin folder; returns timings and counts."""
-    from blendgen.scene.twin import load_twin
-
     src = Path(src)
     if not src.is_file():
         raise UserError("no such map file", where=str(src))
@@ -149,8 +129,6 @@ def _cmd_import(args) -> int:
 
 
 def _cmd_show(args) -> int:
-    from blendgen.scene.twin import load_twin
-
     path = args.twin / "twin.yaml" if args.twin.is_dir() else args.twin
     twin = load_twin(path)
     png = args.out or path.with_suffix(".png")

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from blendgen import so3
 from blendgen.geometry import Camera
-from blendgen.sync import so3
 
 
 @dataclass

@@ -1,4 +1,8 @@
-"""`blendgen import FORMAT SRC DST` and `blendgen import --check DST`."""
+"""`blendgen import FORMAT SRC DST` and `blendgen import --check DST`.
+
+The importers (`recording.importers`) read; what the frame analysis measures at import is
+passed to them from here: comma2k19's camera yaw in the car from its preview frame.
+"""
 
 from __future__ import annotations
 
@@ -93,6 +97,10 @@ def run(args) -> int:
         val = getattr(args, dest)
         if val is not None:
             opts["cam" if dest == "kitti_cam" else dest] = val
+    if args.format == "comma2k19":
+        from blendgen.analysis.lane_direction import still_camera_yaw
+
+        opts["camera_yaw"] = still_camera_yaw
     dst = import_recording(args.format, args.src, args.dst, force=args.force,
                            show_progress=not args.no_progress, **opts)
     print(f"wrote {dst}", file=sys.stderr)

@@ -21,6 +21,10 @@ COCO80_TO_ID = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 14, 15, 16, 17, 18, 19, 2
                 52, 53, 54, 55, 56, 57, 58, 59, 60, 61, 62, 63, 64, 65, 67, 70, 72, 73, 74, 75, 76, 77,
                 78, 79, 80, 81, 82, 84, 85, 86, 87, 88, 89, 90]
 STRIDES = (8, 16, 32)
+# YOLOX-Nano (Apache-2.0), shipped inside the package (models/ with its LICENSE and NOTICE):
+# nothing is downloaded. Its sha256 is checked before use (analysis.objects.load_detector).
+BUNDLED_MODEL = Path(__file__).with_name("models") / "yolox_nano.onnx"
+BUNDLED_SHA256 = "c789161ed43c8269fcd4e67c67eeeb4e80c622da2eb296a20bc6007bd18a0b7d"
 
 
 class YoloxDetector:

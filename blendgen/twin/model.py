@@ -20,9 +20,10 @@ from pydantic import ValidationError
 
 from blendgen import atomic
 from blendgen.errors import UserError
+from blendgen.geom2d import Polyline, convex_overlap, point_in_convex, rect
+from blendgen.twin.maps import map_format, map_twin_data
+from blendgen.twin.schema import Road, TwinSpec
 from blendgen.validation import error_lines, read_yaml_mapping
-from blendgen.scene.geom2d import Polyline, convex_overlap, point_in_convex, rect
-from blendgen.scene.twin_schema import Road, TwinSpec
 
 STEP_M = 1.0  # centre-line sampling
 SIGNAL_POLE_M = 4.2  # height of the signal poles built at intersection signal slots
@@ -741,8 +742,6 @@ class Twin:
 
 def load_twin(path) -> Twin:
     """Load and validate a twin YAML; bad input raises UserError naming the field."""
-    from blendgen.scene.map_import import map_format, map_twin_data
-
     path = Path(path)
     if map_format(path):  # a map named directly (`twin: town.xodr`)
         data = map_twin_data(path)

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import subprocess
 import sys
 import time
@@ -28,17 +27,17 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS, REAL, RESULTS, ROOT, ci95  # noqa: E402
 
 from blendgen import atomic  # noqa: E402
 from blendgen.analysis.camera import CameraConfig, estimate_frame  # noqa: E402
 from blendgen.geometry import Camera  # noqa: E402
 
-FRAMES_DIR = ROOT / "benchmarks" / "results" / "tmp" / "camera_frames"
+FRAMES_DIR = RESULTS / "tmp" / "camera_frames"
 CAM = Camera.from_hfov(960, 540, 70)
 LANE_W = 3.3                       # the demo town's main-street lanes (3.25 on the cross street)
 # ../shared/data beside the project; BLENDGEN_SHARED_DATA points elsewhere (e.g. from a worktree)
-BDD = Path(os.environ.get("BLENDGEN_SHARED_DATA", ROOT.parent / "shared" / "data")) / "real" / "bdd_street_photos"
+BDD = REAL / "bdd_street_photos"
 KNOBS = [("default (lsd, 250 seg, 250 it)", {}),
          ("fld", {"detector": "fld"}),
          ("100 segments", {"max_segments": 100}),
@@ -101,8 +100,7 @@ def bootstrap_median_ci(x, n=2000, seed=0) -> tuple[float, float]:
     if len(x) == 0:
         return float("nan"), float("nan")
     rng = np.random.default_rng(seed)
-    meds = np.median(rng.choice(x, (n, len(x))), axis=1)
-    return float(np.percentile(meds, 2.5)), float(np.percentile(meds, 97.5))
+    return ci95(np.median(rng.choice(x, (n, len(x))), axis=1))
 
 
 def real_photo_cpu() -> float | None:
@@ -180,7 +178,7 @@ def ego_strip(out: Path) -> float | None:
     video = BDD.parent / "udacity_solidWhiteRight.mp4"
     if not video.exists():
         return None
-    root = ROOT / "benchmarks" / "results" / "tmp" / "rec_solidWhiteRight"
+    root = RESULTS / "tmp" / "rec_solidWhiteRight"
     if not (root / "calib.yaml").exists():
         import_video(video, root, force=True, show_progress=False)
     rec = read_recording(root)
@@ -400,7 +398,7 @@ def zoo(args) -> None:
           "(never committed)."]
     for line in rows:
         print(line)
-    write_section(ROOT / "docs" / "benchmarks" / "camera.md", md, zoo=True)
+    write_section(DOCS / "camera.md", md, zoo=True)
     atomic.write_text(TMP / "zoo_results.yaml", yaml.safe_dump(
         {"loro": {r: dict(zip(GRID, map(float, k))) for r, k in loro.items()}, "deployed": dict(zip(GRID, map(float, deployed))),
          "hood_loro": hood_loro, "metrics": {r: met[r][loro[r]] for r in met}, "stage_cpu": stage_cpu,
@@ -462,7 +460,7 @@ def main(argv=None):
     ax[1].set_xlabel("CPU ms per 960x540 frame (estimate_frame)")
     ax[1].set_ylabel("median horizon error, deg")
     fig.tight_layout()
-    out_png = ROOT / "benchmarks" / "results" / "camera.png"
+    out_png = RESULTS / "camera.png"
     with atomic.atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     cmd = "nice -n 5 .venv/bin/python benchmarks/bench_camera.py" + (" --quick" if a.quick else "")
@@ -490,7 +488,7 @@ def main(argv=None):
     if step:
         md += ["", f"Ego motion on udacity_solidWhiteRight.mp4 (221 frames, 25 fps, no IMU/GNSS): median step "
                f"{step:.2f} m/frame; a virtual parked car drawn with those poses: `docs/images/egomotion_real.jpg`."]
-    write_section(ROOT / "docs" / "benchmarks" / "camera.md", md, zoo=False)
+    write_section(DOCS / "camera.md", md, zoo=False)
     print(f"wrote {out_png} and docs/benchmarks/camera.md")
 
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -35,7 +34,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import REAL, RESULTS, ROOT, ci95, write_doc  # noqa: E402
 
 from blendgen import atomic  # noqa: E402
 from blendgen.frame_analysis import BAND, ROAD  # noqa: E402
@@ -49,8 +48,7 @@ from blendgen.report.draw import draw_analysis  # noqa: E402
 from blendgen.scene.real_scene import WHEELED, _inset  # noqa: E402
 
 # ../shared/data beside the project (BLENDGEN_SHARED_DATA overrides, e.g. from a git worktree)
-REAL = Path(os.environ.get("BLENDGEN_SHARED_DATA", ROOT.parent / "shared" / "data")) / "real"
-TMP = ROOT / "benchmarks" / "results" / "tmp" / "placement"
+TMP = RESULTS / "tmp" / "placement"
 CLASSES = {"car": 3, "truck": 1, "bus": 1, "person": 2, "motorcycle": 1, "bicycle": 1, "traffic light": 1}
 # name: (importer, source, hfov, ground_plane values a careful user would set by eye, frames, sequences)
 DATASETS = {
@@ -190,7 +188,7 @@ def recall_ci(tp: int, n: int, reps: int = 2000) -> tuple[float, float]:
     """Bootstrap 95 % interval of a recall tp / n (objects resampled with replacement)."""
     rng = np.random.default_rng(0)
     r = rng.binomial(n, tp / n, reps) / n if n else np.full(reps, np.nan)
-    return float(np.percentile(r, 2.5)), float(np.percentile(r, 97.5))
+    return ci95(r)
 
 
 def analysis_seconds(ref: Path) -> list[float]:
@@ -325,9 +323,9 @@ def main() -> None:
           "at known poses (960x540, hfov 70, height 1.2-1.9 m, pitch -4..4 deg, roll -3..3 deg, yaw -3..3 deg; "
           "goals: horizon <= 0.5 deg median, height <= 10 %):", "", cam_table, "",
           "Before/after gallery: [docs/images/placement_before_after.jpg](../images/placement_before_after.jpg)", ""]
-    atomic.write_text(ROOT / "docs" / "benchmarks" / "placement.md", "\n".join(md))
-    atomic.write_json(ROOT / "benchmarks" / "results" / "placement.json", results, indent=1)
-    plot(results, ROOT / "benchmarks" / "results" / "placement.png")
+    write_doc("placement.md", "\n".join(md))
+    atomic.write_json(RESULTS / "placement.json", results, indent=1)
+    plot(results, RESULTS / "placement.png")
     # CC BY-NC-SA frames (nuScenes, DDAD, Argoverse) never go into the repository
     nc = {f"zoo_{r}" for r in ("nuscenes_cam_front", "ddad_scene01", "ddad_scene02", "argoverse1_stereo_front_left")}
     free = [r for r in rows if r[0] not in nc]

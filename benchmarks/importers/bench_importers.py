@@ -23,9 +23,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import REAL, RESULTS, ROOT, write_doc  # noqa: E402
 sys.path.insert(0, str(ROOT / "tests"))
-DATA = ROOT.parent / "shared" / "data" / "real"
 
 from blendgen.analysis.lane_direction import still_camera_yaw  # noqa: E402
 from blendgen.recording.folder import read_recording  # noqa: E402
@@ -52,11 +51,11 @@ def fixtures(tmp: Path, quick: bool) -> list[tuple[str, str, Path, dict, str]]:
         out.append(("rosbag ROS2", "rosbag", write_bag(tmp / "b2", 2), {}, "5 Image, 60 Imu, 4 NavSatFix"))
     except ImportError:
         pass
-    if (DATA / "comma2k19_example1_segment40").exists():
-        out.append(("comma2k19", "comma2k19", DATA / "comma2k19_example1_segment40",
+    if (REAL / "comma2k19_example1_segment40").exists():
+        out.append(("comma2k19", "comma2k19", REAL / "comma2k19_example1_segment40",
                     {"camera_yaw": still_camera_yaw}, "real, 60 s"))  # as `blendgen import`
-    if (DATA / "gopro_karma.mp4").exists():
-        out.append(("gopro", "gopro", DATA / "gopro_karma.mp4", {}, "real, 12 s, 362 frames"))
+    if (REAL / "gopro_karma.mp4").exists():
+        out.append(("gopro", "gopro", REAL / "gopro_karma.mp4", {}, "real, 12 s, 362 frames"))
     return out
 
 
@@ -167,8 +166,8 @@ def main() -> None:
     ax.set_xlabel("import time, median (s)")
     ax.set_title("blendgen import: conversion time per format")
     fig.tight_layout()
-    (ROOT / "benchmarks" / "results").mkdir(parents=True, exist_ok=True)
-    fig.savefig(ROOT / "benchmarks" / "results" / "importers.png", dpi=110)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    fig.savefig(RESULTS / "importers.png", dpi=110)
     plt.close(fig)
 
     from blendgen import atomic
@@ -189,7 +188,7 @@ def main() -> None:
         else:
             lines.append(f"| {k} | {s['poses']} | {s['seconds']:.1f} | no ground truth | - | - |")
     lines += ["", "![import times](../../benchmarks/results/importers.png)", ""]
-    atomic.write_text(ROOT / "docs" / "benchmarks" / "importers.md", "\n".join(lines) + "\n")
+    write_doc("importers.md", "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS, RESULTS, ROOT  # noqa: E402
 
 from blendgen import atomic  # noqa: E402
 from blendgen.geom2d import Polyline  # noqa: E402
@@ -48,7 +48,7 @@ def main() -> None:
             twin = load_twin(path)
             cpu.append(time.process_time() - t)
         t = time.process_time()
-        n = twin.export_lut(ROOT / "benchmarks" / "results" / "tmp" / f"{path.stem}_lut.csv", 2.0)
+        n = twin.export_lut(RESULTS / "tmp" / f"{path.stem}_lut.csv", 2.0)
         lut = time.process_time() - t
         plot_twin(twin, img / f"{path.stem}.png")
         lanes = sum(len(rg.lanes) for rg in twin.roads.values())
@@ -59,7 +59,7 @@ def main() -> None:
     lines += [f"| {a} | {b} | {c} | {d} | {e:.2f} | {f:.2f} | {g} | {h:.2f} |" for a, b, c, d, e, f, g, h in rows]
     table = "\n".join(lines) + "\n\n" + test_maps()
     print(table)
-    atomic.write_text(ROOT / "docs" / "benchmarks" / "map_import.md",
+    atomic.write_text(DOCS / "map_import.md",
                       "# OpenDRIVE map import\n\nCommand: `PYTHONPATH=. python benchmarks/bench_map_import.py` "
                       "(2-core machine shared with other jobs; CPU seconds, not wall time).\n\n" + table + "\n")
 

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DETECTOR, DOCS, REAL, RESULTS  # noqa: E402
 
 from blendgen import CLASSES, atomic  # noqa: E402
 from blendgen.frame_labels import write_frame_labels  # noqa: E402
@@ -30,7 +30,6 @@ from blendgen.plan import FramePlan, PlacedObject  # noqa: E402
 DIMS = {"person": (0.5, 0.6, 1.75), "bicycle": (1.8, 0.6, 1.1), "car": (4.5, 1.8, 1.5),
         "motorcycle": (2.1, 0.8, 1.3), "bus": (12.0, 2.5, 3.2), "truck": (8.0, 2.5, 3.5),
         "traffic light": (0.3, 0.3, 0.9)}
-MODEL = ROOT.parent / "shared" / "data" / "models" / "yolox_nano.onnx"
 
 
 def make_frame(rng, camera, n_objects, frame_id):
@@ -90,11 +89,11 @@ def run(quick: bool):
                     ts.append(time.perf_counter() - t0)
                 export_t[fmt].append(np.median(ts))
                 rows.append((f"export {fmt}", f"{n} frames", np.median(ts) * 1e3))
-    if MODEL.exists():
+    if DETECTOR.exists():
         from blendgen.detection.detector import YoloxDetector
 
-        det = YoloxDetector(MODEL)
-        imgs = sorted((ROOT.parent / "shared/data/real/udacity_highway_images").glob("*.jpg"))
+        det = YoloxDetector(DETECTOR)
+        imgs = sorted((REAL / "udacity_highway_images").glob("*.jpg"))
         img = cv2.imread(str(imgs[0])) if imgs else comp
         det(img)  # warm-up
         ts = []
@@ -129,12 +128,12 @@ def main():
     ax.set_xlabel("frames exported"), ax.set_ylabel("ms per frame (median)"), ax.set_xscale("log")
     ax.set_title("label export time per frame"), ax.legend()
     fig.tight_layout()
-    res = args.outputs or ROOT / "benchmarks" / "results"
+    res = args.outputs or RESULTS
     res.mkdir(parents=True, exist_ok=True)
     with atomic.atomic_path(res / "labels.png") as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     cmd = "nice -n 5 .venv/bin/python benchmarks/bench_labels.py" + (" --quick" if args.quick else "")
-    doc = (args.outputs or ROOT / "docs" / "benchmarks") / "labels.md"
+    doc = (args.outputs or DOCS) / "labels.md"
     doc.parent.mkdir(parents=True, exist_ok=True)
     atomic.write_text(doc, "# Labels benchmark\n\nProduced by `" + cmd + "` on the shared 2-core development machine "
                    "(timings noisy; medians).\n\n" + "\n".join(table) + "\n\n![export time](../../benchmarks/results/labels.png)\n")

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS, REAL, RESULTS, ci95  # noqa: E402
 
 from blendgen import CLASSES, atomic  # noqa: E402
 from blendgen.analysis.objects import OBSTACLE_CLASSES, SCORE_MIN, load_detector  # noqa: E402
@@ -40,9 +40,8 @@ from blendgen.detection.metrics import match_image  # noqa: E402
 from blendgen.labels.real_objects import DETECTOR_LABEL_SCORE  # noqa: E402
 from blendgen.recording.labels import labelled_folder  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data" / "real"
-DOC = ROOT / "docs" / "benchmarks" / "real_labels.md"
-PLOT = ROOT / "benchmarks" / "results" / "real_labels.png"
+DOC = DOCS / "real_labels.md"
+PLOT = RESULTS / "real_labels.png"
 BANDS = [(0.05, 0.15), (0.15, 0.25), (0.25, 0.35), (0.35, 0.45), (0.45, 0.55), (0.55, 0.7), (0.7, 1.01)]
 THRESHOLDS = [0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.7]
 DDAD_CLASSES = {"Person": "person", "Car": "car", "Truck": "truck", "Bus/RV/Caravan": "bus",
@@ -52,7 +51,7 @@ N_BOOT = 2000
 
 def ddad_images(scene: str) -> list[dict]:
     out = []
-    for scene in [DATA / "camera_zoo" / scene]:
+    for scene in [REAL / "camera_zoo" / scene]:
         onto = json.loads(next(scene.glob("source_ontology_*.json")).read_text())
         names = {o["id"]: o["name"] for o in onto["items"]}
         # the box files' stamps differ from the images' names: matched by order (calib.txt)
@@ -68,7 +67,7 @@ def ddad_images(scene: str) -> list[dict]:
 
 
 def labelled_images() -> list[dict]:
-    root = DATA / "labelled" / "highway_objects_cc_by"
+    root = REAL / "labelled" / "highway_objects_cc_by"
     out = []
     for split in ("train", "valid"):
         for im in labelled_folder(root / split / "images", root / split / "labels", "yolo"):
@@ -123,7 +122,7 @@ def stats(images: list[dict]) -> dict:
         cols = []
         for j in range(1, len(v)):
             vals = np.array([b[k][j] for b in boots], float)
-            lo, hi = np.nanpercentile(vals, [2.5, 97.5]) if np.isfinite(vals).any() else (np.nan, np.nan)
+            lo, hi = ci95(vals) if np.isfinite(vals).any() else (np.nan, np.nan)
             cols.append((float(v[j]), float(lo), float(hi)))
         res[k] = {"n": int(v[0]), "values": cols}
     res["n_images"] = len(images)
@@ -137,7 +136,7 @@ def fmt(v) -> str:
 
 
 def main() -> None:
-    need = [DATA / "camera_zoo" / "ddad_scene01", DATA / "labelled" / "highway_objects_cc_by"]
+    need = [REAL / "camera_zoo" / "ddad_scene01", REAL / "labelled" / "highway_objects_cc_by"]
     missing = [str(p) for p in need if not p.exists()]
     if missing:
         sys.exit(f"needs {missing}")
@@ -183,7 +182,7 @@ def main() -> None:
               f"others (>= {SCORE_MIN}) ignore regions; real objects scored below {SCORE_MIN} stay unlabelled "
               "background (the recall column at 0.25 is the share of human boxes that any detection covers)."]
     atomic.write_text(DOC, "\n".join(lines) + "\n")
-    atomic.write_json(ROOT / "benchmarks" / "results" / "real_labels.json", results, indent=1)
+    atomic.write_json(RESULTS / "real_labels.json", results, indent=1)
     _plot(results)
     print("\n".join(lines))
 

@@ -57,7 +57,6 @@ import math
 import os
 import re
 import shutil
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -66,16 +65,15 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS, RESULTS, SHARED_DATA, blendgen_cmd, sh  # noqa: E402
 
 from blendgen import atomic  # noqa: E402
 
-DATA = Path(os.environ.get("BLENDGEN_SHARED_DATA", ROOT.parent / "shared" / "data"))
-REAL = DATA / "real"
+REAL = SHARED_DATA / "real"
 TEST = REAL / "labelled" / "highway_objects_cc_by" / "test"
-TMP = ROOT / "benchmarks" / "results" / "tmp" / "train_check"
-DOC = ROOT / "docs" / "benchmarks" / "train_check.md"
-PLOT = ROOT / "benchmarks" / "results" / "train_check.png"
+TMP = RESULTS / "tmp" / "train_check"
+DOC = DOCS / "train_check.md"
+PLOT = RESULTS / "train_check.png"
 CLASSES = {"car": 2.0, "truck": 1.5, "bus": 1.5, "person": 1.5, "motorcycle": 1.5}  # the test set's classes
 SEED = 46
 # The third-party library as a user gets it (../shared/data/README.md), named in the job as
@@ -117,18 +115,6 @@ def sources(args) -> dict[str, dict]:
     return out
 
 
-def sh(cmd: list, env=None) -> str:
-    r = subprocess.run([str(c) for c in cmd], cwd=ROOT, env=env or dict(os.environ, PYTHONPATH=str(ROOT)),
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"{' '.join(map(str, cmd))} failed ({r.returncode}):\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
-    return r.stdout
-
-
-def blendgen(*args) -> list:
-    return [sys.executable, "-m", "blendgen.cli", *args]
-
-
 def make_recordings(args) -> dict[str, dict]:
     recs = {}
     for name, spec in sources(args).items():
@@ -155,7 +141,7 @@ def make_recordings(args) -> dict[str, dict]:
                     for p in spec["files"]:
                         os.symlink(p, src / f"{k:04d}_{p.stem}{p.suffix}")
                         k += 1
-            sh(blendgen("import", "images", src, dst, "--hfov", f"{spec['hfov']:.3f}", "--force", "--no-progress"))
+            sh(blendgen_cmd("import", "images", src, dst, "--hfov", f"{spec['hfov']:.3f}", "--force", "--no-progress"))
             (TMP / f"rec_{name}.key").write_text(key)
         cam = read_camera(dst)
         recs[name] = {"dir": dst, "width": cam[0], "height": cam[1],
@@ -209,7 +195,7 @@ def render_set(set_name: str, recs: dict, args) -> dict:
         jp.write_text(yaml.safe_dump(job, sort_keys=False))
         t = time.perf_counter()
         print(f"[{set_name}] {rec_name}: {rec['frames']} frames ...", flush=True)
-        sh(blendgen("run", jp))
+        sh(blendgen_cmd("run", jp))
         times[rec_name] = round(time.perf_counter() - t, 1)
     return times
 
@@ -275,7 +261,7 @@ def main() -> None:
     ap.add_argument("--nuscenes", type=int, default=100, help="nuScenes stills used (of 100)")
     ap.add_argument("--video-frames", type=int, default=60, help="frames of the Udacity highway video")
     ap.add_argument("--copies", type=int, default=1, help="multiplies the reuse of the small still sets")
-    ap.add_argument("--assets", type=Path, default=DATA / "assets_thirdparty",
+    ap.add_argument("--assets", type=Path, default=SHARED_DATA / "assets_thirdparty",
                     help="the third-party library of the `assets` set (THIRDPARTY names its models)")
     ap.add_argument("--cache", type=Path, default=TMP, help="recordings, renders and fine-tuned runs (resumable)")
     ap.add_argument("--render-only", action="store_true", help="render the sets and stop")

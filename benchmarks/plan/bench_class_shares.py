@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import RESULTS  # noqa: E402
 
 from blendgen import atomic  # noqa: E402
 from blendgen.job.schema import load_job  # noqa: E402
@@ -87,7 +87,7 @@ def main(argv=None):
         ax.set_title(name)
     axes[0][0].legend()
     fig.tight_layout()
-    out = ROOT / "benchmarks" / "results" / "class_shares.png"
+    out = RESULTS / "class_shares.png"
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import RESULTS  # noqa: E402
 
 from blendgen.analysis.lanes import lane_lines  # noqa: E402
 from blendgen.frame_analysis import read_road_mask  # noqa: E402
@@ -95,7 +95,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("pairs", nargs="+", help="OUT JOB [OUT JOB ...]")
     ap.add_argument("--seeds", type=int, default=40)
-    ap.add_argument("--plot", type=Path, default=ROOT / "benchmarks" / "results" / "lanes.png")
+    ap.add_argument("--plot", type=Path, default=RESULTS / "lanes.png")
     a = ap.parse_args(argv)
     if len(a.pairs) % 2:
         ap.error("give OUT and JOB in pairs")

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import RESULTS, ROOT, write_doc  # noqa: E402
 
 from blendgen import atomic  # noqa: E402
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
@@ -87,7 +87,7 @@ def main(argv=None):
     ax[1].set(xlabel="objects_per_frame", ylabel="mean objects per frame")
     ax[0].legend()
     fig.tight_layout()
-    out_png = ROOT / "benchmarks" / "results" / "planner.png"
+    out_png = RESULTS / "planner.png"
     with atomic.atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=110)
     cmd = "nice -n 5 .venv/bin/python benchmarks/bench_planner.py" + (" --quick" if a.quick else "")
@@ -98,7 +98,7 @@ def main(argv=None):
     md += [f"| {n} | {r} | {t:.1f} | {c:.2f} | {100 * f:.0f}% | {k} |" for n, r, t, c, f, k in rows]
     md += ["", "Plot: `benchmarks/results/planner.png`. Highway has no sidewalks or signals, so persons and traffic",
            "lights are not placed there and their share goes to the other classes only when they fail to place."]
-    atomic.write_text(ROOT / "docs" / "benchmarks" / "planner.md", "\n".join(md) + "\n")
+    write_doc("planner.md", "\n".join(md) + "\n")
     print(f"wrote {out_png} and docs/benchmarks/planner.md")
 
 

@@ -12,8 +12,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen
 
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
 from blendgen.job.schema import Render  # noqa: E402

@@ -47,7 +47,7 @@ import numpy as np  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS, REAL, RESULTS, ROOT  # noqa: E402
 
 from blendgen.atomic import write_image, write_text  # noqa: E402
 from blendgen.job.schema import Post  # noqa: E402
@@ -56,9 +56,8 @@ from blendgen.post.illumination import enu_from_az_el, estimate_illumination  # 
 from blendgen.post.sensor import SENSOR_BLOCK, SensorCache, measure_frame  # noqa: E402
 from blendgen.render.exr import read_passes  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data" / "real" / "udacity_highway_images"
-RESULTS = ROOT / "benchmarks" / "results"
-DOC = ROOT / "docs" / "benchmarks" / "post.md"
+DATA = REAL / "udacity_highway_images"
+DOC = DOCS / "post.md"
 IMAGES = ROOT / "docs" / "images"
 
 VANISHING_ROW = 153.0  # udacity_highway_images at 480x270, measured on the lane lines

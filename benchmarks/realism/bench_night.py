@@ -24,14 +24,14 @@ from pathlib import Path
 import cv2
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS  # noqa: E402
 from benchmarks.realism.bench_realism import (BG_SCORE, IOU_THR, MODEL, NAMES, SCORE_THR, boot_ci,  # noqa: E402
                                               diff_stat, fmt, recall_stat)
 
 from blendgen import CLASSES, atomic  # noqa: E402
 from blendgen.detection.metrics import evaluate  # noqa: E402
 
-DOC = ROOT / "docs" / "benchmarks" / "night.md"
+DOC = DOCS / "night.md"
 
 
 def score(outs: list[Path], det) -> list[dict]:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import RESULTS, ROOT, SHARED_DATA, write_doc  # noqa: E402
 sys.path.insert(0, str(ROOT / "tests"))
 
 from blendgen import CLASSES  # noqa: E402
@@ -125,7 +125,7 @@ def bench_so3():
 def bench_mp4():
     from blendgen.recording.importers import mp4
 
-    found = [p / "real" / "gopro_karma.mp4" for p in (ROOT.parent / "shared" / "data", Path("/work/shared/data"))]
+    found = [p / "real" / "gopro_karma.mp4" for p in (SHARED_DATA,)]
     found = [p for p in found if p.exists()]
     if not found:
         return None
@@ -159,12 +159,12 @@ def main():
     ax.set_yticks(y, [r["piece"].split(" (")[0] for r in rs]), ax.set_xscale("log")
     ax.set_xlabel("CPU seconds"), ax.legend()
     fig.tight_layout()
-    (ROOT / "benchmarks/results").mkdir(parents=True, exist_ok=True)
-    fig.savefig(ROOT / "benchmarks/results/own_vs_library.png", dpi=100)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    fig.savefig(RESULTS / "own_vs_library.png", dpi=100)
     doc = ("# Hand-written pieces vs libraries\n\n`.venv/bin/python benchmarks/bench_own_vs_library.py` "
            "(CPU seconds on the shared 2-core machine; ratios from the same run).\n\n" + table + "\n\n"
            "![own vs library](../../benchmarks/results/own_vs_library.png)\n")
-    (ROOT / "docs/benchmarks/own_vs_library.md").write_text(doc)
+    write_doc("own_vs_library.md", doc)
 
 
 if __name__ == "__main__":

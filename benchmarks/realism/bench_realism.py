@@ -69,18 +69,17 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DETECTOR, DOCS, REAL, RESULTS, ROOT, SHARED_DATA, blendgen_cmd, ci95, sh  # noqa: E402
 
 from blendgen import CLASSES, atomic  # noqa: E402
 from blendgen.detection.metrics import evaluate  # noqa: E402
 from blendgen.job.schema import Post  # noqa: E402
 from blendgen.scene.planner import NO_PLACE  # noqa: E402
 
-REAL = ROOT.parent / "shared" / "data" / "real"
-MODEL = ROOT.parent / "shared" / "data" / "models" / "yolox_nano.onnx"
-TMP = Path(os.environ.get("BLENDGEN_REALISM_CACHE") or ROOT / "benchmarks" / "results" / "tmp" / "realism")
-DOC = ROOT / "docs" / "benchmarks" / "realism.md"
-PLOT = ROOT / "benchmarks" / "results" / "realism.png"
+MODEL = DETECTOR
+TMP = Path(os.environ.get("BLENDGEN_REALISM_CACHE") or RESULTS / "tmp" / "realism")
+DOC = DOCS / "realism.md"
+PLOT = RESULTS / "realism.png"
 NAMES = {cid: n for n, cid in CLASSES.items()}
 SCORE_THR, IOU_THR, BG_SCORE = 0.3, 0.5, 0.05
 HEIGHT_BINS = [(0, 20, "< 20 px"), (20, 40, "20-40 px"), (40, 80, "40-80 px"), (80, 160, "80-160 px"),
@@ -113,22 +112,12 @@ ZOO_WIDTH = 960
 NIGHT_SOURCES = (BDD_NIGHT,)  # the one night photo: camera_zoo has none (calib.txt: brightness scan)
 VEHICLE_PX = 80  # vehicles' target holds at >= 80 px tall
 # The third-party library as a user gets it (../shared/data/README.md), named in the job.
-THIRDPARTY_DIR = ROOT.parent / "shared" / "data" / "assets_thirdparty"
+THIRDPARTY_DIR = SHARED_DATA / "assets_thirdparty"
 THIRDPARTY = [("openmaterial3d", {}),  # class, licence and axes from each .xoma
               ("openmaterial_validation", {"class": "truck", "missing_textures": "ignore"}),  # its plate PNG is not shipped
               ("gazebo_models/prius_hybrid", {"class": "car"}), ("gazebo_models/suv", {"class": "car"}),
               ("gazebo_models/hatchback", {"class": "car"}), ("gazebo_models/bus", {"class": "bus"}),
               ("gazebo_models/stop_light", {"class": "traffic light", "front": "-x"})]  # lamps face -x
-
-
-def sh(cmd: list[str], env=None) -> None:
-    r = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
-
-
-def blendgen_cmd(*args) -> list[str]:
-    return [sys.executable, "-m", "blendgen.cli", *map(str, args)]
 
 
 def make_recordings(args) -> dict[str, dict]:
@@ -347,7 +336,7 @@ def make_assets(folder: Path) -> Path:
     """Library assets: GLB exports of every class's procedural objects with sidecars, written
     by Blender's glTF exporter (benchmarks/make_test_assets.py, its own bpy process)."""
     if not (folder / ".done").is_file():
-        sh([sys.executable, str(Path(__file__).with_name("make_test_assets.py")), str(folder), "--procedural", "4"],
+        sh([sys.executable, Path(__file__).with_name("make_test_assets.py"), folder, "--procedural", "4"],
            env=dict(os.environ, PYTHONPATH=str(ROOT)))
         (folder / ".done").write_text("ok")
     return folder
@@ -462,8 +451,8 @@ def boot_ci(rows, stat, n=2000, seed=0) -> tuple[float, float, float]:
         pick = rng.integers(0, len(frames), len(frames))
         sample = [r for k in pick for r in by[frames[k]]]
         vals.append(stat(sample))
-    lo, hi = np.nanpercentile(vals, [2.5, 97.5])
-    return float(stat(rows)), float(lo), float(hi)
+    lo, hi = ci95(vals)
+    return float(stat(rows)), lo, hi
 
 
 def recall_stat(variant):

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DETECTOR  # noqa: E402
 
 from blendgen import CLASSES  # noqa: E402
 from blendgen.detection.detector import YoloxDetector  # noqa: E402
@@ -54,7 +54,7 @@ def main(argv=None):
     ap.add_argument("--class", dest="cls", required=True, choices=sorted(CLASSES))
     ap.add_argument("--to", type=float, nargs="+", default=[100.0, 60.0], help="target heights (px)")
     ap.add_argument("--min-height", type=float, default=100.0)
-    ap.add_argument("--detector", type=Path, default=ROOT.parent / "shared/data/models/yolox_nano.onnx")
+    ap.add_argument("--detector", type=Path, default=DETECTOR)
     ap.add_argument("--plot", type=Path, default=None)
     a = ap.parse_args(argv)
     cid = CLASSES[a.cls]

@@ -27,11 +27,10 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DETECTOR, RESULTS, ROOT  # noqa: E402
 
 from blendgen import CLASSES  # noqa: E402
 
-MODEL = ROOT.parent / "shared" / "data" / "models" / "yolox_nano.onnx"
 OUT = ROOT / "docs" / "images"
 MIT_RECS = ("bdd", "udacity")  # camera_zoo's nuScenes, DDAD and Argoverse frames are CC BY-NC-SA
 NIGHT = "9aa94005-ff1d4c9a"
@@ -101,7 +100,7 @@ def composites(cache: Path, name: str, rec: str, frames: set[str]) -> dict[str, 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cache", type=Path, default=ROOT / "benchmarks" / "results" / "tmp" / "realism")
+    ap.add_argument("--cache", type=Path, default=RESULTS / "tmp" / "realism")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args()
     from blendgen.detection.detector import YoloxDetector
@@ -111,7 +110,7 @@ def main() -> None:
     sets = {s: json.loads((cache / s / "scores.json").read_text()) for s in SETS if (cache / s / "scores.json").is_file()}
     if "procedural" not in sets:
         raise SystemExit(f"needs {cache}/procedural/scores.json: run benchmarks/bench_realism.py first")
-    det = YoloxDetector(MODEL, category_ids=set(CLASSES.values()))
+    det = YoloxDetector(DETECTOR, category_ids=set(CLASSES.values()))
     rows = {"day": [], "night": []}
     found = {}
     for rec in MIT_RECS:

@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS, RESULTS  # noqa: E402
 
 from blendgen.atomic import write_text  # noqa: E402
 from blendgen.geometry import Camera, R_world_cam_from_ypr, make_pose  # noqa: E402
@@ -59,8 +59,7 @@ from blendgen.job.schema import Render  # noqa: E402
 from blendgen.plan import FramePlan, PlacedObject  # noqa: E402
 from blendgen.render.exr import read_passes  # noqa: E402
 
-RESULTS = ROOT / "benchmarks" / "results"
-DOC = ROOT / "docs" / "benchmarks" / "render_fair.md"
+DOC = DOCS / "render_fair.md"
 TARGET_DB = 35.0
 SUN = {"sun_direction": [0.45, -0.35, 0.82], "sun_strength": 3.0, "sun_color": [1.0, 0.97, 0.92],
        "sun_angle_deg": 0.53, "sky_color": [0.5, 0.6, 0.8], "sky_strength": 1.0, "sun_visible": True}

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import RESULTS, ROOT  # noqa: E402
 if "--old-assets" in sys.argv:  # import that folder's assets_procedural instead of ours
     sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--old-assets") + 1]).resolve()))
 
@@ -209,7 +209,7 @@ def main(argv=None):
     samples = a.samples or (8 if a.quick else 24)
     tile = (320, 240) if a.quick else (480, 360)
     twin_res = (480, 270) if a.quick else (720, 405)
-    tmp = a.tiles_only or ROOT / "benchmarks" / "results" / "gallery_tiles"
+    tmp = a.tiles_only or RESULTS / "gallery_tiles"
     tmp.mkdir(parents=True, exist_ok=True)
     rows, grid_rows = [], []
     for cls, ov in TILES.items():

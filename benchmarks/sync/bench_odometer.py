@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import RESULTS, write_doc  # noqa: E402
 
 from blendgen import so3  # noqa: E402
 from blendgen.job.schema import Sync  # noqa: E402
@@ -123,7 +123,7 @@ def write(plain_rows, frame_rows, argv: str) -> None:
                "| seed | 3-D ATE without -> with (m) | rotation without -> with (deg) |", "|---|---|---|"]
         md += [f"| {r['seed']} | {r['without']['ate']:.4f} -> {r['with']['ate']:.4f} | {r['without']['rot']:.3f} -> "
                f"{r['with']['rot']:.3f} |" for r in frame_rows]
-    (ROOT / "docs" / "benchmarks" / "odometer.md").write_text("\n".join(md) + "\n")
+    write_doc("odometer.md", "\n".join(md) + "\n")
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
     for a, k, label in ((ax[0], "h", "horizontal RMSE (m)"), (ax[1], "rot", "rotation median (deg)")):
         x = np.arange(len(plain_rows))
@@ -135,7 +135,7 @@ def write(plain_rows, frame_rows, argv: str) -> None:
     ax[0].legend()
     fig.suptitle("60 s synthetic drive: sync with and without the car's CAN speed")
     fig.tight_layout()
-    out = ROOT / "benchmarks" / "results" / "odometer.png"
+    out = RESULTS / "odometer.png"
     out.parent.mkdir(exist_ok=True)
     fig.savefig(out, dpi=100)
     print(f"wrote {out} and docs/benchmarks/odometer.md")

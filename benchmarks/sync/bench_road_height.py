@@ -22,8 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
-DATA = ROOT.parent / "shared" / "data" / "real"
+from benchmarks.common import REAL  # noqa: E402
 
 from blendgen.job.schema import Sync  # noqa: E402
 from blendgen.sync.metrics import comma_errors, gt_poses, trajectory_errors  # noqa: E402
@@ -66,7 +65,7 @@ def synthetic(quick: bool) -> None:
 
 
 def comma() -> None:
-    seg = DATA / "comma2k19_example1_segment40"
+    seg = REAL / "comma2k19_example1_segment40"
     if not seg.exists():
         print("  comma2k19 not found: skipped")
         return

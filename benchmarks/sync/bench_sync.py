@@ -47,8 +47,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
-DATA = ROOT.parent / "shared" / "data" / "real"
+from benchmarks.common import DOCS, REAL, RESULTS, ROOT  # noqa: E402
 
 from blendgen.geometry import make_pose  # noqa: E402
 from blendgen.job.schema import Sync  # noqa: E402
@@ -165,7 +164,7 @@ def comma(quick: bool):
     its GNSS latency, its fix-noise scale on gnss.csv's h_std_m, the fixes' height-error
     correlation time, the no-sideslip constraint in its estimated vehicle frame, and the car's CAN
     speed (speed.csv) with blendgen's estimated odometer scale and latency. CPU s."""
-    seg = DATA / "comma2k19_example1_segment40"
+    seg = REAL / "comma2k19_example1_segment40"
     if not seg.exists():
         print("  comma2k19 not found: skipped (needs ../shared/data/real/comma2k19_example1_segment40)")
         return None
@@ -312,7 +311,7 @@ def karma(quick: bool):
     horizontal plane (truth: minus the dip, ~0.2 deg) and the roll across it, all measured
     through the HERO5 Linear lens the clip was shot with (`karma_lens_check`). Then the lens
     check itself. Returns (rows, lens rows)."""
-    src = DATA / "gopro_karma.mp4"
+    src = REAL / "gopro_karma.mp4"
     if not src.exists():
         print("  gopro_karma.mp4 not found: skipped (needs ../shared/data/real/gopro_karma.mp4)")
         return None
@@ -643,7 +642,7 @@ def main() -> None:
     axes[2].legend()
     axes[2].grid(True, alpha=0.3)
     fig.tight_layout()
-    png = ROOT / "benchmarks" / "results" / ("sync_quick.png" if args.quick else "sync.png")
+    png = RESULTS / ("sync_quick.png" if args.quick else "sync.png")
     png.parent.mkdir(parents=True, exist_ok=True)
     from blendgen import atomic
 
@@ -693,7 +692,7 @@ def main() -> None:
            "30 ms; 0.3 deg shake; exposure flicker, vignetting, JPEG. Twin road: the plane z = 0, camera 1.5 m above.",
            "height: camera height error. px4: after a 4-DoF alignment. CPU seconds of one run.", "", *hd_md]
     md += ["", f"Plot: `benchmarks/results/{png.name}`", ""]
-    out_md = ROOT / "docs" / "benchmarks" / ("sync_quick.md" if args.quick else "sync.md")
+    out_md = DOCS / ("sync_quick.md" if args.quick else "sync.md")
     atomic.write_text(out_md, "\n".join(md))
     print(f"wrote {png.relative_to(ROOT)} and {out_md.relative_to(ROOT)}")
 

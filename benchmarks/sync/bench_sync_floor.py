@@ -33,8 +33,7 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen
 
 import blendgen.sync.pipeline as pl  # noqa: E402
 from blendgen import so3  # noqa: E402

@@ -27,8 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
-DATA = ROOT.parent / "shared" / "data" / "real"
+from benchmarks.common import REAL  # noqa: E402
 
 from blendgen import so3  # noqa: E402
 from blendgen.job.schema import Sync  # noqa: E402
@@ -81,7 +80,7 @@ def real() -> None:
     from blendgen.recording.folder import read_recording
     from blendgen.recording.importers.gopro import import_gopro
 
-    src = DATA / "gopro_karma.mp4"
+    src = REAL / "gopro_karma.mp4"
     if not src.is_file():
         print(f"{src} missing: real clip skipped")
         return

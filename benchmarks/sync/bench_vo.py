@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
+from benchmarks.common import DOCS, RESULTS, ROOT  # noqa: E402
 
 from blendgen import so3  # noqa: E402
 from blendgen.geometry import Camera, invert_pose  # noqa: E402
@@ -171,7 +171,7 @@ def main() -> None:
         ax.grid(True, alpha=0.3)
     axes[0].set_title("VO: accuracy vs speed (25 fps drive, squares: ORB)")
     fig.tight_layout()
-    png = ROOT / "benchmarks" / "results" / ("vo_quick.png" if args.quick else "vo.png")
+    png = RESULTS / ("vo_quick.png" if args.quick else "vo.png")
     png.parent.mkdir(parents=True, exist_ok=True)
     from blendgen import atomic
 
@@ -195,7 +195,7 @@ def main() -> None:
     md += ["", f"Two-view solve (`vo.solve_pair`, included in the rows above) of A's {sp_n} pairs with the "
            f"default KLT: {sp_ms:.2f} ms a pair (CPU, min of 5 passes).",
            "", f"Plot: `benchmarks/results/{png.name}`", ""]
-    out_md = ROOT / "docs" / "benchmarks" / ("vo_quick.md" if args.quick else "vo.md")
+    out_md = DOCS / ("vo_quick.md" if args.quick else "vo.md")
     atomic.write_text(out_md, "\n".join(md))
     print(f"wrote {png.relative_to(ROOT)} and {out_md.relative_to(ROOT)}")
 

@@ -32,7 +32,6 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout: its blendgen, benchmarks.common
-from benchmarks.common import ROOT  # noqa: E402
 from benchmarks.sync.bench_vo_bias import pair_errors  # noqa: E402
 
 from blendgen.sync.metrics import gt_poses  # noqa: E402

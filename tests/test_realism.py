@@ -239,7 +239,8 @@ def test_size_probe_shrinks_found_objects(tmp_path, capsys):
 
     out = _make_out(tmp_path, photos)
     run_realism(out, MODEL, background="auto")
-    spec = importlib.util.spec_from_file_location("probe", Path(__file__).resolve().parents[1] / "benchmarks/realism/bench_size_probe.py")
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "realism" / "bench_size_probe.py"
+    spec = importlib.util.spec_from_file_location("probe", script)
     probe = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(probe)
     probe.main(["--runs", str(out), "--class", "car", "--to", "120", "20", "--detector", str(MODEL)])

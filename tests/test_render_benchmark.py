@@ -59,8 +59,8 @@ def test_naive_cost_from_a_line_fit_at_the_interpolated_count():
 @pytest.mark.bpy
 def test_bench_render_quick():
     pytest.importorskip("bpy")
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "render" / "bench_render.py"), "--quick", "--repeats", "1"],
-                       capture_output=True, text=True, timeout=1800, cwd=ROOT)
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "render" / "bench_render.py"), "--quick",
+                        "--repeats", "1"], capture_output=True, text=True, timeout=1800, cwd=ROOT)
     assert r.returncode == 0, r.stderr[-3000:]
     md = (ROOT / "docs" / "benchmarks" / "render_fair_quick.md").read_text()
     assert "cheaper in CPU seconds" in md and "opposite edges, clustered" in md and "Interleaved pairs" in md

@@ -1,4 +1,4 @@
-"""The camera zoo: real front cameras with known geometry (benchmarks/camera_zoo_truth.yaml),
+"""The camera zoo: real front cameras with known geometry (benchmarks/analysis/camera_zoo_truth.yaml),
 imported as blendgen recordings the way a user would (`blendgen import images` with the rig's
 intrinsics, or without them: an assumed field of view).
 

@@ -1,7 +1,7 @@
 """Camera from the frames: horizon (pitch, roll) and camera-height error against known poses,
 and CPU seconds per frame, over the main knobs (line detector, segments kept, RANSAC iterations).
 
-    .venv/bin/python benchmarks/bench_camera.py [--quick]
+    .venv/bin/python benchmarks/analysis/bench_camera.py [--quick]
 
 Ground truth: demo-town frames rendered with Cycles (960x540, 70 deg horizontal field of
 view, 4 samples: noisy like a real sensor) at random camera heights (1.2..1.8 m), pitches
@@ -363,10 +363,10 @@ def zoo(args) -> None:
     cues_txt = "; ".join(f"{r.name}: " + ", ".join(f"{k} {v}" for k, v in met[r.name][loro[r.name]]["cues"].items() if v)
                          for r in rigs)
     px_720 = {r.name: r.camera["resolution"][0] * r.camera["resolution"][1] / (1280 * 720) for r in rigs}
-    cmd = "nice -n 5 .venv/bin/python benchmarks/bench_camera.py --zoo"
+    cmd = "nice -n 5 .venv/bin/python benchmarks/analysis/bench_camera.py --zoo"
     md = ["## Camera zoo: real rigs the method was not tuned on", "",
           f"Command: `{cmd}` (2 shared CPU cores; one thread). Rigs, references and the hood marks: "
-          "`benchmarks/camera_zoo_truth.yaml` (each folder's calib.txt; `~`: an approximate reference). Each rig is "
+          "`benchmarks/analysis/camera_zoo_truth.yaml` (each folder's calib.txt; `~`: an approximate reference). Each rig is "
           "imported with `blendgen import images` and its intrinsics, analysed as stills of one camera.",
           "",
           "**Leave-one-rig-out.** The tuned constants (the cue sizes' scale `SIZE_SCALE`, the vanishing points' error "
@@ -463,7 +463,7 @@ def main(argv=None):
     out_png = RESULTS / "camera.png"
     with atomic.atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-    cmd = "nice -n 5 .venv/bin/python benchmarks/bench_camera.py" + (" --quick" if a.quick else "")
+    cmd = "nice -n 5 .venv/bin/python benchmarks/analysis/bench_camera.py" + (" --quick" if a.quick else "")
     md = ["# Camera-from-frames benchmark", "",
           f"Command: `{cmd}` (2 shared CPU cores; CPU time is `time.process_time`, one core). "
           f"{len(frames)} demo-town frames rendered at known poses (960x540, 70 deg HFOV; heights 1.2..1.8 m, "

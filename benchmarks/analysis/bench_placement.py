@@ -1,7 +1,7 @@
 """Placement on real footage without a map: the OLD ground-plane path (fixed camera pose,
 no frame analysis) against the NEW one (frame analysis: real road users, road, hood).
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_placement.py [--quick]
+    PYTHONPATH=. .venv/bin/python benchmarks/analysis/bench_placement.py [--quick]
 
 Runs `blendgen run` on the real photos and video (imported into benchmarks/results/tmp/),
 once per path with the same seed, camera values and classes, then scores each run against
@@ -58,7 +58,7 @@ DATASETS = {
                                 {"camera_height_m": 1.4, "pitch_deg": -1.0}, {"step": 20}, True),
     "bdd_street_photos": ("images", "bdd_street_photos", 60, {"camera_height_m": 1.4, "pitch_deg": -5.0}, {}, False),
 }
-# the camera zoo's rigs (benchmarks/camera_zoo_truth.yaml), imported with their intrinsics; OLD: the
+# the camera zoo's rigs (benchmarks/analysis/camera_zoo_truth.yaml), imported with their intrinsics; OLD: the
 # job's defaults (a user without the analysis has no better values); rendered 960 px wide
 ZOO = {"nuscenes_cam_front": {"step": 10}, "ddad_scene01": {}, "ddad_scene02": {}, "argoverse1_stereo_front_left": {},
        "udacity_carnd": {}, "comma2k19_preview": {}}
@@ -308,7 +308,7 @@ def main() -> None:
     split_line = " | ".join(f"{k} {v:.3f}" for k, v in split.items()) + f" | total {sum(split.values()):.3f}"
     print(table)
     print(cam_table)
-    cmd = "PYTHONPATH=. .venv/bin/python benchmarks/bench_placement.py" + (" --quick" if args.quick else "")
+    cmd = "PYTHONPATH=. .venv/bin/python benchmarks/analysis/bench_placement.py" + (" --quick" if args.quick else "")
     md = ["# Placement on real footage without a map", "", f"`{cmd}` (render samples {args.samples}; "
           "machine shared with other jobs: CPU seconds, not wall time).", "", __doc__.split("\n\n")[2], "", table, "",
           "Analysis CPU seconds per analysed frame include its share of the recording-wide work (hood, camera, "
@@ -316,7 +316,7 @@ def main() -> None:
           "selected one): " + "; ".join(f"{k}: ego motion {v['egomotion'][0]:.3f} s per tracked frame over "
                                           f"{v['egomotion'][1]} frames" for k, v in results.items()
                                           if k != "camera_accuracy" and v.get("egomotion")) + ".", "",
-          "Where the BDD analysis time goes (`PYTHONPATH=. .venv/bin/python benchmarks/bench_placement.py "
+          "Where the BDD analysis time goes (`PYTHONPATH=. .venv/bin/python benchmarks/analysis/bench_placement.py "
           "--timing`, CPU s per 1280x720 frame, one thread, machine shared): " + split_line + ".", "",
           "![placement](../../benchmarks/results/placement.png)", "",
           "Camera estimate (h12cam's `analysis.camera.estimate_frame`, merged) on demo-town frames rendered "

@@ -1,7 +1,7 @@
 """Every camera-zoo rig through a whole job, as a user runs it: `blendgen import images` with
 the rig's intrinsics, a `ground_plane: auto` job with all seven classes, `blendgen run`.
 
-    nice -n 5 .venv/bin/python benchmarks/run_zoo_jobs.py [--rigs NAME ...] [--step N]
+    nice -n 5 .venv/bin/python benchmarks/analysis/run_zoo_jobs.py [--rigs NAME ...] [--step N]
 
 Prints per rig the exit code, the objects placed per class and the job's warnings, and writes
 a contact sheet of the composites: MIT rigs to docs/images/zoo_composites.jpg, CC BY-NC-SA rigs

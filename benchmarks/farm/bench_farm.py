@@ -1,6 +1,6 @@
 """Farm benchmark: ledger throughput, scheduling overhead per frame, 1 -> 2 worker speedup.
 
-    .venv/bin/python benchmarks/bench_farm.py [--quick]
+    .venv/bin/python benchmarks/farm/bench_farm.py [--quick]
 
 1. Ledger: no-op tasks through the SQLite ledger alone (claim, item done, task done), with a
    commit per task (worst case) and per 64 tasks (what the supervisor does under load).
@@ -201,7 +201,7 @@ def main() -> None:
     png = RESULTS / "farm.png"
     with atomic.atomic_path(png) as tmp:
         fig.savefig(tmp, dpi=100)
-    cmd = "nice -n 5 .venv/bin/python benchmarks/bench_farm.py" + (" --quick" if a.quick else "")
+    cmd = "nice -n 5 .venv/bin/python benchmarks/farm/bench_farm.py" + (" --quick" if a.quick else "")
     md = (f"# Farm benchmark\n\nProduced by `{cmd}` on {os.cpu_count()} shared CPU cores "
           f"(medians of {reps} repeats; 1-minute load average {load:.1f} from other users "
           f"during the run: timings are noisy on shared cores, compare ratios).\n\n"

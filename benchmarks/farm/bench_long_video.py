@@ -1,7 +1,7 @@
 """A long dashcam video through `blendgen run`'s farm pipeline: what the supervisor costs, how
 many workers it can feed, and when the first frame is rendered.
 
-    nice -n 5 .venv/bin/python benchmarks/bench_long_video.py [--frames 1000 5000 15000]
+    nice -n 5 .venv/bin/python benchmarks/farm/bench_long_video.py [--frames 1000 5000 15000]
         [--workers 1 2] [--engines local ray] [--first-frame 15000] [--render-frames 6] [--write-doc]
 
 Recording: Udacity's solidWhiteRight freeway video (221 frames, 25 fps, 960x540, MIT) looped
@@ -52,7 +52,8 @@ def recording() -> Path:
         return rec
     base = WORK / "rec_video"
     if not (base / "frames.csv").is_file():
-        r = subprocess.run(blendgen_cmd("import", "video", VIDEO, base, "--hfov", "55", "--no-progress"), capture_output=True, text=True)
+        r = subprocess.run(blendgen_cmd("import", "video", VIDEO, base, "--hfov", "55", "--no-progress"),
+                           capture_output=True, text=True)
         if r.returncode:
             raise SystemExit(r.stderr)
     n_video = sum(1 for _ in open(base / "frames.csv")) - 1
@@ -262,7 +263,7 @@ def write_doc(results: dict) -> None:
 
     rows = sorted(results["rows"].values(), key=lambda r: (r["objects"], r["frames"], r["engine"], r["workers"]))
     lines = ["# Long video benchmark: the farm pipeline's supervisor, workers and first frame", "",
-             "Command: `nice -n 5 .venv/bin/python benchmarks/bench_long_video.py --frames N --workers W --engines E "
+             "Command: `nice -n 5 .venv/bin/python benchmarks/farm/bench_long_video.py --frames N --workers W --engines E "
              "--objects A B` (rows below), `--first-frame 15000` (first rendered frame), then `--write-doc`.",
              "Machine: 2 CPU cores shared with up to four other sessions (the 1-minute load average before and "
              "after each row is given: above 2 the cores were busy with other work, and wall times and the "

@@ -1,6 +1,6 @@
 """Importer benchmark: conversion time per format, then sync on the imported real recordings.
 
-    .venv/bin/python benchmarks/bench_importers.py [--quick]
+    .venv/bin/python benchmarks/importers/bench_importers.py [--quick]
 
 Part 1 times every importer (median of repeats) on fixtures built by the tests (video, EuRoC,
 KITTI, ROS 1/2 bags) and on the shared real files (comma2k19, GoPro Karma).
@@ -172,7 +172,7 @@ def main() -> None:
 
     from blendgen import atomic
 
-    cmd = "nice -n 5 .venv/bin/python benchmarks/bench_importers.py" + (" --quick" if args.quick else "")
+    cmd = "nice -n 5 .venv/bin/python benchmarks/importers/bench_importers.py" + (" --quick" if args.quick else "")
     lines = ["# Importer benchmark", "", f"Produced by `{cmd}` (2 shared CPU cores; medians of "
              f"{repeats} run(s); timings are noisy).", "",
              "| format | input | median import time (s) | frames | IMU rows | GNSS rows |", "|---|---|---|---|---|---|"]

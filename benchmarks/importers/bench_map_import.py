@@ -1,6 +1,6 @@
 """Map import times and lane accuracy: every shared OpenDRIVE map, loaded as a twin.
 
-    PYTHONPATH=. python benchmarks/bench_map_import.py
+    PYTHONPATH=. python benchmarks/importers/bench_map_import.py
 
 Prints a table (CPU seconds to parse + convert + build the Twin, median of 5; LUT export;
 worst lane-centre error against tests/test_maps_opendrive.py's independent evaluation),
@@ -60,7 +60,7 @@ def main() -> None:
     table = "\n".join(lines) + "\n\n" + test_maps()
     print(table)
     atomic.write_text(DOCS / "map_import.md",
-                      "# OpenDRIVE map import\n\nCommand: `PYTHONPATH=. python benchmarks/bench_map_import.py` "
+                      "# OpenDRIVE map import\n\nCommand: `PYTHONPATH=. python benchmarks/importers/bench_map_import.py` "
                       "(2-core machine shared with other jobs; CPU seconds, not wall time).\n\n" + table + "\n")
 
 

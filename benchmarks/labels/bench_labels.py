@@ -1,7 +1,7 @@
 """Labels benchmark: time to extract per-frame labels, write them, export COCO/YOLO/KITTI
 as the number of frames grows, and the realism detector's time per frame.
 
-    .venv/bin/python benchmarks/bench_labels.py [--quick]
+    .venv/bin/python benchmarks/labels/bench_labels.py [--quick]
 
 Prints a table, writes benchmarks/results/labels.png and docs/benchmarks/labels.md.
 """
@@ -132,7 +132,7 @@ def main():
     res.mkdir(parents=True, exist_ok=True)
     with atomic.atomic_path(res / "labels.png") as tmp:
         fig.savefig(tmp, dpi=100, format="png")
-    cmd = "nice -n 5 .venv/bin/python benchmarks/bench_labels.py" + (" --quick" if args.quick else "")
+    cmd = "nice -n 5 .venv/bin/python benchmarks/labels/bench_labels.py" + (" --quick" if args.quick else "")
     doc = (args.outputs or DOCS) / "labels.md"
     doc.parent.mkdir(parents=True, exist_ok=True)
     atomic.write_text(doc, "# Labels benchmark\n\nProduced by `" + cmd + "` on the shared 2-core development machine "

@@ -17,7 +17,7 @@ share of the human boxes the detections at each threshold recover:
 Human ignore-like classes (DDAD's Wheeled Slow, Train, Towed Object, Trailer) are ignore
 regions: a detection on one is neither right nor wrong. Intervals: 95 % bootstrap over images.
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_real_labels.py
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/labels/bench_real_labels.py
 
 writes docs/benchmarks/real_labels.md and benchmarks/results/real_labels.png.
 """
@@ -151,7 +151,7 @@ def main() -> None:
         results[name] = stats(images)
         print(f"{name}: {results[name]['n_images']} images, {results[name]['n_gt']} human boxes", flush=True)
     lines = ["# Real road users: which detections can stand in for human labels", "",
-             "Made by `PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_real_labels.py` "
+             "Made by `PYTHONPATH=$PWD .venv/bin/python benchmarks/labels/bench_real_labels.py` "
              "(its docstring says what is measured). Detector: the bundled YOLOX-Nano (416x416 input), "
              "classes person, bicycle, car, motorcycle, bus, truck. A detection is right when a human box "
              "of its class has IoU >= 0.5 with it (COCO greedy matching). [95 % bootstrap interval over images.]",

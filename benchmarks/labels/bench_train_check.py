@@ -39,7 +39,7 @@ Test: ../shared/data/real/labelled/highway_objects_cc_by/test (251 real photos, 
 bus car motorcycle person truck; roadside photos, NOT dashcam views). AP@0.5 per class with
 pycocotools, mean over --seeds, 95 % bootstrap intervals over test images, paired differences.
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_train_check.py \
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/labels/bench_train_check.py \
         [--images 200 --epochs 3 --seeds 0,1,2 --width 640 --copies 1] [--cache DIR]
         [--render-only]
 
@@ -350,8 +350,8 @@ def write_doc(summary: dict, meta: dict, cats: list, argv: str) -> None:
     names = [CLASS_OF_ID[c] for c in cats]
     arms = summary["arms"]
     lines = ["# Training check: what the composites are worth to a detector", "",
-             f"Made by `PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_train_check.py {argv}` "
-             "(benchmarks/bench_train_check.py; its docstring says what each set and arm is). "
+             f"Made by `PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/labels/bench_train_check.py {argv}` "
+             "(benchmarks/labels/bench_train_check.py; its docstring says what each set and arm is). "
              "Machine: 2 shared CPU cores, no GPU.", "",
              f"Size: backgrounds {sum(meta['recordings'].values())} real frames from "
              f"{len(meta['recordings'])} cameras ({', '.join(f'{k} {v}' for k, v in meta['recordings'].items())}), "

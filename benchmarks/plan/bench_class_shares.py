@@ -1,6 +1,6 @@
 """How closely the placed objects follow the job's class weights on real footage.
 
-    .venv/bin/python benchmarks/bench_class_shares.py JOB.yaml [JOB.yaml ...] [--seeds 20] [--md FILE]
+    .venv/bin/python benchmarks/plan/bench_class_shares.py JOB.yaml [JOB.yaml ...] [--seeds 20] [--md FILE]
 
 Each job must have run once (`blendgen run JOB.yaml`): its frame analysis and poses are
 reused, and the planner is run again over `--seeds` seeds on them (no rendering). Per class:

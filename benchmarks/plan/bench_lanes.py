@@ -1,6 +1,6 @@
 """Vehicles across real lane lines: the ground-plane twin's lanes against the frame's painted lanes.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_lanes.py OUT JOB [--seeds N] [OUT JOB ...]
+    PYTHONPATH=. .venv/bin/python benchmarks/plan/bench_lanes.py OUT JOB [--seeds N] [OUT JOB ...]
 
 OUT is a finished ground-plane job's folder (its `analysis/` is read; frames without lane
 lines in an older analysis get them from `analysis.lanes`), JOB its job YAML. For N seeds the

@@ -1,6 +1,6 @@
 """Scene planner: time per frame and fill rate (objects placed vs the requested count).
 
-    .venv/bin/python benchmarks/bench_planner.py [--quick]
+    .venv/bin/python benchmarks/plan/bench_planner.py [--quick]
 
 For each twin (demo_town, highway, a ground-plane twin) and each requested range of
 objects per frame, plans a drive (5 fps) with all seven classes and all scenarios and
@@ -90,7 +90,7 @@ def main(argv=None):
     out_png = RESULTS / "planner.png"
     with atomic.atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=110)
-    cmd = "nice -n 5 .venv/bin/python benchmarks/bench_planner.py" + (" --quick" if a.quick else "")
+    cmd = "nice -n 5 .venv/bin/python benchmarks/plan/bench_planner.py" + (" --quick" if a.quick else "")
     md = ["# Scene planner benchmark", "", f"Command: `{cmd}` (2 shared CPU cores; timings are medians over "
           f"{repeats} drives, 960x540 camera, all classes and all five scenarios).", "",
           "| twin | objects_per_frame | ms / frame (median) | objects / frame | frames reaching the minimum | frames per drive |",

@@ -1,7 +1,7 @@
 """Render the 1280x720 frames that bench_post.py --timing composites (cached in a folder).
 
 Run in its own process (it imports bpy through RenderSession):
-    python benchmarks/_post_frames.py OUT_DIR [N_FRAMES]
+    python benchmarks/post/_post_frames.py OUT_DIR [N_FRAMES]
 Each frame: 3-4 procedural objects (assets_procedural builders) with sun shadows on the
 ground-plane road, outputs rgba, index, shadow_catcher, lighting, 8 spp + OIDN, the render
 driver's region; the plans move the objects so that some frames put them at the edges.

@@ -1,6 +1,6 @@
-"""bpy side of benchmarks/bench_post.py: render the ground-truth lighting scenes.
+"""bpy side of benchmarks/post/bench_post.py: render the ground-truth lighting scenes.
 
-Run in its own process (it imports bpy):  python benchmarks/_post_scene.py spec.json
+Run in its own process (it imports bpy):  python benchmarks/post/_post_scene.py spec.json
 The spec lists renders; each is either
 - "background": the "real" frame: road, roadside buildings, sky, under a lighting (PNG,
   8-bit sRGB, Standard view transform), objects hidden;

@@ -18,14 +18,14 @@ Second part: objects of all seven classes composited into the real photos in
 ../shared/data/real/udacity_highway_images/ (naive / colour transfer / full), saved as
 docs/images/post_real_examples.png.
 
-    .venv/bin/python benchmarks/bench_post.py [--quick]
+    .venv/bin/python benchmarks/post/bench_post.py [--quick]
 
 Timing only (issue 17): the post stage before and after a change, same run, interleaved, on
-1280x720 renders with 3-4 objects (benchmarks/_post_frames.py) composited into the six
+1280x720 renders with 3-4 objects (benchmarks/post/_post_frames.py) composited into the six
 Udacity photos upscaled to 1280x720; median ms per frame (estimate + composite), and the
 PSNR of the after-frames against the before-frames:
 
-    .venv/bin/python benchmarks/bench_post.py --timing [--before REV] [--repeats N] [--threads N] [--workdir DIR]
+    .venv/bin/python benchmarks/post/bench_post.py --timing [--before REV] [--repeats N] [--threads N] [--workdir DIR]
 """
 
 from __future__ import annotations
@@ -410,7 +410,7 @@ def sensor_cache_check(passes: dict, n_frames: int = 90) -> list[dict]:
 def write_timing(res: dict, args) -> None:
     med = {k: (1e3 * np.median(res["wall"][k]), 1e3 * np.median(res["cpu"][k])) for k in res["wall"]}
     load = os.getloadavg()[0]
-    cmd = (f".venv/bin/python benchmarks/bench_post.py --timing --before {args.before} --repeats {args.repeats}"
+    cmd = (f".venv/bin/python benchmarks/post/bench_post.py --timing --before {args.before} --repeats {args.repeats}"
            + (f" --threads {args.threads}" if args.threads is not None else ""))
     lines = [
         "# Post stage timing: before vs after (issue 17)", "",
@@ -418,7 +418,7 @@ def write_timing(res: dict, args) -> None:
         f"1-min load average {load:.1f} at the end (other sessions' jobs). {res['n_frames']} real frames (the "
         f"Udacity highway photos upscaled to 1280x720), each with one of {len(res['n_obj'])} 1280x720 renders "
         f"(objects per render: {res['n_obj']}; sun shadows; rgba, index, shadow catcher, lighting passes; "
-        "`benchmarks/_post_frames.py`), default post settings (illumination estimate, relight, shadows, sensor "
+        "`benchmarks/post/_post_frames.py`), default post settings (illumination estimate, relight, shadows, sensor "
         f"matching). {args.repeats} repeats per frame, before and after interleaved (alternating order) in one "
         "process; per frame = estimate_illumination + composite_frame. Before = blendgen/post at git "
         f"`{args.before}`. After = what the frame processor does: the sensor profile from a `SensorCache` (each "
@@ -470,7 +470,7 @@ def main():
             work.mkdir(parents=True, exist_ok=True)
             write_timing(timing_benchmark(args, work), args)
         return
-    cmd = "python benchmarks/bench_post.py" + (" --quick" if args.quick else "")
+    cmd = "python benchmarks/post/bench_post.py" + (" --quick" if args.quick else "")
     with tempfile.TemporaryDirectory(prefix="bench_post_") as tmp:
         work = Path(tmp) if args.workdir is None else args.workdir
         work.mkdir(parents=True, exist_ok=True)

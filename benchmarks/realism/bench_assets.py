@@ -1,8 +1,8 @@
 """Asset-library benchmark: does a library asset cost detector recall or render time?
 
-    .venv/bin/python benchmarks/bench_assets.py [--per-class 3] [--repeat 2]
+    .venv/bin/python benchmarks/realism/bench_assets.py [--per-class 3] [--repeat 2]
 
-The seven procedural classes are exported to GLB (benchmarks/make_test_assets.py
+The seven procedural classes are exported to GLB (benchmarks/realism/make_test_assets.py
 --procedural) and injected through `inject.assets` (asset_share 1) into the six real Udacity
 highway photos (each used `--repeat` times, different objects each time); the baseline is
 the same job with the procedural objects themselves (asset_share 0). Same backgrounds, same
@@ -134,7 +134,7 @@ def main() -> None:
     with atomic.atomic_path(png) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     md = ["# Asset libraries: recall and render time", "",
-          "Command: `.venv/bin/python benchmarks/bench_assets.py "
+          "Command: `.venv/bin/python benchmarks/realism/bench_assets.py "
           f"--per-class {args.per_class} --repeat {args.repeat}` (2 shared CPU cores; times are wall, noisy).", "",
           f"{len(sorted(PHOTOS.glob('*.jpg')))} real Udacity highway photos x {args.repeat}, 640x360, 16 spp + OIDN, "
           f"illumination auto, Reinhard; library: {rows['library']['assets']} GLB exports of the procedural "

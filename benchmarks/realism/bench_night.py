@@ -9,7 +9,7 @@ with each checkout, then score:
     blendgen import images DIR_OF_12_COPIES_OF_9aa94005-ff1d4c9a.jpg out/night/rec --hfov 60
     blendgen run out/night/before_21.yaml ...   # run from the "before" checkout
     blendgen run out/night/after_21.yaml ...    # this checkout
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_night.py --before out/night/before_21 out/night/before_22 \
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/realism/bench_night.py --before out/night/before_21 out/night/before_22 \
         --after out/night/after_21 out/night/after_22
 
 Writes docs/benchmarks/night.md (table + command; `--doc`, `--title` for other photos).
@@ -83,8 +83,8 @@ def main() -> None:
     bb = [b[i] for i in big]
     ab = [a[i] for i in big] if paired else [r for r in a if r["h"] >= args.min_h]
     lines = [f"# {args.title}", "",
-             "Made by `PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_night.py " + " ".join(sys.argv[1:]) + "`",
-             f"(benchmarks/bench_night.py). Objects >= {args.min_h:g} px tall; recall@0.5 at score >= {SCORE_THR}; "
+             "Made by `PYTHONPATH=$PWD .venv/bin/python benchmarks/realism/bench_night.py " + " ".join(sys.argv[1:]) + "`",
+             f"(benchmarks/realism/bench_night.py). Objects >= {args.min_h:g} px tall; recall@0.5 at score >= {SCORE_THR}; "
              "real objects the detector finds in the untouched photo are ignore regions. [95 % bootstrap over frames]", "",
              "| renders | frames | objects >= 40 px | recall@0.5 |", "|---|---:|---:|---:|"]
     for name, rows in (("before", bb), ("after", ab)):

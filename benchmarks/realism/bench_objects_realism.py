@@ -1,7 +1,7 @@
 """Recall@0.5 of injected objects at least N px tall, per class, before/after, from the
 `blendgen realism` results (eval/realism.json) of runs on real photos, with bootstrap 95 % CIs.
 
-    .venv/bin/python benchmarks/bench_objects_realism.py --min-height 40 \
+    .venv/bin/python benchmarks/realism/bench_objects_realism.py --min-height 40 \
         --before OLD/out/m_old_*/eval/realism.json --after NEW/out/m_new_*/eval/realism.json \
         [--md docs/benchmarks/objects_realism.md]
 
@@ -66,7 +66,7 @@ def main(argv=None):
     table = "\n".join(lines)
     print(table)
     if a.md:
-        cmd = " ".join(["benchmarks/bench_objects_realism.py", *(argv or sys.argv[1:])])
+        cmd = " ".join(["benchmarks/realism/bench_objects_realism.py", *(argv or sys.argv[1:])])
         atomic.write_text(a.md, f"# Injected objects on real photos: recall@0.5, objects >= {a.min_height:.0f} px tall\n\n"
                                 f"{table}\n\nMade with `{cmd}`.\n")
 

@@ -1,6 +1,6 @@
 """Hand-written pieces vs the libraries that do the same (issue 16): agreement and time.
 
-    .venv/bin/python benchmarks/bench_own_vs_library.py
+    .venv/bin/python benchmarks/realism/bench_own_vs_library.py
 
 - detection AP: blendgen.detection.metrics.evaluate vs pycocotools' COCOeval (same detections);
 - ATE / RPE: blendgen.sync.metrics.trajectory_errors vs evo (APE / RPE, SE(3) alignment);
@@ -161,7 +161,7 @@ def main():
     fig.tight_layout()
     RESULTS.mkdir(parents=True, exist_ok=True)
     fig.savefig(RESULTS / "own_vs_library.png", dpi=100)
-    doc = ("# Hand-written pieces vs libraries\n\n`.venv/bin/python benchmarks/bench_own_vs_library.py` "
+    doc = ("# Hand-written pieces vs libraries\n\n`.venv/bin/python benchmarks/realism/bench_own_vs_library.py` "
            "(CPU seconds on the shared 2-core machine; ratios from the same run).\n\n" + table + "\n\n"
            "![own vs library](../../benchmarks/results/own_vs_library.png)\n")
     write_doc("own_vs_library.md", doc)

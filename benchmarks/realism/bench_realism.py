@@ -38,7 +38,7 @@ IoU >= 0.5 with its box (COCO matching, blendgen/detection/metrics.py); real obj
 detector finds in the untouched background (score >= 0.05) are ignore regions. Mean
 confidence = mean over objects of the matched detection's score (0 when none).
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_realism.py [--quick] [--set procedural]
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/realism/bench_realism.py [--quick] [--set procedural]
         [--name before --objects-rev main] [--copies-udacity 5 --copies-bdd 14 --video-frames 15]
         [--no-zoo]
 
@@ -334,7 +334,7 @@ def same_plans(proc_dir: Path, out_dir: Path, catalog: list[dict], wait_s: float
 
 def make_assets(folder: Path) -> Path:
     """Library assets: GLB exports of every class's procedural objects with sidecars, written
-    by Blender's glTF exporter (benchmarks/make_test_assets.py, its own bpy process)."""
+    by Blender's glTF exporter (benchmarks/realism/make_test_assets.py, its own bpy process)."""
     if not (folder / ".done").is_file():
         sh([sys.executable, Path(__file__).with_name("make_test_assets.py"), folder, "--procedural", "4"],
            env=dict(os.environ, PYTHONPATH=str(ROOT)))
@@ -536,7 +536,7 @@ def _cell(cell, target=None) -> str:
 def build_table(sets: dict[str, list], cmdline: str) -> tuple[str, dict]:
     v = DEFAULT_VARIANT
     lines = ["# Realism on real backgrounds (YOLOX-Nano, COCO-pretrained)", "",
-             f"Made by `{cmdline}` (benchmarks/bench_realism.py; its docstring says what is measured: "
+             f"Made by `{cmdline}` (benchmarks/realism/bench_realism.py; its docstring says what is measured: "
              "backgrounds, renders, matching). Recall@0.5 = share of injected objects matched (IoU >= "
              f"{IOU_THR}, same class, score >= {SCORE_THR}); [95 % bootstrap interval over frames]. Renders: "
              "Cycles 16 samples + OIDN, render region on, 2 shared CPU cores; default post (light matching, "
@@ -711,7 +711,7 @@ def main() -> None:
             atomic.write_json(TMP / name / "meta.json", meta)
         score_set(name, recs, outs, args)
     sets = {p.parent.name: json.loads(p.read_text()) for p in sorted(TMP.glob("*/scores.json"))}
-    cmd = "PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_realism.py " + " ".join(sys.argv[1:])
+    cmd = "PYTHONPATH=$PWD .venv/bin/python benchmarks/realism/bench_realism.py " + " ".join(sys.argv[1:])
     table, summary = build_table(sets, cmd)
     print(table)
     if not args.quick:

@@ -8,7 +8,7 @@ detector's size limit; if the natively small ones fare no worse than the shrunk 
 render small is not the problem. The whole frame shrinks, so the context does too: a lower bound
 (cars found 42 of 44 natively at 80-160 px, 66 of 88 larger ones shrunk to 100 px).
 
-    .venv/bin/python benchmarks/bench_size_probe.py --runs 'out/b_*' --class bicycle --to 100 60 \\
+    .venv/bin/python benchmarks/realism/bench_size_probe.py --runs 'out/b_*' --class bicycle --to 100 60 \\
         [--detector ../shared/data/models/yolox_nano.onnx] [--plot out/size_probe.png]
 
 Runs are `blendgen run` outputs with `blendgen realism` results (eval/realism.json). A match is

@@ -1,7 +1,7 @@
 """Side by side: injected objects next to real objects of the same class and size, cropped from
 the same photos, by day and by night (docs/gallery_realism.md).
 
-Reads the realism benchmark's cache (benchmarks/bench_realism.py: its renders, their scores and
+Reads the realism benchmark's cache (benchmarks/realism/bench_realism.py: its renders, their scores and
 its recordings) and uses only the MIT-licensed backgrounds (the BDD street photos and the
 Udacity highway photos; camera_zoo's frames are CC BY-NC-SA and never enter these images). For
 every real object YOLOX-Nano finds in a background photo (score >= 0.6, not on the ego hood), it looks for injected
@@ -10,7 +10,7 @@ photo, one from each object set (procedural, and the third-party library where c
 puts the three crops in a row: real | procedural | library, each scaled to the same tile height,
 labelled with the box height and, for injected objects, YOLOX-Nano's score for its class.
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/gallery_realism.py [--cache DIR]
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/realism/gallery_realism.py [--cache DIR]
 
 Writes docs/images/realism_gallery_day.jpg and realism_gallery_night.jpg (JPEG, a few hundred
 KB) and prints, per class and condition, how many rows it found.
@@ -109,7 +109,7 @@ def main() -> None:
     cache = args.cache.resolve()
     sets = {s: json.loads((cache / s / "scores.json").read_text()) for s in SETS if (cache / s / "scores.json").is_file()}
     if "procedural" not in sets:
-        raise SystemExit(f"needs {cache}/procedural/scores.json: run benchmarks/bench_realism.py first")
+        raise SystemExit(f"needs {cache}/procedural/scores.json: run benchmarks/realism/bench_realism.py first")
     det = YoloxDetector(DETECTOR, category_ids=set(CLASSES.values()))
     rows = {"day": [], "night": []}
     found = {}

@@ -1,7 +1,7 @@
 """Write a small asset library exported from Blender, with sidecars (docs/assets.md).
 
-    python benchmarks/make_test_assets.py OUT_DIR [--formats glb gltf blend obj fbx usd]
-    python benchmarks/make_test_assets.py OUT_DIR --procedural 3   # GLBs of every class
+    python benchmarks/realism/make_test_assets.py OUT_DIR [--formats glb gltf blend obj fbx usd]
+    python benchmarks/realism/make_test_assets.py OUT_DIR --procedural 3   # GLBs of every class
 
 Builds a car-like asset (body, cabin, four wheels that are linked duplicates of one mesh,
 a textured number plate) and a person-like asset (legs, torso, arms, head) in Blender,
@@ -9,7 +9,7 @@ facing -y (glTF's and Blender's convention), and exports each in every requested
 OUT/<fmt>/car.<ext>, OUT/<fmt>/person.<ext>, each with a `<stem>.yaml` sidecar. The .blend
 also holds a collection instance (`car_instanced`) and two variants (collections `car_red`
 and `car_blue`). Used by tests/test_assets_library.py, jobs/asset_library.yaml and the
-"library assets" variant of benchmarks/bench_realism.py; runs in its own process because it
+"library assets" variant of benchmarks/realism/bench_realism.py; runs in its own process because it
 imports bpy. Prints the true real-size dims of each asset as JSON on the last line.
 """
 

@@ -33,7 +33,7 @@ the fastest "effects" configuration reaching it.
 
 Memory: RSS over 300 frames in one session (objects moving, one replaced every 10 frames).
 
-    .venv/bin/python benchmarks/bench_render.py [--quick] [--ref-samples N] [--sweep] [--memory-frames N]
+    .venv/bin/python benchmarks/render/bench_render.py [--quick] [--ref-samples N] [--sweep] [--memory-frames N]
 """
 
 from __future__ import annotations
@@ -390,7 +390,7 @@ def sweep(args):
     plot_results(rows, rss, W, H, ref_samples, png)
 
     # ---- table
-    cmd = ".venv/bin/python benchmarks/bench_render.py" + (" --quick" if args.quick else "")
+    cmd = ".venv/bin/python benchmarks/render/bench_render.py" + (" --quick" if args.quick else "")
     lines = [f"# Render benchmark{' (quick)' if args.quick else ''}", "",
              f"Command: `{cmd}` (under `nice -n 5`, 2 shared CPU cores, Cycles CPU; {total / 60:.0f} min).", "",
              f"Frame {W}x{H}, 5 objects ({build_name}) with sun shadows on a ground-plane road; outputs "
@@ -578,7 +578,7 @@ def fair(args):
     total = time.perf_counter() - t_start
 
     # ---- report
-    cmd = (".venv/bin/python benchmarks/bench_render.py" + (" --quick" if args.quick else "") +
+    cmd = (".venv/bin/python benchmarks/render/bench_render.py" + (" --quick" if args.quick else "") +
            (f" --repeats {reps}" if reps != 3 else "") +
            (f" --samples {' '.join(map(str, args.samples))}" if args.samples != [12] else "") +
            (f" --pairs {args.pairs}" if args.pairs != 3 else ""))

@@ -9,7 +9,7 @@ reported beside them). With --cpu the same frame is also rendered on this machin
 cores (blendgen's defaults and the naive render at the count found on the GPU), so that the
 two devices compare on one machine.
 
-    python benchmarks/bench_render_gpu.py [--repeats 5] [--pairs 5] [--cpu] [--quick] [--device CPU]
+    python benchmarks/render/bench_render_gpu.py [--repeats 5] [--pairs 5] [--cpu] [--quick] [--device CPU]
 
 Exits with a message, writing nothing, when Cycles finds no GPU.
 """
@@ -158,7 +158,7 @@ def main():
     # ---- report
     ratio = final["wall_s"] / blend["wall_s"] if final else None
     side = cl["side by side, clustered"]["wall_s"]
-    cmd = "python benchmarks/bench_render_gpu.py" + (f" --repeats {reps}" if reps != 5 else "") + \
+    cmd = "python benchmarks/render/bench_render_gpu.py" + (f" --repeats {reps}" if reps != 5 else "") + \
         (f" --pairs {args.pairs}" if args.pairs != 5 else "") + (" --cpu" if args.cpu else "") + \
         (" --quick" if args.quick else "") + (" --device CPU" if args.device == "CPU" else "")
     lines = [f"# Render cost on the {args.device}: the fair baseline", "",

@@ -1,6 +1,6 @@
 """Render the gallery of the seven object classes and both twins into docs/images/.
 
-    .venv/bin/python benchmarks/gallery.py [--quick] [--samples N] [--old-tiles DIR]
+    .venv/bin/python benchmarks/render/gallery.py [--quick] [--samples N] [--old-tiles DIR]
 
 Each class row shows several variants (body types, riders, lamp states) on a neutral
 ground in day light and in night light (dark sky, one street lamp, vehicle lamps on);
@@ -10,8 +10,8 @@ render times per tile. To compare with older objects, first render their day til
 a copy of the old package (e.g. `git show main:assets_procedural/<f>.py` into
 OLD/assets_procedural/), then pass the folder as --old-tiles:
 
-    .venv/bin/python benchmarks/gallery.py --quick --old-assets OLD --tiles-only DIR
-    .venv/bin/python benchmarks/gallery.py --quick --old-tiles DIR
+    .venv/bin/python benchmarks/render/gallery.py --quick --old-assets OLD --tiles-only DIR
+    .venv/bin/python benchmarks/render/gallery.py --quick --old-tiles DIR
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ share of that error on shadow pixels no catcher patch covers (the faint sky occl
 out than the patch margin, which then reads 1). With --ground the same frame with shadows
 caught on the whole ground inside blendgen's regions.
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/render_error_split.py [--samples 16 64] [--ground]
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/render/render_error_split.py [--samples 16 64] [--ground]
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """CPU and wall time per stage of RenderSession.render_frame on the bench_render frame.
 
 Usage (from a checkout root; measures the blendgen that PYTHONPATH puts first):
-  PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/render_python_cost.py [--frames 7] [--samples 1]
+  PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/render/render_python_cost.py [--frames 7] [--samples 1]
       [--compression zip] [--k1 -0.2] [--save out.exr] [--json out.json]
 
 Per frame: wall seconds from render_frame's own timings, CPU seconds (user + system, all

@@ -1,6 +1,6 @@
 """The vehicle's odometer (CAN speed, speed.csv) in sync: with and without it, over noise seeds.
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_odometer.py [--seeds 0,1,...] [--frames 0,1,2,3]
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_odometer.py [--seeds 0,1,...] [--frames 0,1,2,3]
 
 1. The 60 s synthetic drive of bench_sync.py, IMU + GNSS (no frames, no twin), per noise seed,
    with a simulated CAN speed 2 % low, 50 ms early, 0.03 m/s noise, 0.01 m/s steps at 100 Hz:
@@ -105,7 +105,7 @@ def write(plain_rows, frame_rows, argv: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    md = ["# Odometer (CAN speed) in sync", "", f"`PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_odometer.py{argv}`"
+    md = ["# Odometer (CAN speed) in sync", "", f"`PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_odometer.py{argv}`"
           " (one run, shared 2-core machine).", "",
           "IMU + GNSS, 60 s drive, CAN speed 2 % low and 50 ms early:", "",
           "| seed | h. RMSE without -> with (m) | rotation without -> with (deg) | latency found (s) | scale found |",

@@ -1,7 +1,7 @@
 """Road-height constraint (issue 14 "Height"): the 60 s synthetic drive of bench_sync.py with and
 without the twin's road surface, and comma2k19 (no twin: must be unchanged).
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_road_height.py [--quick]
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_road_height.py [--quick]
 
 Synthetic: 480x270 frames at 5 fps through the textured street (road = the plane z = 0), IMU
 200 Hz, GNSS 10 Hz with 1 m horizontal / 1.5 m vertical noise; camera 1.5 m above the road.

@@ -1,6 +1,6 @@
 """Sync benchmark: what accuracy costs in time.
 
-    .venv/bin/python benchmarks/bench_sync.py [--quick] [--section hard|comma|karma|vo]
+    .venv/bin/python benchmarks/sync/bench_sync.py [--quick] [--section hard|comma|karma|vo]
 
 1. A synthetic drive (60 s, --quick 20 s) like the built-in demo: 480x270 frames at 5 fps
    ray-cast through a textured street, IMU 200 Hz with noise and bias, GNSS 10 Hz with 1 m
@@ -12,7 +12,7 @@
    20 m ahead on the optical axis at 1280x720 -- absolute (twin frame) and after a 4-DoF
    (yaw + translation) alignment, the usual VIO convention.
 2. VO throughput at 960x540 on one core (cv2.setNumThreads(1), CPU time, best of 3 medians)
-   per front end and feature count (accuracy per setting: benchmarks/bench_vo.py). `--section vo`.
+   per front end and feature count (accuracy per setting: benchmarks/sync/bench_vo.py). `--section vo`.
 3. comma2k19 (real IMU + GNSS, if ../shared/data is there): blendgen vs GTSAM vs raw GNSS; the
    peer as before and given blendgen's estimates (GNSS latency, fix-noise scale, height
    correlation, vehicle frame for no-sideslip, the CAN speed with blendgen's odometer scale and
@@ -599,7 +599,7 @@ def main() -> None:
             if out:
                 print("\n".join(to_md(out)))
             return
-    cmd = "nice -n 5 .venv/bin/python benchmarks/bench_sync.py" + (" --quick" if args.quick else "")
+    cmd = "nice -n 5 .venv/bin/python benchmarks/sync/bench_sync.py" + (" --quick" if args.quick else "")
     print("1. synthetic drive")
     rows, dur, nframes = synthetic(args.quick)
     print("2. VO throughput")
@@ -663,7 +663,7 @@ def main() -> None:
                   f"{r['rot']:.3f} | {r['rot4']:.3f} | {r['px']:.1f} | {r['px4']:.1f} |")
     md += ["", "## VO throughput at 960x540, one core (cv2.setNumThreads(1), CPU time)", "",
            "Median CPU time per frame, the best of 3 runs (the machine is shared). Accuracy per setting:",
-           "`docs/benchmarks/vo.md` (`benchmarks/bench_vo.py`).", "",
+           "`docs/benchmarks/vo.md` (`benchmarks/sync/bench_vo.py`).", "",
            *md_head("method", "features", "ms/frame (median)", "frames/s", "pairs ok")]
     for v in vo:
         md.append(f"| {v['method'].upper()} | {v['features']} | {v['ms']:.1f} | {v['fps']:.1f} | {v['ok']}/{v['pairs']} |")

@@ -2,7 +2,7 @@
 target: <= 0.05 m and <= 1 px with the twin road and the camera height; docs/sync.md, "the
 60 s drive's ATE: what limits it").
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_sync_floor.py [--seeds 0,1,2,3]
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_sync_floor.py [--seeds 0,1,2,3]
         [--frames 0,1] [--nhc-lat-std 0.1] [--gnss-std 1.0] [--true-mount] [--vo-before]
 
 1. IMU + GNSS + twin road + camera height, no frames (poses at the 5 fps frame times), one line

@@ -1,7 +1,7 @@
 """Why the hard synthetic drive is hard: one of its error sources at a time (docs/sync.md,
 "the hard synthetic drive").
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_sync_hard_ablation.py
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_sync_hard_ablation.py
 
 1. IMU + GNSS (no frames, no twin): GNSS Gauss-Markov, multipath burst, both (the lockout).
 2. IMU + GNSS + twin road: HARD_IMU's parts, and the filter told the true densities, with the

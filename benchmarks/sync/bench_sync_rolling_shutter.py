@@ -1,6 +1,6 @@
 """Rolling-shutter correction of VO in the full sync (docs/sync.md, "Rolling shutter").
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_sync_rolling_shutter.py \
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_sync_rolling_shutter.py \
         [--case rs|hard|easy] [--fps 10] [--seed 0] [--spins off,table] [--assumed 0.02,0.04]
 
 rs: the 60 s drive of bench_sync.py with each frame's rows read out over 30 ms (calib

@@ -1,6 +1,6 @@
 """Camera-IMU time offset from VO vs gyro (calib.yaml `timeshift_cam_imu: auto`).
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_time_offset.py [--skip-real]
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/sync/bench_time_offset.py [--skip-real]
 
 1. Synthetic (`simulate.synthetic_recording`, frames rendered `cam_time_offset_s` after their
    stamps on the IMU clock): a shaky 12 s drive (1 deg shake, 10 fps, 320x180) with a true

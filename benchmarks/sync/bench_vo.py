@@ -1,6 +1,6 @@
 """VO front-end benchmark: speed on one core and accuracy against exact ground truth.
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo.py [--quick]
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_vo.py [--quick]
 
 Frames are ray-cast through the synthetic textured street (`blendgen.sync.simulate`) along the
 "drive" trajectory (gentle S-curves, 8 m/s +-15 %, small roll/pitch), camera as in the sync
@@ -177,7 +177,7 @@ def main() -> None:
 
     with atomic.atomic_path(png) as tmp:
         fig.savefig(tmp, dpi=110)
-    cmd = "PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo.py" + (" --quick" if args.quick else "")
+    cmd = "PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_vo.py" + (" --quick" if args.quick else "")
     md = [f"# VO front-end benchmark{' (quick)' if args.quick else ''}", "",
           f"Produced by `{cmd}` on the shared 2-core machine (other sessions' jobs were running: CPU",
           "time per frame: median over the sequence, best of 3 runs; compare rows of one run).", "",

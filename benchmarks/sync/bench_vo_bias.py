@@ -1,7 +1,7 @@
 """Where VO's relative-rotation bias on the 60 s synthetic drive comes from (issue 14, docs/sync.md
 "VO: the relative rotation's bias").
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo_bias.py [--seed 0] [--parts exact,frames,pp]
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_vo_bias.py [--seed 0] [--parts exact,frames,pp]
         [--parts frames,old,coarse] [--parts flow --duration 20] [--supersample 2] [--width 640]
 
 Per frame pair of the drive (5 fps, 480x270, `synthetic_recording("drive", 60, seed=...)`), the

@@ -1,7 +1,7 @@
 """Which part of a real camera's photometry biases VO's direction of travel, and whether the
 photometric normalisation removes it (issue 14, docs/sync.md "VO under real-camera photometry").
 
-    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_vo_photometry.py [--fps 10]
+    PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/sync/bench_vo_photometry.py [--fps 10]
         [--duration 20] [--shake 0.3] [--readout 0] [--method klt|orb] [--seed 0]
         [--variants none,flicker,vignetting,gamma,jpeg,all] [--norm off,gain]
     ... --timing                      (960x540 CPU ms per frame, off / gain)

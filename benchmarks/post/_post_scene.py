@@ -36,36 +36,32 @@ def material(name, rgb, rough=0.5, metal=0.0, emit=None):
     return m
 
 
-def box(name, size, loc, mat, parent=None, rot_z=0.0):
-    bpy.ops.mesh.primitive_cube_add(size=1.0, location=loc)
+def _named(name, mat, parent):
+    """The object the last primitive_*_add made, named, with its material and parent."""
     o = bpy.context.object
     o.name = name
-    o.scale = size
-    o.rotation_euler[2] = rot_z
     o.data.materials.append(mat)
     if parent is not None:
         o.parent = parent
+    return o
+
+
+def box(name, size, loc, mat, parent=None, rot_z=0.0):
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=loc)
+    o = _named(name, mat, parent)
+    o.scale = size
+    o.rotation_euler[2] = rot_z
     return o
 
 
 def cyl(name, r, depth, loc, mat, parent=None, rot=(0, 0, 0)):
     bpy.ops.mesh.primitive_cylinder_add(radius=r, depth=depth, location=loc, rotation=rot, vertices=16)
-    o = bpy.context.object
-    o.name = name
-    o.data.materials.append(mat)
-    if parent is not None:
-        o.parent = parent
-    return o
+    return _named(name, mat, parent)
 
 
 def sphere(name, r, loc, mat, parent=None):
     bpy.ops.mesh.primitive_uv_sphere_add(radius=r, location=loc, segments=16, ring_count=8)
-    o = bpy.context.object
-    o.name = name
-    o.data.materials.append(mat)
-    if parent is not None:
-        o.parent = parent
-    return o
+    return _named(name, mat, parent)
 
 
 def stand_in(cls: str, colour, name: str):

@@ -152,7 +152,7 @@ def test_a_video_track_follows_its_lane_through_frames_without_lines():
 
 def test_lane_shifts_over_a_long_video_stay_finite_smooth_and_cheap():
     """A track as long as a 10-minute video at 25 fps, lines in 70 % of its frames with 5 cm of
-    noise: the shifts are finite and smoothed (the cost of the smoothing is in benchmarks/bench_lanes.py)."""
+    noise: the shifts are finite and smoothed (the cost of the smoothing is in benchmarks/plan/bench_lanes.py)."""
     from blendgen.scene.planner import Planner
 
     rng = np.random.default_rng(0)

@@ -1,5 +1,5 @@
 """User asset libraries (docs/assets.md): assets exported from Blender in the test itself
-(benchmarks/make_test_assets.py, run in its own process), imported in every format,
+(benchmarks/realism/make_test_assets.py, run in its own process), imported in every format,
 rendered by a job with `inject.assets:`; malformed assets each get a precise error, exit 2."""
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ TRUE_DIMS = {"car": (4.42, 1.80, 1.45), "person": (0.30, 0.50, 1.75)}
 def library(tmp_path_factory) -> Path:
     """Car and person exported from Blender as GLB, glTF, .blend, OBJ, FBX and USD."""
     out = tmp_path_factory.mktemp("library")
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "make_test_assets.py"), str(out)],
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "realism" / "make_test_assets.py"), str(out)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     assert json.loads(r.stdout.strip().splitlines()[-1]) == {k: list(v) for k, v in TRUE_DIMS.items()}
@@ -231,7 +231,7 @@ def test_every_format_imports_with_its_real_dims(library):
 def test_procedural_objects_exported_as_glb_keep_their_dims(tmp_path):
     """Every class round-trips through glTF (the library make_test_assets --procedural
     writes for benchmarks): the catalog measures what the procedural builder made."""
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "make_test_assets.py"), str(tmp_path),
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "realism" / "make_test_assets.py"), str(tmp_path),
                         "--procedural", "1"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     made = json.loads(r.stdout.strip().splitlines()[-1])

@@ -1,11 +1,11 @@
-"""benchmarks/bench_realism.py's tables: objects of the library set pair with the procedural
+"""benchmarks/realism/bench_realism.py's tables: objects of the library set pair with the procedural
 set's by frame, slot, class and place, and the default per class follows the paired difference."""
 
 import importlib.util
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("bench_realism", ROOT / "benchmarks" / "bench_realism.py")
+spec = importlib.util.spec_from_file_location("bench_realism", ROOT / "benchmarks" / "realism" / "bench_realism.py")
 bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 

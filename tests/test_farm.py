@@ -644,8 +644,8 @@ def test_ray_cluster_survives_node_removal(tmp_path, monkeypatch):
 # -- benchmark wrapper (excluded by default: -m benchmark) ------------------------------------
 @pytest.mark.benchmark
 def test_bench_ledger_throughput_and_overhead(monkeypatch):
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT / "benchmarks"), str(TESTS)]))
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks" / "farm"))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT / "benchmarks" / "farm"), str(TESTS)]))
     import bench_farm
 
     assert bench_farm.bench_ledger(2000, commit_every=1) >= 1000  # issue 7 target

@@ -23,8 +23,8 @@ def test_so3_matches_scipy():
 
 def test_ate_rpe_match_evo(monkeypatch):
     pytest.importorskip("evo.core.metrics")
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_own_vs_library import evo_ate_rpe  # the benchmark's evo reference
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))
+    from benchmarks.realism.bench_own_vs_library import evo_ate_rpe  # the benchmark's evo reference
 
     rng = np.random.default_rng(1)
     n = 60

@@ -527,7 +527,7 @@ def test_composite_at_720p_is_finite_and_repeatable():
              shadow_catcher=ones.copy())
     p["shadow_catcher"][500:540, 480:820] = 0.5
     il = estimate_illumination(real)
-    # its time per frame is measured by benchmarks/bench_post.py --timing
+    # its time per frame is measured by benchmarks/post/bench_post.py --timing
     a, _ = composite_frame(real, p, settings=Post(color_transfer="mkl"), illumination=il, seed=0)
     b, _ = composite_frame(real, p, settings=Post(color_transfer="mkl"), illumination=il, seed=0)
     assert a.shape == real.shape and np.array_equal(a, b)

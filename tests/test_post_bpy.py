@@ -32,7 +32,7 @@ def renders(tmp_path_factory):
                         {"mode": "object", "out": str(work / "obj.exr"), "lighting": SUNNY}]}
     (work / "spec.json").write_text(json.dumps(spec))
     env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": os.environ.get("HOME", "/tmp")}
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "_post_scene.py"), str(work / "spec.json")],
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "post" / "_post_scene.py"), str(work / "spec.json")],
                        env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     return work

@@ -230,7 +230,7 @@ def test_realism_end_to_end_on_real_photos(tmp_path):
 
 
 def test_size_probe_shrinks_found_objects(tmp_path, capsys):
-    """benchmarks/bench_size_probe.py: real cars pasted ~127 px tall are found, then found less
+    """benchmarks/realism/bench_size_probe.py: real cars pasted ~127 px tall are found, then found less
     often or not at all when the frame is shrunk until they are 20 px tall."""
     photos = _three_real_photos()
     import importlib.util
@@ -239,7 +239,8 @@ def test_size_probe_shrinks_found_objects(tmp_path, capsys):
 
     out = _make_out(tmp_path, photos)
     run_realism(out, MODEL, background="auto")
-    spec = importlib.util.spec_from_file_location("probe", Path(__file__).resolve().parents[1] / "benchmarks/bench_size_probe.py")
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "realism" / "bench_size_probe.py"
+    spec = importlib.util.spec_from_file_location("probe", script)
     probe = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(probe)
     probe.main(["--runs", str(out), "--class", "car", "--to", "120", "20", "--detector", str(MODEL)])

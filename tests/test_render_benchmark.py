@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bench_render", ROOT / "benchmarks" / "bench_render.py")
+    spec = importlib.util.spec_from_file_location("bench_render", ROOT / "benchmarks" / "render" / "bench_render.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -59,8 +59,8 @@ def test_naive_cost_from_a_line_fit_at_the_interpolated_count():
 @pytest.mark.bpy
 def test_bench_render_quick():
     pytest.importorskip("bpy")
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_render.py"), "--quick", "--repeats", "1"],
-                       capture_output=True, text=True, timeout=1800, cwd=ROOT)
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "render" / "bench_render.py"), "--quick",
+                        "--repeats", "1"], capture_output=True, text=True, timeout=1800, cwd=ROOT)
     assert r.returncode == 0, r.stderr[-3000:]
     md = (ROOT / "docs" / "benchmarks" / "render_fair_quick.md").read_text()
     assert "cheaper in CPU seconds" in md and "opposite edges, clustered" in md and "Interleaved pairs" in md
@@ -71,7 +71,7 @@ def test_gpu_bench_without_a_gpu_says_so_and_writes_nothing(tmp_path):
     pytest.importorskip("bpy")
     out = [ROOT / "docs" / "benchmarks" / "render_gpu.md", ROOT / "benchmarks" / "results" / "render_gpu.json"]
     before = [p.stat().st_mtime if p.exists() else None for p in out]
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_render_gpu.py"), "--quick"],
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "render" / "bench_render_gpu.py"), "--quick"],
                        capture_output=True, text=True, timeout=600, cwd=ROOT)
     if r.returncode == 0:
         pytest.skip("this machine has a GPU that Cycles can use")
@@ -83,7 +83,7 @@ def test_gpu_bench_without_a_gpu_says_so_and_writes_nothing(tmp_path):
 @pytest.mark.bpy
 def test_bench_render_gpu_script_on_the_cpu():
     pytest.importorskip("bpy")
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_render_gpu.py"), "--device", "CPU", "--quick",
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "render" / "bench_render_gpu.py"), "--device", "CPU", "--quick",
                         "--repeats", "1", "--pairs", "1", "--ref-samples", "32", "--max-samples", "64"],
                        capture_output=True, text=True, timeout=1800, cwd=ROOT)
     assert r.returncode == 0, r.stderr[-3000:]

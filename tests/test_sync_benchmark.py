@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.benchmark
 def test_bench_sync_quick():
-    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_sync.py"), "--quick"], cwd=ROOT,
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sync" / "bench_sync.py"), "--quick"], cwd=ROOT,
                          capture_output=True, text=True, timeout=1800)
     assert out.returncode == 0, out.stderr[-2000:]
     md = (ROOT / "docs" / "benchmarks" / "sync_quick.md").read_text()

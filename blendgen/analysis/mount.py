@@ -60,7 +60,7 @@ MIN_DEPRESSION = 0.008   # tan: a contact point less than ~0.5 deg below the hor
 MIN_BOX_PX = 14          # smaller boxes are mostly detector slack
 REAR_VIEW_ASPECT = 1.45  # w/h of a car box seen from behind or ahead (side views: ~2.5-3)
 REAR_VIEW_BEARING = 0.3  # tan of the bearing: cars near the optical axis run along the road
-# fusion constants (tuned leave-one-rig-out on the camera zoo: benchmarks/bench_camera.py --zoo)
+# fusion constants (tuned leave-one-rig-out on the camera zoo: benchmarks/analysis/bench_camera.py --zoo)
 SIZE_SCALE = 1.0         # the car and prior-lane sizes as the detector and the paint finder see them (grid 1.0-1.2)
 VP_SYS_DEG = 2.0         # floor on a vanishing point's pitch/roll error against the road users' plane (0.3-2)
 FRAME_DEV_DEG = 0.25     # how far a still's pitch or roll may wander from the mount, prior sigma (0.25-1)

@@ -17,7 +17,7 @@ rule that drops tiny injected objects drops or ignores the real ones too (`min_v
 Detections: the analysis keeps detections with score >= 0.25 (`analysis.objects.SCORE_MIN`).
 Those at or above DETECTOR_LABEL_SCORE become labels; those below are uncertain and become
 ignore regions (COCO `iscrowd`, KITTI `DontCare`), neither object nor background for a trainer.
-The threshold is measured against human boxes (benchmarks/bench_real_labels.py,
+The threshold is measured against human boxes (benchmarks/labels/bench_real_labels.py,
 docs/benchmarks/real_labels.md).
 """
 

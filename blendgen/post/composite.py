@@ -30,7 +30,7 @@ from blendgen.post.relight import local_light_gain, relight
 
 # Full-strength transfer makes an object take the background's colours (a red car on grey
 # asphalt turns grey). Default strengths (Post.color_strength = None), measured in
-# benchmarks/bench_post.py (docs/post.md): a little after environment-light matching, which
+# benchmarks/post/bench_post.py (docs/post.md): a little after environment-light matching, which
 # already gets the light right, more when the render used a default light.
 STRENGTH_AFTER_ENV_LIGHT = 0.1
 STRENGTH_WITHOUT_ENV_LIGHT = 0.3

@@ -27,10 +27,10 @@ REGION_MARGIN_PX = 4      # pixel filter (1.5 px) and rounding
 FULL_FRAME_FRACTION = 0.8  # a region this large saves too little to be worth the border logic
 # The fixed cost of one more border render (Cycles' render call, denoiser set-up, EXR write and
 # read) as a fraction of the frame's pixels: it grows with the frame, 0.07 CPU s = 1200 region
-# pixels at 640x360, 0.21 CPU s = 4300 at 1280x720 (benchmarks/bench_render.py, docs/render.md).
+# pixels at 640x360, 0.21 CPU s = 4300 at 1280x720 (benchmarks/render/bench_render.py, docs/render.md).
 REGION_OVERHEAD_FRACTION = 0.0045
 # On a GPU a render call costs ~0.03 s wall while a pixel costs ~0.7 us: one call is worth
-# ~5 % of a 1280x720 frame (H200, OptiX: benchmarks/bench_render_gpu.py, docs/render.md).
+# ~5 % of a 1280x720 frame (H200, OptiX: benchmarks/render/bench_render_gpu.py, docs/render.md).
 REGION_OVERHEAD_FRACTION_GPU = 0.05
 # Used when a plan carries no lighting estimate: a clear-sky late morning.
 DEFAULT_LIGHTING = {

@@ -87,16 +87,15 @@ HEIGHT_BINS = [(0, 20, "< 20 px"), (20, 40, "20-40 px"), (40, 80, "40-80 px"), (
 TRANSFERS = ("none", "reinhard", "mkl", "histogram")
 DEFAULT_VARIANT = f"ct={Post().color_transfer}"  # the pipeline's default post
 BDD_NIGHT = "9aa94005-ff1d4c9a"
-# Ground planes as the example jobs have them (2026-11-29): Udacity as jobs/udacity_photos.yaml
-# (1.23 m from `blendgen calibrate`, pitch and roll per photo from its lane lines), BDD as
-# jobs/dashcam_photos.yaml (all estimated per photo). Before, both were fixed guesses
-# (Udacity 1.4 m at pitch -1 deg: its horizon 55 px too high; BDD 1.3 m at -3 deg): sets
-# rendered before then are not comparable with later ones (docs/benchmarks/realism.md).
+# Ground planes as the example jobs have them: Udacity as jobs/udacity_photos.yaml (1.23 m from
+# `blendgen calibrate`, pitch and roll per photo from its lane lines), BDD all estimated. The three
+# BDD photos come from three cars: each is its own recording (a recording is one camera, one mount).
+BDD_PHOTOS = sorted((REAL / "bdd_street_photos").glob("*.jpg"))
+BDD_PLANE = {"camera_height_m": "auto", "pitch_deg": "auto", "roll_deg": "auto", "lane_width_m": 3.5}
 RECORDINGS = {
     "udacity": {"hfov": 55, "ground_plane": {"camera_height_m": 1.23, "pitch_deg": "auto", "roll_deg": "auto",
                                              "lane_width_m": 3.7}},
-    "bdd": {"hfov": 60, "ground_plane": {"camera_height_m": "auto", "pitch_deg": "auto", "roll_deg": "auto",
-                                         "lane_width_m": 3.5}},
+    **{f"bdd-{p.stem[:8]}": {"hfov": 60, "ground_plane": BDD_PLANE, "photo": p} for p in BDD_PHOTOS},
 }
 # camera_zoo rigs: folder, camera height and pitch from its calib.txt (pitch > 0 looks up;
 # roll < 0.6 deg everywhere: 0), "auto" where calib.txt gives none
@@ -130,10 +129,10 @@ def make_recordings(args) -> dict[str, dict]:
             stills = sorted((REAL / "udacity_highway_images").glob("*.jpg"))
             copies = args.copies_udacity
         else:
-            stills = sorted((REAL / "bdd_street_photos").glob("*.jpg"))
+            stills = [spec["photo"]]
             copies = args.copies_bdd
         missing = [p for p in stills if not p.is_file()]
-        if not stills or missing:
+        if not stills or missing or not BDD_PHOTOS:
             raise SystemExit(f"needs {REAL}/ (udacity_highway_images, bdd_street_photos)")
         key = json.dumps([copies, args.video_frames, [p.name for p in stills]])
         if not (dst / "frames.csv").is_file() or (TMP / f"rec_{rec}.key").read_text() != key:
@@ -628,6 +627,7 @@ def _bg_group(r) -> str:
     f = r["frame"].split("/")[0]
     if f.startswith("zoo_"):
         return f"camera_zoo {f[4:]}"
+    f = f.split("-")[0]  # bdd-<photo>: one recording per BDD photo
     src = r["source"].split("_video_")[0]
     return f"{f} {src}" + (" (night)" if is_night(r) else "")
 

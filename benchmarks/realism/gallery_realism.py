@@ -32,7 +32,7 @@ from benchmarks.common import DETECTOR, RESULTS, ROOT  # noqa: E402
 from blendgen import CLASSES  # noqa: E402
 
 OUT = ROOT / "docs" / "images"
-MIT_RECS = ("bdd", "udacity")  # camera_zoo's nuScenes, DDAD and Argoverse frames are CC BY-NC-SA
+MIT_RECS = ("bdd-", "udacity")  # name prefixes; camera_zoo's nuScenes, DDAD and Argoverse frames are CC BY-NC-SA
 NIGHT = "9aa94005-ff1d4c9a"
 REAL_SCORE = 0.6
 SIZE_TOL = 1 / 3  # an injected object's height within this fraction of the real one's
@@ -113,7 +113,8 @@ def main() -> None:
     det = YoloxDetector(DETECTOR, category_ids=set(CLASSES.values()))
     rows = {"day": [], "night": []}
     found = {}
-    for rec in MIT_RECS:
+    recs = sorted(f.name[4:-len(".names.json")] for f in cache.glob("rec_*.names.json"))
+    for rec in [r for r in recs if r.startswith(MIT_RECS)]:
         names = json.loads((cache / f"rec_{rec}.names.json").read_text())
         recording = read_recording(cache / f"rec_{rec}")
         first = {}  # photo -> its first frame index (the untouched photo)

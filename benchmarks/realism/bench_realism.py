@@ -351,8 +351,9 @@ def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
     from blendgen.recording.folder import read_frame, read_recording
     from blendgen.render.exr import read_passes
 
-    cache = TMP / name / "scores.json"
-    if cache.is_file():
+    cache, key_file = TMP / name / "scores.json", TMP / name / "scores.key"
+    key = json.dumps({rec: recs[rec]["names"] for rec in sorted(recs)})  # the scores hold these backgrounds
+    if cache.is_file() and key_file.is_file() and key_file.read_text() == key:
         return json.loads(cache.read_text())
     det = YoloxDetector(MODEL, category_ids=set(CLASSES.values()))
     illum_on = args.set != "procedural_illum_off"
@@ -415,6 +416,7 @@ def score_set(name: str, recs: dict, outs: dict[str, Path], args) -> dict:
             objects += rows
         print(f"[{name}] scored {rec}: {len(objects)} objects so far", flush=True)
     atomic.write_json(cache, objects, indent=0)
+    atomic.write_text(key_file, key)
     return objects
 
 

@@ -6,10 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import cv2
 import pytest
@@ -17,13 +13,9 @@ import yaml
 
 from blendgen.plan import SCENERY_ID
 
+from real_data import BDD, cli
+
 pytestmark = [pytest.mark.bpy, pytest.mark.data]
-DATA = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
-BDD = DATA / "real" / "bdd_street_photos"
-
-
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "blendgen.cli", *args], capture_output=True, text=True, timeout=900)
 
 
 def test_dashcam_photos_job_analyses_plans_and_resumes(tmp_path):

@@ -5,9 +5,6 @@ the injected car is dropped and one half behind it shrinks to its visible part."
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -15,13 +12,9 @@ import numpy as np
 import pytest
 import yaml
 
+from real_data import BDD, cli
+
 pytestmark = [pytest.mark.bpy, pytest.mark.data]
-DATA = Path(os.environ.get("BLENDGEN_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
-BDD = DATA / "real" / "bdd_street_photos"
-
-
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "blendgen.cli", *args], capture_output=True, text=True, timeout=900)
 
 
 def test_real_road_users_labelled_by_detector_then_by_user(tmp_path):

@@ -473,6 +473,7 @@ def fmt(v) -> str:
     return "–" if not np.isfinite(m) else f"{m:.2f} [{lo:.2f}, {hi:.2f}]"
 
 
+MIN_PAIRS = 20  # fewer paired objects of a class decide nothing
 LIBRARY_SETS = ("thirdparty", "assets")  # sets whose library objects pair with the procedural set's
 TWO_WHEELERS = ("motorcycle", "bicycle")
 
@@ -501,12 +502,13 @@ def paired_diff(pr, variant) -> tuple[float, float, float]:
 
 
 def choose_defaults(proc: list, lib: list, variant: str) -> dict[str, str]:
-    """Per class, the set whose objects the detector finds more often on the paired objects
-    (procedural where the library has none of the class)."""
+    """Per class, the library where the detector finds its objects measurably more often than the
+    procedural ones on >= MIN_PAIRS paired objects (the paired difference's 95 % interval above zero);
+    else procedural, which needs no library."""
     out = {}
     for c in CLASSES:
         pr = [(a, b) for a, b in pairs(proc, lib) if a["cls"] == c and a["h"] >= 40 and b.get("asset")]
-        out[c] = "library" if pr and paired_diff(pr, variant)[0] > 0 else "procedural"
+        out[c] = "library" if len(pr) >= MIN_PAIRS and paired_diff(pr, variant)[1] > 0 else "procedural"
     return out
 
 

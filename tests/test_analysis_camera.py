@@ -264,3 +264,26 @@ def test_video_camera_height_does_not_depend_on_the_jobs_frames(tmp_path):
         assert "lanes" in est[ids[0]][0].source["height"], est[ids[0]][0].reasons
     assert abs(heights["0-56"] / heights["every 30th"] - 1) < 0.08 and 1.05 < heights["0-56"] < 1.4, heights
 
+
+
+def test_stills_of_different_cameras_each_get_their_own_mount(tmp_path):
+    """`ground_plane.stills: per_image` (photos of different cars: pitch 3 / -2, heights 1.2 / 1.7):
+    each photo gets the camera it gets imported alone; `shared` gives them one mount."""
+    from blendgen.job.schema import GroundPlane
+
+    frames = [line_scene(3, -2, height=1.2, seed=0), line_scene(-2, 1, height=1.7, seed=1),
+              line_scene(3, -2, height=1.2, seed=2), line_scene(-2, 1, height=1.7, seed=3)]
+    rec = write_images_recording(tmp_path / "rec", frames)
+    ids = [rec.frame_id(i) for i in range(4)]
+    kw = dict(camera_height_m="auto", pitch_deg="auto", roll_deg="auto", lane_width_m=3.3)
+    own = estimate_cameras(rec, ids, user=GroundPlane(**kw, stills="per_image"))
+    for i, f in enumerate(ids):
+        alone = write_images_recording(tmp_path / f"alone{i}", [frames[i]])
+        a = estimate_cameras(alone, [alone.frame_id(0)], user=GroundPlane(**kw))[alone.frame_id(0)][0]
+        e = own[f][0]
+        assert (e.height_m, e.pitch_deg, e.roll_deg) == pytest.approx((a.height_m, a.pitch_deg, a.roll_deg), abs=1e-6)
+        pitch, roll = (3, -2) if i % 2 == 0 else (-2, 1)
+        assert abs(e.pitch_deg - pitch) < 1.2 and abs(e.roll_deg - roll) < 0.4, e   # one frame's fit
+    assert own[ids[1]][0].height_m > own[ids[0]][0].height_m + 0.1   # 1.7 against 1.2 (one frame: towards the prior)
+    shared = estimate_cameras(rec, ids, user=GroundPlane(**kw))
+    assert len({round(shared[f][0].height_m, 6) for f in ids}) == 1   # one camera: one height for all

@@ -35,6 +35,8 @@ def register(subparsers) -> None:
                    help="the road's lane width (m) when known: the height then scales with it (default: a prior)")
     p.add_argument("--detector", type=Path, default=None,
                    help="ONNX YOLOX model: real cars' widths also give the height")
+    p.add_argument("--per-image", action="store_true",
+                   help="stills from different cameras (photos of different cars): a mount per image")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
 
@@ -48,7 +50,8 @@ def _user(args):
     kw = {"camera_height_m": args.height, "pitch_deg": args.pitch, "roll_deg": args.roll}
     try:
         lane = {} if args.lane_width is None else {"lane_width_m": args.lane_width}
-        return GroundPlane(**{k: ("auto" if v is None else v) for k, v in kw.items()}, **lane)
+        return GroundPlane(**{k: ("auto" if v is None else v) for k, v in kw.items()}, **lane,
+                           stills="per_image" if args.per_image else "shared")
     except ValidationError as e:
         err = e.errors()[0]
         flag = {"camera_height_m": "--height", "pitch_deg": "--pitch", "roll_deg": "--roll",
@@ -74,7 +77,7 @@ def calibrate(rec, frame_ids, user, *, car_boxes=None, progress: bool = False) -
     from blendgen.recording.frames import frame_indices, is_sequence, read_frames
 
     t0 = time.process_time()
-    hoods = find_hood(rec, frame_ids, progress=progress)
+    hoods = find_hood(rec, frame_ids, progress=progress, shared=getattr(user, "stills", "shared") == "shared")
     cams = estimate_cameras(rec, frame_ids, user=user, car_boxes=car_boxes, hoods=hoods, progress=progress)
     track = ground_track(rec, frame_ids, cams, hoods=hoods, progress=progress) if is_sequence(rec) else None
     lanes = {fid: lane_direction(im, rec.camera, hood=hoods.get(fid)) for fid, im in

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -652,7 +652,7 @@ def estimate_cameras(rec, frame_ids, *, user=None, car_boxes=None, users=None, p
     frame_ids = list(frame_ids)
     t_of = {rec.frame_id(i): float(rec.frames_t[i]) for i in frame_indices(rec, frame_ids)}
     if hoods is None:
-        hoods = find_hood(rec, frame_ids)
+        hoods = find_hood(rec, frame_ids, shared=not st.per_image)
     per: dict[str, FrameCues] = {}
     for fid, im in read_frames(rec, frame_ids, progress=progress, desc="calibrate"):
         per[fid] = (FrameCues(t=t_of[fid], reasons=["frame does not decode"]) if im is None else
@@ -679,6 +679,7 @@ class CameraSettings:
         self.lane_known = self.lane_w if "lane_width_m" in (getattr(user, "model_fields_set", None) or ()) else None
         self.fit_focal = focal_was_guessed(rec)
         self.seq = is_sequence(rec)
+        self.per_image = getattr(user, "stills", "shared") == "per_image" and not self.seq
 
     def cue_kw(self) -> dict:
         return dict(cfg=self.cfg, lane_width_m=self.lane_w, roll_prior_deg=self.fixed["roll_deg"] or 0.0,
@@ -698,6 +699,7 @@ class RecordingCamera:
     mount: Mount
     cues: dict[str, FrameCues] = field(default_factory=dict)   # stills: the frames the mount was fitted on
     lane_known: float | None = None
+    per_image: bool = False                    # stills each from a camera of its own: a mount per frame
 
     def camera(self, camera: Camera) -> Camera:
         return camera if self.fx is None else Camera(camera.width, camera.height, self.fx,
@@ -743,7 +745,7 @@ def recording_camera(per: dict[str, FrameCues], angles: dict[str, dict], st: Cam
     mount = estimate_mount(cues, cam.K, sequence=seq or imu, fixed=fixed, lane_width_m=st.lane_known)
     have = {n: any(x[n + "_src"] for x in angles.values()) for n in ("pitch", "roll")}
     return RecordingCamera(fx=fx, seq=seq, imu=imu, fixed=fixed, median=median, have=have, mount=mount,
-                           cues={} if seq or imu else dict(per), lane_known=st.lane_known)
+                           cues={} if seq or imu else dict(per), lane_known=st.lane_known, per_image=st.per_image)
 
 
 def camera_of_frame(fid: str, fc: FrameCues, a: dict, rc: RecordingCamera, camera: Camera
@@ -753,6 +755,9 @@ def camera_of_frame(fid: str, fc: FrameCues, a: dict, rc: RecordingCamera, camer
     job's, outside the sample) gets its pitch and roll from the mount fitted again with it added."""
     from blendgen.analysis.mount import estimate_mount
 
+    if rc.per_image and not (rc.seq or rc.imu):  # a camera of its own: the mount its own cues give, as alone
+        own = estimate_mount({fid: fc}, rc.camera(camera).K, sequence=False, fixed=rc.fixed, lane_width_m=rc.lane_known)
+        rc = replace(rc, mount=own, cues={fid: fc})
     mount, seq, imu = rc.mount, rc.seq, rc.imu
     if seq or imu:  # the mount fit takes the frame's angles as given (the recording's median where none)
         pf = {}

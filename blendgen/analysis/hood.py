@@ -203,7 +203,7 @@ def hood_in_video(frames: list[np.ndarray]) -> tuple[list[list[float]] | None, s
     return poly, f"static bottom region of the video ({static:.0%} static)"
 
 
-def find_hood(rec, frame_ids, *, progress: bool = False) -> dict[str, list[list[float]] | None]:
+def find_hood(rec, frame_ids, *, progress: bool = False, shared: bool = True) -> dict[str, list[list[float]] | None]:
     from blendgen.recording.frames import frame_indices, is_sequence, read_frames
 
     frame_ids = list(frame_ids)
@@ -218,7 +218,7 @@ def find_hood(rec, frame_ids, *, progress: bool = False) -> dict[str, list[list[
     for fid, im in read_frames(rec, frame_ids, progress=progress, desc="hood"):
         out[fid], why = (None, "frame does not decode") if im is None else hood_in_still(im)
         log.info("%s: hood: %s", fid, why)
-    if len(out) >= CONSENSUS_MIN_FRAMES:  # stills of one camera: one hood, in most frames or none
+    if shared and len(out) >= CONSENSUS_MIN_FRAMES:  # stills of one camera: one hood, in most frames or none
         from blendgen.analysis.mount import hood_consensus
 
         out, why = hood_consensus(out, rec.camera.width, rec.camera.height)

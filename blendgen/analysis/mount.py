@@ -357,7 +357,8 @@ def estimate_mount(frames: dict[str, FrameCues], K: np.ndarray, *, sequence: boo
             d2 = np.where(robust, -1.0 / (1.0 + z) ** 2, 0.0)
             return np.stack([rho, d1, d2])
 
-        sol = least_squares(residuals, x0, loss=loss, jac_sparsity=sparsity, method="trf",
+        sol = least_squares(residuals, x0, loss=loss, method="trf",  # one unknown: scipy's sparse 2-D subspace fails
+                            jac_sparsity=sparsity if len(x0) > 1 else None,
                             x_scale="jac", xtol=1e-5, ftol=1e-6, max_nfev=60)
         x = sol.x
         J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)

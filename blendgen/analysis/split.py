@@ -131,12 +131,14 @@ def video_hood(rec, frame_ids: list[str]) -> bool:
 
 # ----------------------------------------------------------------------------- hood
 
-def stills_hood(polys: dict[str, list | None], camera: Camera) -> dict:
+def stills_hood(polys: dict[str, list | None], camera: Camera, shared: bool = True) -> dict:
     """Stills: what `hood.find_hood` decides from the sample's own hoods: one for all frames
-    ("one"), none ("none"), or each frame its own ("own")."""
+    ("one"), none ("none"), or each frame its own ("own"; always for stills of different cameras)."""
     from blendgen.analysis.hood import CONSENSUS_MIN_FRAMES
     from blendgen.analysis.mount import hood_consensus
 
+    if not shared:
+        return {"mode": "own", "hood": None, "reason": "stills of different cameras: each keeps its own hood"}
     if len(polys) < CONSENSUS_MIN_FRAMES:
         return {"mode": "own", "hood": None, "reason": f"{len(polys)} still(s): each keeps its own hood"}
     out, why = hood_consensus(polys, camera.width, camera.height)

@@ -146,7 +146,7 @@ def run_analysis(rec, frame_ids: list[str], folder: Path, gp, *, detector_model:
         t0 = time.process_time()
         detector = objects.load_detector(detector_model)
         report(before, "hood")
-        hoods = find_hood(rec, frame_ids)  # a video's hood comes from many frames
+        hoods = find_hood(rec, frame_ids, shared=getattr(gp, "stills", "shared") == "shared")  # a video's from many frames
         users = {}
         for n, (fid, image) in enumerate(read_frames(rec, todo, progress=progress, desc="road users")):
             report(before + n, "road users")

@@ -236,6 +236,9 @@ class GroundPlane(Section):
     # frame (North American markings), "left" beyond the ego lane's left edge (two-way roads
     # with white centre lines), "none" nowhere (one-way streets, divided highways).
     oncoming: Literal["auto", "left", "none"] = "auto"
+    # Stills of a recording: one camera ("shared": one mount and one hood for all) or each image
+    # from a camera of its own ("per_image": photos of different cars, e.g. a dataset's frames).
+    stills: Literal["shared", "per_image"] = "shared"
 
     @field_validator("camera_height_m", "pitch_deg", "roll_deg", mode="before")
     @classmethod

@@ -121,7 +121,7 @@ class HoodTask(AnalysisContext):
         else:
             polys = {f: (None if im is None else hood_in_still(im)[0])
                      for f, im in split.frames_at(self.rec, split.sample_ids(self.ids), self.reader)}
-            doc = split.stills_hood(polys, self.rec.camera)
+            doc = split.stills_hood(polys, self.rec.camera, shared=not self.settings.per_image)
         doc["cpu_s"] = round(time.process_time() - t0, 3)
         atomic.write_json(self.dir / "hood.json", doc)
         return {"mode": doc["mode"], "cpu_s": doc["cpu_s"]}

@@ -196,8 +196,15 @@ def first_frame(frames: int, workers: int, engine: str, n_render: int) -> dict:
     log: list[str] = []
     reader = threading.Thread(target=lambda: log.extend(p.stdout), daemon=True)
     reader.start()
+    import psutil
+
+    sup, rss = psutil.Process(p.pid), 0   # the supervisor's RSS once its task graph is built
     while p.poll() is None:
         time.sleep(0.5)
+        try:
+            rss = max(rss, sup.memory_info().rss)
+        except psutil.Error:
+            pass
         done = list((out / "frames").glob("*/composite.png")) if (out / "frames").is_dir() else []
         if done and first is None:
             first = time.perf_counter() - t0
@@ -212,7 +219,7 @@ def first_frame(frames: int, workers: int, engine: str, n_render: int) -> dict:
             if rec.get("stage") == "frames" and "timings" in rec:
                 renders.append(rec["timings"]["total"])
     d = {"frames": frames, "workers": workers, "engine": engine, "objects": list(OBJECTS), "first_frame_s": first,
-         "rendered": len(renders),
+         "rendered": len(renders), "supervisor_rss_mb": rss / 2**20,
          "render_s": renders, "load_before": load0[0], "load_after": os.getloadavg()[0], "log_tail": "".join(log[-15:])}
     print(f"{name}: first rendered frame after {first:.0f} s; {len(renders)} frames rendered "
           f"({', '.join(f'{x:.1f}' for x in renders)} s each); load {load0[0]:.1f} -> {d['load_after']:.1f}", flush=True)
@@ -310,7 +317,9 @@ def write_doc(results: dict) -> None:
                   f"{f['workers']} {f['engine']} workers, objects {f['objects'][0]}-{f['objects'][1]}, rendering at "
                   f"960x540, Cycles 16 spp + denoise, post with shadows): **{f['first_frame_s']:.0f} s** after the "
                   f"command started (load {f['load_before']:.1f} -> {f['load_after']:.1f}); {f['rendered']} frames "
-                  f"rendered before Ctrl-C, {np.median(f['render_s']):.1f} s each (median, frame work in a worker).", ""]
+                  f"rendered before Ctrl-C, {np.median(f['render_s']):.1f} s each (median, frame work in a worker)"
+                  + (f"; the supervisor's peak RSS until then {f['supervisor_rss_mb']:.0f} MB (its whole task graph "
+                     "and ledger built)" if f.get("supervisor_rss_mb") else "") + ".", ""]
     lines += estimates(rows, results.get("first", {}))
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.2))
     for e in sorted({r["engine"] for r in rows}):

@@ -171,6 +171,9 @@ def job_for(set_name: str, rec_name: str, rec: dict, args, ground_plane) -> dict
             "labels": {"real": "detector"}, "farm": {"workers": 1}, "output": str(TMP / set_name / rec_name)}
 
 
+SEVERAL_CARS = ("bdd",)  # stills from different cars: a camera mount per image
+
+
 def fixed_ground_plane(rec_name: str) -> dict:
     """The median of the aware set's per-frame camera estimates: the pose a careful user would fix."""
     done = TMP / "aware" / rec_name / "run_summary.json"
@@ -188,7 +191,9 @@ def render_set(set_name: str, recs: dict, args) -> dict:
 
     times = {}
     for rec_name, rec in recs.items():
-        gp = fixed_ground_plane(rec_name) if set_name == "noanalysis" else "auto"
+        gp = fixed_ground_plane(rec_name) if set_name == "noanalysis" else \
+            {"camera_height_m": "auto", "pitch_deg": "auto", "roll_deg": "auto", "stills": "per_image"} \
+            if rec_name in SEVERAL_CARS else "auto"
         job = job_for(set_name, rec_name, rec, args, gp)
         jp = TMP / set_name / f"{rec_name}.yaml"
         jp.parent.mkdir(parents=True, exist_ok=True)
